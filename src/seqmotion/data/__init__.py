@@ -1,0 +1,6 @@
+"""Trajectory generators and datasets, apart from any model."""
+
+from . import pancake, trajectories
+from .trajectories import TrajectoryBatch
+
+__all__ = ["TrajectoryBatch", "pancake", "trajectories"]

@@ -1,0 +1,58 @@
+"""Errors and input checks shared by the whole library.
+
+Every public entry point validates what it is given and raises ``ValueError`` (or its
+subclass :class:`CheckpointError`) naming the problem, so nothing fails silently or
+returns NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing, corrupt, mismatched, or belongs to another task."""
+
+
+def as_trajectories(
+    array: object,
+    dim: int,
+    name: str = "states",
+    min_length: int = 2,
+) -> tuple[np.ndarray, bool]:
+    """Validate a trajectory array and return it as float64 ``(B, K, dim)``.
+
+    Args:
+        array: ``(K, dim)`` or ``(B, K, dim)``, anything ``np.asarray`` accepts.
+        dim: the required size of the last axis.
+        name: how the argument is called in error messages.
+        min_length: the smallest acceptable K.
+
+    Returns:
+        ``(batch, was_single)`` where ``was_single`` tells whether a leading batch axis
+        was added (so callers can strip it again).
+    """
+    try:
+        arr = np.asarray(array, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric array, got {type(array).__name__}: {exc}") from None
+    if arr.ndim not in (2, 3):
+        raise ValueError(f"{name} must have shape (K, {dim}) or (B, K, {dim}), got shape {arr.shape}")
+    if arr.shape[-1] != dim:
+        raise ValueError(f"{name} must have {dim} columns per sample, got shape {arr.shape}")
+    if arr.shape[-2] < min_length:
+        raise ValueError(f"{name} needs at least K = {min_length} samples, got K = {arr.shape[-2]}")
+    if arr.ndim == 3 and arr.shape[0] == 0:
+        raise ValueError(f"{name} has an empty batch (B = 0)")
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0].tolist()
+        raise ValueError(f"{name} contains NaN or inf (first at index {bad})")
+    single = arr.ndim == 2
+    return (arr[None] if single else arr), single
+
+
+def check_finite_result(value: np.ndarray, what: str) -> np.ndarray:
+    """Raise instead of returning NaN/inf produced inside a computation."""
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{what} produced NaN or inf; the input is probably far outside the model's range")
+    return value

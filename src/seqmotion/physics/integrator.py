@@ -1,0 +1,148 @@
+"""The double integrator every task is built on (SPEC §2, eqs. 2.1–2.5 and 3.3–3.8).
+
+State per axis is ``[position, velocity]``; a state vector stacks all positions, then all
+velocities: ``x = [p_1..p_d, v_1..v_d]``. One step of ``dt`` seconds under acceleration ``u``::
+
+    x[k+1] = A x[k] + B u[k],   A = [[I, dt I], [0, I]],   B = [[dt²/2 I], [dt I]]
+
+Sequences are integrated in closed form with cumulative sums instead of a Python loop over
+samples: with ``S1[n] = Σ_{j<n} u[j]`` and ``S2[n] = Σ_{m<n} S1[m]``::
+
+    v[n] = v[0] + dt S1[n]
+    p[n] = p[0] + n dt v[0] + dt² (S2[n] + S1[n] / 2)
+
+Covariances follow ``S_x[k+1] = A S_x[k] Aᵀ + B S_u[k] Bᵀ`` (eq. 2.14). Inputs are
+independent across samples, so the position block after ``n`` steps is::
+
+    P[n] = P0 + n dt (X0 + X0ᵀ) + n² dt² V0 + dt⁴ Σ_{j<n} (n - j - 1/2)² S_u[j]
+
+(X = position–velocity cross covariance, V = velocity covariance) and the sum is a fixed
+lower-triangular ``C × C`` matrix applied along time: exact, with no cancellation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import torch
+
+DT = 1e-3
+"""Sampling interval used everywhere in the dissertation [s]."""
+
+
+def transition_matrices(dim: int, dt: float = DT) -> tuple[np.ndarray, np.ndarray]:
+    """``A`` (2d × 2d) and ``B`` (2d × d) of the discrete double integrator."""
+    eye = np.eye(dim)
+    a = np.block([[eye, dt * eye], [np.zeros((dim, dim)), eye]])
+    b = np.vstack([0.5 * dt**2 * eye, dt * eye])
+    return a, b
+
+
+def integrate(x0: torch.Tensor, accel: torch.Tensor, dt: float = DT) -> torch.Tensor:
+    """Integrate accelerations from ``x0`` in closed form.
+
+    Args:
+        x0: ``(..., 2d)`` initial states.
+        accel: ``(..., N, d)`` accelerations ``u[0..N-1]``.
+
+    Returns:
+        ``(..., N + 1, 2d)`` states ``x[0..N]`` (``x[0] = x0``).
+    """
+    d = accel.shape[-1]
+    p0, v0 = x0[..., :d].unsqueeze(-2), x0[..., d:].unsqueeze(-2)
+    zero = torch.zeros_like(accel[..., :1, :])
+    s1 = torch.cat([zero, accel.cumsum(-2)], dim=-2)  # S1[n], n = 0..N
+    s2 = torch.cat([zero, s1[..., :-1, :].cumsum(-2)], dim=-2)  # S2[n]
+    n = torch.arange(accel.shape[-2] + 1, dtype=accel.dtype, device=accel.device).unsqueeze(-1)
+    v = v0 + dt * s1
+    p = p0 + n * dt * v0 + dt**2 * (s2 + 0.5 * s1)
+    return torch.cat([p, v], dim=-1)
+
+
+def integrate_numpy(x0: np.ndarray, accel: np.ndarray, dt: float = DT) -> np.ndarray:
+    """NumPy float64 front end of :func:`integrate` (same shapes)."""
+    out = integrate(torch.as_tensor(np.asarray(x0, dtype=np.float64)), torch.as_tensor(accel, dtype=torch.float64), dt)
+    return out.numpy()
+
+
+def step_reference(x: np.ndarray, u: np.ndarray, dt: float = DT) -> np.ndarray:
+    """One explicit ``A x + B u`` step (the sample-by-sample reference used in tests)."""
+    a, b = transition_matrices(u.shape[-1], dt)
+    return x @ a.T + u @ b.T
+
+
+@lru_cache(maxsize=32)
+def _covariance_weights(chunk: int, dt: float, dtype: torch.dtype, device: str) -> torch.Tensor:
+    """``W[n-1, j] = dt⁴ (n - j - 1/2)²`` for ``j < n``, n = 1..C (the position block)."""
+    n = torch.arange(1, chunk + 1, dtype=torch.float64).unsqueeze(1)
+    j = torch.arange(chunk, dtype=torch.float64).unsqueeze(0)
+    w = torch.where(j < n, (n - j - 0.5) ** 2, torch.zeros(()))
+    return (dt**4 * w).to(dtype=dtype, device=device)
+
+
+@dataclass
+class CovarianceCarry:
+    """Covariance of the state at a chunk boundary, as position/cross/velocity blocks.
+
+    All fields are ``(B, d, d)``: ``pos`` = Cov(p), ``cross`` = Cov(p, v), ``vel`` = Cov(v).
+    """
+
+    pos: torch.Tensor
+    cross: torch.Tensor
+    vel: torch.Tensor
+
+    @classmethod
+    def zeros(cls, batch: int, dim: int, dtype: torch.dtype, device: torch.device) -> CovarianceCarry:
+        z = torch.zeros(batch, dim, dim, dtype=dtype, device=device)
+        return cls(z, z, z)
+
+    def reset_where(self, mask: torch.Tensor) -> CovarianceCarry:
+        """Zero the covariance of the trajectories where ``mask`` (B,) is true (a known state)."""
+        keep = (~mask).to(self.pos.dtype).view(-1, 1, 1)
+        return CovarianceCarry(self.pos * keep, self.cross * keep, self.vel * keep)
+
+
+def propagate_covariance(
+    carry: CovarianceCarry, accel_cov: torch.Tensor, dt: float = DT
+) -> tuple[torch.Tensor, CovarianceCarry]:
+    """Propagate eq. 2.14 across one chunk.
+
+    Args:
+        carry: covariance at the chunk's first state.
+        accel_cov: ``(B, C, d, d)`` covariances ``S_u`` of the chunk's accelerations.
+
+    Returns:
+        ``(pos_cov, new_carry)``: ``pos_cov`` is ``(B, C, d, d)``, the position covariance of
+        the C states that follow, and ``new_carry`` the covariance at the chunk's last state.
+    """
+    b, c, d, _ = accel_cov.shape
+    w = _covariance_weights(c, dt, accel_cov.dtype, str(accel_cov.device))
+    n = torch.arange(1, c + 1, dtype=accel_cov.dtype, device=accel_cov.device).view(1, c, 1, 1)
+    flat = accel_cov.reshape(b, c, d * d).transpose(1, 2)  # (B, d², C)
+    driven = (flat @ w.T).transpose(1, 2).reshape(b, c, d, d)
+    cross_sym = carry.cross + carry.cross.transpose(-1, -2)
+    pos = (
+        carry.pos.unsqueeze(1)
+        + n * dt * cross_sym.unsqueeze(1)
+        + (n * dt) ** 2 * carry.vel.unsqueeze(1)
+        + driven
+    )
+    # Carry to the chunk's last state: cross and velocity blocks need first/zeroth moments.
+    j = torch.arange(c, dtype=accel_cov.dtype, device=accel_cov.device).view(1, c, 1, 1)
+    sum_s = accel_cov.sum(1)
+    sum_ws = ((c - j - 0.5) * accel_cov).sum(1)
+    cross = carry.cross + c * dt * carry.vel + dt**3 * sum_ws
+    vel = carry.vel + dt**2 * sum_s
+    return pos, CovarianceCarry(pos[:, -1], cross, vel)
+
+
+def propagate_covariance_reference(accel_cov: np.ndarray, dt: float = DT) -> np.ndarray:
+    """Sample-by-sample eq. 2.14 from ``S_x[0] = 0``; returns full ``(N+1, 2d, 2d)`` (tests)."""
+    n, d, _ = accel_cov.shape
+    a, b = transition_matrices(d, dt)
+    out = np.zeros((n + 1, 2 * d, 2 * d))
+    for k in range(n):
+        out[k + 1] = a @ out[k] @ a.T + b @ accel_cov[k] @ b.T
+    return out

@@ -1,0 +1,106 @@
+"""Planar spatula–pancake physics and its friction-cone constraint (ch. 2, SPEC §3).
+
+State ``x = [y, z, θ, v_y, v_z, v_θ]`` (m, rad, m/s, rad/s); input ``u = [a_y, a_z, a_θ]``.
+The pancake stays on the spatula while the specific force it feels, ``g - u`` with
+``g = (0, -9.8)`` in (y, z), points into the friction cone around the spatula's normal.
+
+``arg(v) = atan2(v_y, -v_z)`` is the angle of v from straight down, positive toward +y, so a
+still spatula tilted by θ has ``ψ = -θ`` and holds iff ``|θ| < atan μ`` (45° for μ = 1).
+
+``ψ[k] = wrap(arg(g - u[k]) - θ[k])`` in (-π, π];  ``F_c[k] = max(0, |ψ[k]| - atan μ)`` (eq. 2.18).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..errors import as_trajectories
+
+GRAVITY = 9.8
+"""Magnitude of gravity [m/s²]; the vector is ``(0, -GRAVITY)`` in (y, z)."""
+MU = 1.0
+"""Static friction coefficient between pancake and spatula (the dissertation's value)."""
+STATE_DIM = 6
+ACCEL_DIM = 3
+
+
+def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
+    """Wrap angles into (-π, π] (differentiable: the identity between jumps)."""
+    return math.pi - torch.remainder(math.pi - angle, 2 * math.pi)
+
+
+def arg(vy: torch.Tensor, vz: torch.Tensor) -> torch.Tensor:
+    """Angle of the vector (vy, vz) measured from straight down, positive toward +y [rad].
+
+    At the zero vector (free fall: no contact force at all) the angle is defined as 0 and
+    its gradient is kept finite.
+    """
+    down = -vz
+    degenerate = (vy == 0) & (down == 0)
+    down = torch.where(degenerate, torch.full_like(down, 1e-12), down)
+    return torch.atan2(vy, down)
+
+
+def violation_angle(theta: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+    """ψ: angle between the specific force ``g - u`` and the spatula normal [rad].
+
+    Args:
+        theta: ``(...)`` spatula attitude θ.
+        accel: ``(..., 3)`` accelerations ``[a_y, a_z, a_θ]``.
+    """
+    fy = -accel[..., 0]
+    fz = -GRAVITY - accel[..., 1]
+    return wrap_angle(arg(fy, fz) - theta)
+
+
+def violation_torch(theta: torch.Tensor, accel: torch.Tensor, mu: float = MU) -> torch.Tensor:
+    """``F_c = max(0, |ψ| - atan μ)`` (eq. 2.18) in torch, differentiable. Shapes as above."""
+    return torch.relu(violation_angle(theta, accel).abs() - math.atan(mu))
+
+
+def tilt_for(accel_yz: np.ndarray) -> np.ndarray:
+    """The attitude θ at which ψ = 0 for a given (a_y, a_z): the spatula faces ``g - u``."""
+    a = torch.as_tensor(np.asarray(accel_yz, dtype=np.float64))
+    return arg(-a[..., 0], -GRAVITY - a[..., 1]).numpy()
+
+
+def _prepare(states: object, accel: object) -> tuple[torch.Tensor, torch.Tensor, bool]:
+    st, single = as_trajectories(states, STATE_DIM, "states", min_length=1)
+    ac, single_a = as_trajectories(accel, ACCEL_DIM, "accel", min_length=1)
+    if single != single_a:
+        raise ValueError(f"states and accel must both be batched or both single, got {st.shape} and {ac.shape}")
+    if st.shape[0] != ac.shape[0]:
+        raise ValueError(f"states and accel have different batch sizes: {st.shape[0]} vs {ac.shape[0]}")
+    if ac.shape[1] > st.shape[1]:
+        raise ValueError(f"accel has more samples ({ac.shape[1]}) than states ({st.shape[1]})")
+    theta = torch.as_tensor(st[:, : ac.shape[1], 2])
+    return theta, torch.as_tensor(ac), single
+
+
+def violation(states: object, accel: object, mu: float = MU) -> np.ndarray:
+    """F_c per sample (eq. 2.18) for NumPy trajectories.
+
+    Args:
+        states: ``(K, 6)`` or ``(B, K, 6)``.
+        accel: ``(N, 3)`` or ``(B, N, 3)`` with ``N ≤ K``; sample k pairs ``u[k]`` with ``θ[k]``
+            (usually ``N = K - 1``: ``u[0..K-2]``).
+        mu: static friction coefficient.
+
+    Returns:
+        ``(N,)`` or ``(B, N)`` violations [rad]; zero where the pancake holds.
+    """
+    if not mu > 0:
+        raise ValueError(f"mu must be positive, got {mu}")
+    theta, ac, single = _prepare(states, accel)
+    out = violation_torch(theta, ac, mu).numpy()
+    return out[0] if single else out
+
+
+def psi(states: object, accel: object) -> np.ndarray:
+    """ψ per sample (the quantity plotted in Figs. 2.6, 2.9, 4.3c); shapes as :func:`violation`."""
+    theta, ac, single = _prepare(states, accel)
+    out = violation_angle(theta, ac).numpy()
+    return out[0] if single else out
