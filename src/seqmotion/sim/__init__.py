@@ -1,0 +1,1 @@
+"""MuJoCo scenes, controllers and runners that execute generated motions on simulated robots."""

@@ -1,0 +1,100 @@
+"""Discrete-time filters and observers of motion control (refs. [48, 49, 80] of the dissertation).
+
+All work per joint on NumPy vectors and advance one control period ``dt`` per ``update``:
+
+* :class:`LowPass` — first-order ``g / (s + g)``.
+* :class:`PseudoDerivative` — ``g s / (s + g)``: a velocity estimate from positions.
+* :class:`DisturbanceObserver` — estimates the torque that the nominal model ``J_n θ̈ = τ``
+  does not explain, ``τ̂_dis = g/(s+g) [τ_ref + g J_n θ̇] - g J_n θ̇`` (no acceleration
+  measurement needed). Adding it back to the torque reference makes the plant behave like
+  the nominal inertia below the cutoff ``g`` [rad/s]; at 2 Hz, g = 12.57 rad/s.
+* :class:`ReactionTorqueObserver` — the same estimate minus the modelled internal torques
+  (gravity, friction), leaving the torque the environment exerts.
+
+Filters are discretised exactly for a constant input over the period (zero-order hold):
+``y ← y + (1 - e^{-g dt}) (x - y)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _check_cutoff(cutoff: float, dt: float) -> None:
+    if not cutoff > 0 or not dt > 0:
+        raise ValueError(f"cutoff and dt must be positive, got cutoff={cutoff}, dt={dt}")
+
+
+class LowPass:
+    """First-order low-pass filter ``g / (s + g)`` with cutoff ``cutoff`` [rad/s]."""
+
+    def __init__(self, cutoff: float, dt: float, initial: np.ndarray | float = 0.0) -> None:
+        _check_cutoff(cutoff, dt)
+        self.cutoff, self.dt = float(cutoff), float(dt)
+        self.alpha = 1.0 - math.exp(-cutoff * dt)
+        self.value = np.array(initial, dtype=np.float64)
+
+    def reset(self, initial: np.ndarray | float = 0.0) -> None:
+        self.value = np.array(initial, dtype=np.float64)
+
+    def update(self, x: np.ndarray | float) -> np.ndarray:
+        self.value = self.value + self.alpha * (np.asarray(x, dtype=np.float64) - self.value)
+        return self.value
+
+
+class PseudoDerivative:
+    """Velocity estimate ``g s / (s + g)`` of a position signal (cutoff ``cutoff`` [rad/s])."""
+
+    def __init__(self, cutoff: float, dt: float, initial_position: np.ndarray | float = 0.0) -> None:
+        self._lowpass = LowPass(cutoff, dt, initial_position)
+        self.cutoff = float(cutoff)
+
+    def reset(self, position: np.ndarray | float = 0.0) -> None:
+        self._lowpass.reset(position)
+
+    def update(self, position: np.ndarray | float) -> np.ndarray:
+        position = np.asarray(position, dtype=np.float64)
+        return self.cutoff * (position - self._lowpass.update(position))
+
+
+class DisturbanceObserver:
+    """Per-joint disturbance observer with nominal inertia ``J_n`` and cutoff ``g``.
+
+    Args:
+        nominal_inertia: ``(n,)`` nominal inertia per joint [kg m²] (or a scalar).
+        cutoff: observer bandwidth g [rad/s].
+        dt: control period [s].
+    """
+
+    def __init__(self, nominal_inertia: np.ndarray | float, cutoff: float, dt: float) -> None:
+        self.nominal_inertia = np.asarray(nominal_inertia, dtype=np.float64)
+        if np.any(self.nominal_inertia <= 0):
+            raise ValueError("nominal inertia must be positive")
+        self.cutoff = float(cutoff)
+        self._lowpass = LowPass(cutoff, dt, np.zeros_like(self.nominal_inertia))
+        self.estimate = np.zeros_like(self.nominal_inertia)
+
+    def reset(self, velocity: np.ndarray | float = 0.0) -> None:
+        """Start with a zero estimate at the given joint velocity."""
+        gjv = self.cutoff * self.nominal_inertia * np.asarray(velocity, dtype=np.float64)
+        self._lowpass.reset(gjv)
+        self.estimate = np.zeros_like(self.nominal_inertia)
+
+    def update(self, torque_reference: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """Advance one period with the torque just applied and the measured velocity; return τ̂_dis."""
+        gjv = self.cutoff * self.nominal_inertia * np.asarray(velocity, dtype=np.float64)
+        self.estimate = self._lowpass.update(np.asarray(torque_reference, dtype=np.float64) + gjv) - gjv
+        return self.estimate
+
+
+class ReactionTorqueObserver(DisturbanceObserver):
+    """Estimates the external (reaction) torque: the DOB estimate minus modelled internal torques."""
+
+    def update_reaction(
+        self, torque_reference: np.ndarray, velocity: np.ndarray, internal_torque: np.ndarray
+    ) -> np.ndarray:
+        """``internal_torque``: modelled gravity + friction torque the joint feels now [N m]."""
+        reference = np.asarray(torque_reference, dtype=np.float64) - np.asarray(internal_torque, dtype=np.float64)
+        return self.update(reference, velocity)
