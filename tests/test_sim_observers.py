@@ -14,7 +14,7 @@ def simulate(use_dob: bool, disturbance: float = 2.0, steps: int = 3000, dt: flo
     tau_dis = 0.0
     for _ in range(steps):
         accel_ref = -kp * theta - kd * vel
-        tau = inertia * accel_ref - (tau_dis if use_dob else 0.0)
+        tau = inertia * accel_ref + (tau_dis if use_dob else 0.0)  # plant: J θ̈ = τ - τ_dis
         vel += dt * (tau + disturbance) / inertia
         theta += dt * vel
         tau_dis = float(dob.update(tau, vel))

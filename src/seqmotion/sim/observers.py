@@ -4,10 +4,10 @@ All work per joint on NumPy vectors and advance one control period ``dt`` per ``
 
 * :class:`LowPass` — first-order ``g / (s + g)``.
 * :class:`PseudoDerivative` — ``g s / (s + g)``: a velocity estimate from positions.
-* :class:`DisturbanceObserver` — estimates the torque that the nominal model ``J_n θ̈ = τ``
-  does not explain, ``τ̂_dis = g/(s+g) [τ_ref + g J_n θ̇] - g J_n θ̇`` (no acceleration
-  measurement needed). Adding it back to the torque reference makes the plant behave like
-  the nominal inertia below the cutoff ``g`` [rad/s]; at 2 Hz, g = 12.57 rad/s.
+* :class:`DisturbanceObserver` — with the plant written as ``J_n θ̈ = τ_ref - τ_dis``, it
+  estimates ``τ̂_dis = g/(s+g) [τ_ref + g J_n θ̇] - g J_n θ̇`` (no acceleration measurement
+  needed). Commanding ``τ_ref = J_n θ̈_ref + τ̂_dis`` makes the plant behave like the
+  nominal inertia below the cutoff ``g`` [rad/s]; at 2 Hz, g = 12.57 rad/s.
 * :class:`ReactionTorqueObserver` — the same estimate minus the modelled internal torques
   (gravity, friction), leaving the torque the environment exerts.
 
@@ -45,18 +45,25 @@ class LowPass:
 
 
 class PseudoDerivative:
-    """Velocity estimate ``g s / (s + g)`` of a position signal (cutoff ``cutoff`` [rad/s])."""
+    """Velocity estimate ``g s / (s + g)`` of a position signal (cutoff ``cutoff`` [rad/s]).
+
+    Discretised as ``v[k] = (α/dt)(x[k] - w[k-1])``, ``w[k] = w[k-1] + α (x[k] - w[k-1])``
+    (α as in :class:`LowPass`), which is exact on ramps: a constant slope is estimated
+    without bias whatever ``g dt``.
+    """
 
     def __init__(self, cutoff: float, dt: float, initial_position: np.ndarray | float = 0.0) -> None:
         self._lowpass = LowPass(cutoff, dt, initial_position)
-        self.cutoff = float(cutoff)
+        self.cutoff, self._gain = float(cutoff), self._lowpass.alpha / dt
 
     def reset(self, position: np.ndarray | float = 0.0) -> None:
         self._lowpass.reset(position)
 
     def update(self, position: np.ndarray | float) -> np.ndarray:
         position = np.asarray(position, dtype=np.float64)
-        return self.cutoff * (position - self._lowpass.update(position))
+        velocity = self._gain * (position - self._lowpass.value)
+        self._lowpass.update(position)
+        return velocity
 
 
 class DisturbanceObserver:
