@@ -67,6 +67,16 @@ def integrate_numpy(x0: np.ndarray, accel: np.ndarray, dt: float = DT) -> np.nda
     return out.numpy()
 
 
+def implied_accel(states: np.ndarray, dt: float = DT) -> np.ndarray:
+    """The inputs ``u[0..K-2]`` a double integrator needs to follow the velocities of ``(..., K, 2d)`` states.
+
+    Exact for states produced by :func:`integrate` (``v[k+1] = v[k] + dt u[k]``); for any
+    other trajectory, the velocity's finite difference.
+    """
+    d = states.shape[-1] // 2
+    return np.diff(states[..., d:], axis=-2) / dt
+
+
 def step_reference(x: np.ndarray, u: np.ndarray, dt: float = DT) -> np.ndarray:
     """One explicit ``A x + B u`` step (the sample-by-sample reference used in tests)."""
     a, b = transition_matrices(u.shape[-1], dt)
@@ -146,3 +156,37 @@ def propagate_covariance_reference(accel_cov: np.ndarray, dt: float = DT) -> np.
     for k in range(n):
         out[k + 1] = a @ out[k] @ a.T + b @ accel_cov[k] @ b.T
     return out
+
+
+class DoubleIntegratorDynamics:
+    """The double integrator as a decoder's :class:`~seqmotion.models.seq2seq.ChunkDynamics`.
+
+    The carry is ``(x, cov)``: the state ``(B, 2d)`` at the chunk boundary and its
+    :class:`CovarianceCarry`. Each step integrates C mean inputs in closed form and, when
+    covariances are given, propagates them (eq. 2.14) to the positions of the C new states.
+    """
+
+    def __init__(self, dim: int, dt: float = DT) -> None:
+        self.dim, self.dt = dim, dt
+
+    def start(self, x0: torch.Tensor) -> tuple[torch.Tensor, CovarianceCarry]:
+        return x0, CovarianceCarry.zeros(x0.shape[0], self.dim, x0.dtype, x0.device)
+
+    def step(
+        self, carry: tuple[torch.Tensor, CovarianceCarry], mean: torch.Tensor, cov: torch.Tensor | None
+    ) -> tuple[tuple[torch.Tensor, CovarianceCarry], dict[str, torch.Tensor]]:
+        x, cov_carry = carry
+        states = integrate(x, mean, self.dt)[:, 1:]
+        out = {"states": states}
+        if cov is not None:
+            out["pos_cov"], cov_carry = propagate_covariance(cov_carry, cov, self.dt)
+        return (states[:, -1], cov_carry), out
+
+    def decoder_input(self, states: torch.Tensor) -> torch.Tensor:
+        return states
+
+    def restart(
+        self, carry: tuple[torch.Tensor, CovarianceCarry], state: torch.Tensor, mask: torch.Tensor
+    ) -> tuple[torch.Tensor, CovarianceCarry]:
+        x, cov_carry = carry
+        return torch.where(mask.view(-1, 1), state.to(x.dtype), x), cov_carry.reset_where(mask)

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from ..errors import as_trajectories
+from .integrator import DT, implied_accel
 
 GRAVITY = 9.8
 """Magnitude of gravity [m/s²]; the vector is ``(0, -GRAVITY)`` in (y, z)."""
@@ -103,4 +104,14 @@ def psi(states: object, accel: object) -> np.ndarray:
     """ψ per sample (the quantity plotted in Figs. 2.6, 2.9, 4.3c); shapes as :func:`violation`."""
     theta, ac, single = _prepare(states, accel)
     out = violation_angle(theta, ac).numpy()
+    return out[0] if single else out
+
+
+def violation_of_states(states: object, mu: float = MU, dt: float = DT) -> np.ndarray:
+    """F_c of a state trajectory alone, with ``u`` implied by its velocities (``(K-1,)`` or ``(B, K-1)``).
+
+    This is how a rough input motion is scored: a user sketch carries no accelerations.
+    """
+    st, single = as_trajectories(states, STATE_DIM, "states")
+    out = violation(st, implied_accel(st, dt), mu)
     return out[0] if single else out

@@ -1,0 +1,323 @@
+"""The chunked sequence-to-sequence model (Figs. 2.2, 2.4, 3.2–3.4; SPEC §§1–2).
+
+**Encoder.** Step κ reads the chunk ``x[Cκ : C(κ+1)-1]`` flattened (C × state features),
+through a linear layer into L stacked LN-LSTM layers. The latent ``z`` is the encoder's final
+memory: the cell states ``c`` of its L layers, concatenated (L·H numbers — 128 for 2 × 64,
+as in ch. 4.3.1). It is *exactly* what initialises the decoder: decoder layer l starts
+with ``c_l = z_l`` and ``h_l = 0``.
+
+**Decoder.** Step k reads the last C generated states (the first step reads
+``(x[0], …, x[0])``, eq. 2.12) and emits the next C inputs as Gaussians: means and
+covariances ``S_u`` (σ per dimension, correlation ρ for declared pairs, eq. 2.11).
+
+**Rollout.** :func:`rollout` closes the loop through a task's differentiable
+:class:`ChunkDynamics`: the C means are integrated (with their covariances) into the next
+C states, which feed the next decoder step — or, with probability ``teacher_forcing_prob``
+per trajectory and step, the true states do (scheduled sampling, ref. [24]).
+
+Sequences of any length K ≥ 2 are handled: the encoder freezes a trajectory's state after
+its last (partly padded) chunk, so a trajectory's ``z`` does not depend on what it was
+batched with; the decoder runs ``ceil(K / C)`` steps and callers keep the first K samples.
+
+Physical units are converted to network scale inside the model (``*_scale`` in the config),
+so everything outside speaks metres, radians and seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Protocol
+
+import torch
+from torch import nn
+
+from .lstm import LSTMState, StackedLSTM
+
+
+@dataclass
+class Seq2SeqConfig:
+    """Architecture of a chunked seq2seq model (JSON-serialisable).
+
+    Attributes:
+        encoder_input_dim: features per sample read by the encoder.
+        decoder_input_dim: features per sample read by the decoder.
+        output_dim: d, the dimension of the generated input (acceleration) per sample.
+        chunk: C, samples per encoder/decoder step.
+        layers, hidden: L stacked LN-LSTM layers of H cells, in the encoder and in the decoder.
+        head_hidden: width of an extra tanh linear layer before the Gaussian head (0: none;
+            500 in ch. 3).
+        correlated_pairs: index pairs of output dimensions with a learned correlation ρ
+            (``[[0, 1]]``: ρ_yz in ch. 2, ρ_xy in ch. 3).
+        encoder_input_scale, decoder_input_scale: divide the inputs by these per feature.
+        output_scale, output_offset: ``mean = offset + scale * raw`` per output dimension;
+            σ is in the same scale.
+        sigma_min: lower bound of σ as a fraction of ``output_scale`` (keeps S_u positive definite).
+    """
+
+    encoder_input_dim: int
+    decoder_input_dim: int
+    output_dim: int
+    chunk: int = 50
+    layers: int = 2
+    hidden: int = 64
+    head_hidden: int = 0
+    correlated_pairs: list[list[int]] = field(default_factory=lambda: [[0, 1]])
+    encoder_input_scale: list[float] | None = None
+    decoder_input_scale: list[float] | None = None
+    output_scale: list[float] | None = None
+    output_offset: list[float] | None = None
+    sigma_min: float = 1e-3
+
+    def __post_init__(self) -> None:
+        for name in ("encoder_input_dim", "decoder_input_dim", "output_dim", "chunk", "layers", "hidden"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+        for pair in self.correlated_pairs:
+            if len(pair) != 2 or not all(0 <= i < self.output_dim for i in pair) or pair[0] == pair[1]:
+                raise ValueError(f"correlated pair {pair} is not two distinct output dimensions")
+        dims = {
+            "encoder_input_scale": self.encoder_input_dim,
+            "decoder_input_scale": self.decoder_input_dim,
+            "output_scale": self.output_dim,
+            "output_offset": self.output_dim,
+        }
+        for name, dim in dims.items():
+            value = getattr(self, name)
+            if value is not None and len(value) != dim:
+                raise ValueError(f"{name} needs {dim} entries, got {len(value)}")
+
+    @property
+    def latent_dim(self) -> int:
+        return self.layers * self.hidden
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Seq2SeqConfig:
+        return cls(**data)
+
+
+class GaussianHead(nn.Module):
+    """Maps a decoder output to C Gaussian inputs: means ``(B, C, d)`` and covariances ``(B, C, d, d)``."""
+
+    def __init__(self, cfg: Seq2SeqConfig) -> None:
+        super().__init__()
+        self.chunk, self.dim = cfg.chunk, cfg.output_dim
+        self.pairs = [tuple(p) for p in cfg.correlated_pairs]
+        self.per_sample = 2 * self.dim + len(self.pairs)
+        width = cfg.hidden
+        layers: list[nn.Module] = []
+        if cfg.head_hidden:
+            layers += [nn.Linear(width, cfg.head_hidden), nn.Tanh()]
+            width = cfg.head_hidden
+        layers.append(nn.Linear(width, self.chunk * self.per_sample))
+        self.net = nn.Sequential(*layers)
+        with torch.no_grad():  # start from small accelerations and moderate σ
+            self.net[-1].weight.mul_(0.1)
+            self.net[-1].bias.zero_()
+        self.sigma_min = cfg.sigma_min
+        self.register_buffer("scale", torch.tensor(cfg.output_scale or [1.0] * self.dim))
+        self.register_buffer("offset", torch.tensor(cfg.output_offset or [0.0] * self.dim))
+
+    def forward(self, h: torch.Tensor, need_cov: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        raw = self.net(h).view(h.shape[0], self.chunk, self.per_sample)
+        mean = self.offset + self.scale * raw[..., : self.dim]
+        if not need_cov:
+            return mean, None
+        sigma = self.scale * (nn.functional.softplus(raw[..., self.dim : 2 * self.dim]) + self.sigma_min)
+        rho = 0.99 * torch.tanh(raw[..., 2 * self.dim :])
+        # Assemble S_u entry by entry (one stack; cheaper than diag_embed + indexed writes).
+        zero = torch.zeros_like(sigma[..., 0])
+        entries = [[zero] * self.dim for _ in range(self.dim)]
+        for i in range(self.dim):
+            entries[i][i] = sigma[..., i] ** 2
+        for p, (i, j) in enumerate(self.pairs):
+            entries[i][j] = entries[j][i] = rho[..., p] * sigma[..., i] * sigma[..., j]
+        cov = torch.stack([e for row in entries for e in row], dim=-1).view(*sigma.shape, self.dim)
+        return mean, cov
+
+
+class ChunkedSeq2Seq(nn.Module):
+    """Encoder–decoder over chunks of C samples with a Gaussian output head."""
+
+    def __init__(self, cfg: Seq2SeqConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        c = cfg.chunk
+        self.encoder_in = nn.Linear(c * cfg.encoder_input_dim, cfg.hidden)
+        self.encoder = StackedLSTM(cfg.hidden, cfg.hidden, cfg.layers)
+        self.decoder_in = nn.Linear(c * cfg.decoder_input_dim, cfg.hidden)
+        self.decoder = StackedLSTM(cfg.hidden, cfg.hidden, cfg.layers)
+        self.head = GaussianHead(cfg)
+        self.register_buffer("encoder_scale", torch.tensor(cfg.encoder_input_scale or [1.0] * cfg.encoder_input_dim))
+        self.register_buffer("decoder_scale", torch.tensor(cfg.decoder_input_scale or [1.0] * cfg.decoder_input_dim))
+
+    @property
+    def chunk(self) -> int:
+        return self.cfg.chunk
+
+    @property
+    def latent_dim(self) -> int:
+        return self.cfg.latent_dim
+
+    def num_chunks(self, length: int) -> int:
+        """Decoder steps needed to generate inputs ``u[0..K-2]`` of a length-K trajectory."""
+        return max(1, math.ceil((length - 1) / self.chunk))
+
+    def encode(self, x: torch.Tensor, lengths: torch.Tensor | None = None) -> torch.Tensor:
+        """Encode trajectories into latents.
+
+        Args:
+            x: ``(B, K, encoder_input_dim)``, padded by repeating each trajectory's last sample.
+            lengths: ``(B,)`` true lengths (default: all K).
+
+        Returns:
+            ``z`` of shape ``(B, L·H)``.
+        """
+        b, k, _ = x.shape
+        c = self.chunk
+        n = math.ceil(k / c)
+        if n * c != k:  # pad to whole chunks by repeating the last sample
+            x = torch.cat([x, x[:, -1:].expand(b, n * c - k, x.shape[2])], dim=1)
+        proj = self.encoder_in((x / self.encoder_scale).reshape(b, n, -1))
+        state = self.encoder.zero_state(b, proj)
+        chunks_per_traj = None if lengths is None else torch.ceil(lengths.to(proj.dtype) / c)
+        for kappa in range(n):
+            _, new_state = self.encoder(proj[:, kappa], state)
+            if chunks_per_traj is None:
+                state = new_state
+            else:  # freeze trajectories that have ended, so z ignores batch padding
+                active = (kappa < chunks_per_traj).unsqueeze(1)
+                state = tuple(
+                    (torch.where(active, hn, ho), torch.where(active, cn, co))
+                    for (hn, cn), (ho, co) in zip(new_state, state, strict=True)
+                )
+        return torch.cat([cell for _, cell in state], dim=1)
+
+    def initial_state(self, z: torch.Tensor) -> LSTMState:
+        """Decoder state from a latent: ``c_l = z_l``, ``h_l = 0``."""
+        if z.ndim != 2 or z.shape[1] != self.latent_dim:
+            raise ValueError(f"latent must have shape (B, {self.latent_dim}), got {tuple(z.shape)}")
+        cells = z.split(self.cfg.hidden, dim=1)
+        return tuple((torch.zeros_like(cell), cell) for cell in cells)
+
+    def decode_step(
+        self, state: LSTMState, inputs: torch.Tensor, need_cov: bool = True
+    ) -> tuple[LSTMState, torch.Tensor, torch.Tensor | None]:
+        """One decoder step.
+
+        Args:
+            state: decoder state.
+            inputs: ``(B, C, decoder_input_dim)`` the last C states (physical units).
+
+        Returns:
+            ``(state, mean (B, C, d), cov (B, C, d, d) or None)``.
+        """
+        flat = (inputs.to(self.decoder_scale.dtype) / self.decoder_scale).reshape(inputs.shape[0], -1)
+        out, state = self.decoder(self.decoder_in(flat), state)
+        mean, cov = self.head(out, need_cov)
+        return state, mean, cov
+
+
+class ChunkDynamics(Protocol):
+    """The differentiable physics a task closes the decoder's loop with.
+
+    A ``carry`` is whatever the dynamics needs at a chunk boundary (state, covariances…).
+    """
+
+    def start(self, x0: torch.Tensor) -> object:
+        """Carry for trajectories starting at states ``x0`` (B, state_dim), covariance zero."""
+        ...
+
+    def step(self, carry: object, mean: torch.Tensor, cov: torch.Tensor | None) -> tuple[object, dict]:
+        """Apply C inputs; return the new carry and this chunk's outputs.
+
+        The dict holds at least ``"states"`` (B, C, state_dim): the C states that follow;
+        with ``cov`` given also ``"pos_cov"`` (B, C, p, p) for the likelihood loss; tasks
+        may add more (e.g. the object's inputs in ch. 3).
+        """
+        ...
+
+    def decoder_input(self, states: torch.Tensor) -> torch.Tensor:
+        """Map ``(B, C, state_dim)`` states to the decoder's ``(B, C, decoder_input_dim)``."""
+        ...
+
+    def restart(self, carry: object, state: torch.Tensor, mask: torch.Tensor) -> object:
+        """Teacher forcing: where ``mask`` (B,), continue from the true ``state`` (B, state_dim)."""
+        ...
+
+
+@dataclass
+class Rollout:
+    """Everything one decoding pass produced (length N·C + 1 states for N decoder steps).
+
+    Attributes:
+        states: ``(B, N·C + 1, state_dim)``, ``states[:, 0] = x0``.
+        accel: ``(B, N·C, d)`` means of the generated inputs.
+        accel_cov: ``(B, N·C, d, d)`` or None.
+        outputs: further per-sample outputs of the dynamics (e.g. ``pos_cov`` ``(B, N·C, p, p)``
+            of ``states[:, 1:]``), concatenated over chunks.
+    """
+
+    states: torch.Tensor
+    accel: torch.Tensor
+    accel_cov: torch.Tensor | None
+    outputs: dict[str, torch.Tensor]
+
+
+def rollout(
+    model: ChunkedSeq2Seq,
+    z: torch.Tensor,
+    x0: torch.Tensor,
+    dynamics: ChunkDynamics,
+    num_chunks: int,
+    *,
+    need_cov: bool = True,
+    teacher: torch.Tensor | None = None,
+    teacher_forcing_prob: float = 0.0,
+    generator: torch.Generator | None = None,
+) -> Rollout:
+    """Run the decoder in closed loop with the dynamics (free running / scheduled sampling).
+
+    Args:
+        z: ``(B, L·H)`` latents.
+        x0: ``(B, state_dim)`` initial states.
+        num_chunks: decoder steps N.
+        teacher: ``(B, ≥ N·C + 1, state_dim)`` true states for teacher forcing.
+        teacher_forcing_prob: probability, per trajectory and decoder step, of feeding the true
+            chunk (and continuing the physics from the true state) instead of the generated one.
+        generator: random source for the teacher-forcing coin flips.
+    """
+    c = model.chunk
+    state = model.initial_state(z)
+    carry = dynamics.start(x0)
+    inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
+    use_teacher = teacher is not None and teacher_forcing_prob > 0.0
+    if use_teacher and teacher.shape[1] < num_chunks * c + 1:
+        raise ValueError(f"teacher needs {num_chunks * c + 1} samples, got {teacher.shape[1]}")
+    states, accels, covs, outputs = [x0.unsqueeze(1)], [], [], {}
+    for k in range(num_chunks):
+        state, mean, cov = model.decode_step(state, inputs, need_cov)
+        carry, out = dynamics.step(carry, mean.to(x0.dtype), None if cov is None else cov.to(x0.dtype))
+        generated = out["states"]
+        states.append(generated)
+        accels.append(mean)
+        if cov is not None:
+            covs.append(cov)
+        for key, value in out.items():
+            if key != "states":
+                outputs.setdefault(key, []).append(value)
+        inputs = dynamics.decoder_input(generated)
+        if use_teacher and k + 1 < num_chunks:
+            coin = torch.rand(x0.shape[0], generator=generator, device=x0.device) < teacher_forcing_prob
+            true_chunk = teacher[:, k * c + 1 : (k + 1) * c + 1]
+            inputs = torch.where(coin.view(-1, 1, 1), dynamics.decoder_input(true_chunk), inputs)
+            carry = dynamics.restart(carry, true_chunk[:, -1], coin)
+    return Rollout(
+        states=torch.cat(states, dim=1),
+        accel=torch.cat(accels, dim=1),
+        accel_cov=torch.cat(covs, dim=1) if covs else None,
+        outputs={key: torch.cat(value, dim=1) for key, value in outputs.items()},
+    )

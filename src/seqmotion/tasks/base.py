@@ -1,0 +1,108 @@
+"""What a task is: physics + input generators + loss + curriculum, wired to the shared model.
+
+A new task is one module in ``seqmotion/tasks/`` defining a :class:`Task` subclass and an
+instance named ``TASK``; the registry (``seqmotion.tasks.get``) finds it, so the trainer,
+checkpoints and CLI work for it with no edits elsewhere.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import asdict, dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from ..data.trajectories import TrajectoryBatch
+from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
+from ..training.curriculum import Curriculum
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a training run (JSON-serialisable, stored with every checkpoint).
+
+    Attributes:
+        task: registered task name.
+        preset: name of the preset this config came from (informational).
+        model: :class:`Seq2SeqConfig` as a dict.
+        curriculum: :class:`Curriculum` as a dict; its ``epochs`` is the run's length.
+        batches_per_epoch, batch_size: mini-batches per epoch and trajectories per mini-batch
+            (the global batch; data-parallel ranks each take an equal share).
+        lr: Adam learning rate (other Adam settings are PyTorch's defaults, as in the dissertation).
+        grad_clip: clip the global gradient norm to this (None: no clipping).
+        seed: seeds weights, data and scheduled sampling.
+        checkpoint_every: steps between checkpoints (default: once per epoch).
+        keep_checkpoints: how many training checkpoints to keep.
+        options: task-specific settings (loss weights, variance floor, lengths, ...).
+    """
+
+    task: str
+    preset: str
+    model: dict
+    curriculum: dict
+    batches_per_epoch: int
+    batch_size: int
+    lr: float = 1e-3
+    grad_clip: float | None = 1.0
+    seed: int = 0
+    checkpoint_every: int | None = None
+    keep_checkpoints: int = 2
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.batches_per_epoch < 1 or self.batch_size < 1:
+            raise ValueError("batches_per_epoch and batch_size must be positive")
+        if not self.lr > 0:
+            raise ValueError(f"lr must be positive, got {self.lr}")
+
+    @property
+    def epochs(self) -> int:
+        return int(self.curriculum["epochs"])
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TrainConfig:
+        return cls(**data)
+
+
+class Task(ABC):
+    """A learning problem for the chunked seq2seq model."""
+
+    name: ClassVar[str]
+    presets: ClassVar[tuple[str, ...]]
+
+    @abstractmethod
+    def train_config(self, preset: str) -> TrainConfig:
+        """The named configuration (at least ``"tiny"`` for tests, ``"small"`` and ``"paper"``)."""
+
+    @abstractmethod
+    def curriculum(self, config: TrainConfig) -> Curriculum:
+        """The run's schedule (normally ``Curriculum.from_dict(config.curriculum)``)."""
+
+    @abstractmethod
+    def sample(
+        self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
+    ) -> TrajectoryBatch:
+        """Draw ``n`` training trajectories for the curriculum parameters ``params``."""
+
+    @abstractmethod
+    def loss(
+        self,
+        model: ChunkedSeq2Seq,
+        batch: TrajectoryBatch,
+        params: dict[str, float],
+        config: TrainConfig,
+        generator: torch.Generator,
+    ) -> tuple[torch.Tensor, dict[str, float]]:
+        """Scalar loss to minimise and named terms to log (include ``"feasible"`` if meaningful)."""
+
+    @abstractmethod
+    def wrap(self, model: ChunkedSeq2Seq, config: dict) -> Any:
+        """The user-facing object for a trained model (``Deformer``, ``SlidingPlanner``...)."""
+
+    def build_model(self, config: TrainConfig) -> ChunkedSeq2Seq:
+        return ChunkedSeq2Seq(Seq2SeqConfig.from_dict(config.model))

@@ -1,0 +1,180 @@
+"""Curriculum, loss, checkpoints, exact resume and data-parallel training on tiny configs."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import seqmotion as sm
+from seqmotion import tasks
+from seqmotion.tasks.pancake import chapter2_curriculum
+from seqmotion.training import checkpoint as ckpt
+from seqmotion.training.curriculum import Curriculum, Stage
+from seqmotion.training.losses import gaussian_nll_1d, gaussian_nll_2d
+from seqmotion.training.trainer import train
+
+
+def test_chapter2_schedule_matches_the_dissertation():
+    c = chapter2_curriculum()
+    assert c.at(1) == {"teacher_forcing_prob": 1.0, "phi_max": math.pi / 4, "accel_type_prob": 1.0}
+    assert c.at(10, 0.99)["teacher_forcing_prob"] == 1.0
+    assert c.at(16)["teacher_forcing_prob"] == pytest.approx(0.5)  # ramp runs from start of 11 to end of 20
+    assert c.at(21)["teacher_forcing_prob"] == 0.0
+    assert c.at(36)["phi_max"] == pytest.approx(math.pi / 4 + 0.5 * (3 * math.pi / 4))
+    assert c.at(55)["phi_max"] == pytest.approx(math.pi)  # 51–60 continues 41–50
+    assert c.at(60, 0.99)["accel_type_prob"] == 1.0
+    assert c.at(70)["accel_type_prob"] == pytest.approx(0.55)
+    assert c.at(85)["accel_type_prob"] == 0.0  # 81–90 continues 91–100
+    assert Curriculum.from_dict(json.loads(json.dumps(c.to_dict()))) == c
+
+
+def test_curriculum_scaling_keeps_order_and_end_values():
+    c = chapter2_curriculum().scaled(10)
+    assert c.epochs == 10
+    assert c.at(1)["teacher_forcing_prob"] == 1.0
+    assert c.at(10, 0.99) == {"teacher_forcing_prob": 0.0, "phi_max": math.pi, "accel_type_prob": 0.0}
+
+
+def test_curriculum_rejects_bad_stages():
+    with pytest.raises(ValueError, match="start"):
+        Stage(5, 3)
+    with pytest.raises(ValueError, match="initial"):
+        Curriculum(10, {"a": 1.0}, [Stage(1, 2, {"b": 1.0})])
+    with pytest.raises(ValueError, match="after the last"):
+        Curriculum(10, {"a": 1.0}, [Stage(1, 12, {"a": 1.0})])
+
+
+def test_nll_matches_reference_and_is_finite_at_zero_covariance():
+    rng = np.random.default_rng(0)
+    diff = torch.tensor(rng.normal(size=(50, 2)))
+    l = torch.tensor(rng.normal(size=(50, 2, 2)))
+    cov = l @ l.transpose(1, 2)
+    ref = torch.distributions.MultivariateNormal(torch.zeros(2, dtype=torch.float64), cov + 1e-8 * torch.eye(2))
+    torch.testing.assert_close(gaussian_nll_2d(diff, cov), -ref.log_prob(diff))
+    zero = torch.zeros(3, 2, 2, dtype=torch.float32)
+    assert torch.isfinite(gaussian_nll_2d(torch.full((3, 2), 0.3), zero)).all()
+    assert torch.isfinite(gaussian_nll_1d(torch.full((3,), 0.3), torch.zeros(3))).all()
+
+
+def tiny_config(**changes):
+    cfg = tasks.get("pancake").train_config("tiny")
+    for k, v in changes.items():
+        setattr(cfg, k, v)
+    return cfg
+
+
+def test_resume_continues_exactly(tmp_path):
+    cfg = tiny_config()
+    train(cfg, tmp_path / "straight", progress=False)
+    train(cfg, tmp_path / "split", progress=False, stop_at_step=9)
+    train(cfg, tmp_path / "split", progress=False)
+    _, a = ckpt.read_model(tmp_path / "straight")
+    _, b = ckpt.read_model(tmp_path / "split")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    rows = (tmp_path / "split" / "metrics.csv").read_text().strip().splitlines()
+    assert len(rows) == 1 + cfg.epochs * cfg.batches_per_epoch
+
+
+def test_same_seed_same_model_other_seed_differs(tmp_path):
+    train(tiny_config(), tmp_path / "a", progress=False, stop_at_step=3)
+    train(tiny_config(), tmp_path / "b", progress=False, stop_at_step=3)
+    train(tiny_config(seed=1), tmp_path / "c", progress=False, stop_at_step=3)
+    _, a = ckpt.read_model(tmp_path / "a")
+    _, b = ckpt.read_model(tmp_path / "b")
+    _, c = ckpt.read_model(tmp_path / "c")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_resume_refuses_a_different_configuration(tmp_path):
+    train(tiny_config(), tmp_path, progress=False, stop_at_step=2)
+    with pytest.raises(sm.CheckpointError, match="different configuration"):
+        train(tiny_config(lr=0.5), tmp_path, progress=False)
+
+
+def test_learning_reduces_the_loss(tmp_path):
+    """A tiny autoencoder phase (teacher forcing on feasible inputs) must learn something."""
+    cfg = tiny_config(batches_per_epoch=30, batch_size=16, lr=3e-3)
+    initial = {"teacher_forcing_prob": 1.0, "phi_max": math.pi / 4, "accel_type_prob": 1.0}
+    cfg.curriculum = Curriculum(2, initial).to_dict()
+    train(cfg, tmp_path, progress=False)
+    import csv
+
+    with open(tmp_path / "metrics.csv") as f:
+        losses = [float(r["loss"]) for r in csv.DictReader(f)]
+    assert np.mean(losses[-10:]) < np.mean(losses[:10]) - 1.0
+
+
+def test_checkpoint_errors(tmp_path):
+    train(tiny_config(), tmp_path / "run", progress=False, stop_at_step=2)
+    model_dir = tmp_path / "run"
+    from seqmotion.tasks.pancake import Deformer
+
+    assert isinstance(sm.load(model_dir), Deformer)
+    with pytest.raises(sm.CheckpointError, match="not 'sliding'"):
+        sm.load(model_dir, expected_task="sliding")
+    # corrupt weights
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "config.json").write_text((model_dir / "config.json").read_text())
+    (bad / "model.safetensors").write_bytes(b"\x00" * 64)
+    with pytest.raises(sm.CheckpointError, match="hash mismatch|safetensors"):
+        sm.load(bad)
+    # corrupt config
+    (bad / "config.json").write_text("{not json")
+    with pytest.raises(sm.CheckpointError, match="JSON"):
+        sm.load(bad)
+    # weights that do not fit the architecture in the config
+    cfg = json.loads((model_dir / "config.json").read_text())
+    cfg["model"]["hidden"] = 32
+    cfg.pop("weights_sha256")
+    (bad / "config.json").write_text(json.dumps(cfg))
+    (bad / "model.safetensors").write_bytes((model_dir / "model.safetensors").read_bytes())
+    with pytest.raises(sm.CheckpointError, match="do not fit"):
+        sm.load(bad)
+    with pytest.raises(sm.CheckpointError, match="does not exist"):
+        sm.load(tmp_path / "nowhere")
+    assert issubclass(sm.CheckpointError, ValueError)
+
+
+def test_checkpoint_files_are_not_pickles(tmp_path):
+    train(tiny_config(), tmp_path, progress=False, stop_at_step=2)
+    latest = ckpt.latest_checkpoint(tmp_path)
+    for name in ("model.safetensors", "optimizer.safetensors"):
+        blob = (latest / name).read_bytes()
+        header_len = int.from_bytes(blob[:8], "little")  # safetensors: u64 length, JSON header, raw data
+        header = json.loads(blob[8 : 8 + header_len])
+        assert all("dtype" in v for k, v in header.items() if k != "__metadata__")
+    assert not list(tmp_path.rglob("*.tmp-*")), "temporary files left behind"
+
+
+@pytest.mark.slow
+def test_torchrun_two_processes_matches_one(tmp_path):
+    """Data-parallel training over 2 gloo processes equals single-process training of the same batches."""
+    cfg = tiny_config(batch_size=8)
+    initial = {"teacher_forcing_prob": 1.0, "phi_max": math.pi / 2, "accel_type_prob": 0.5}
+    cfg.curriculum = Curriculum(1, initial).to_dict()
+    config_path = tmp_path / "cfg.json"
+    config_path.write_text(json.dumps(cfg.to_dict()))
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import json, sys\n"
+        "from seqmotion.tasks.base import TrainConfig\n"
+        "from seqmotion.training.trainer import train\n"
+        "train(TrainConfig.from_dict(json.load(open(sys.argv[1]))), sys.argv[2], progress=False)\n"
+    )
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(sm.__file__).parents[1])}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", "--master_port=29517",
+           str(script), str(config_path), str(tmp_path / "ddp")]
+    subprocess.run(cmd, check=True, env=env, timeout=300, capture_output=True)
+    train(cfg, tmp_path / "single", progress=False)
+    _, a = ckpt.read_model(tmp_path / "ddp")
+    _, b = ckpt.read_model(tmp_path / "single")
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=1e-4, atol=1e-5)
