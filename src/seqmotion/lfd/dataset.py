@@ -1,0 +1,400 @@
+"""Demonstration datasets of the pushing task (dissertation 5.3.3) in HDF5.
+
+Sets (all seeded and deterministic; episodes cycle through the six block positions):
+
+=====================  ==========  =========  ======================================
+name                   episodes    images     purpose
+=====================  ==========  =========  ======================================
+``motions``            90 (15×6)   none       SeqAE training (motions without images)
+``pairs_default``      18 (3×6)    default    CNN training (image–motion pairs)
+``pairs_position1``    18 (3×6)    position1  CNN retraining after the camera moved
+``pairs_position2``    18 (3×6)    position2  CNN retraining after the camera moved
+=====================  ==========  =========  ======================================
+
+File layout (format ``seqmotion.lfd.pushing``, version 1). N episodes of K samples at
+``dt = 1 ms``; float arrays are float32, gzip-compressed, chunked per episode::
+
+    /                       attrs: format, version, set_name, seed, dt [s], duration [s],
+                                   n_episodes, samples (K), camera ("" if no images),
+                                   image_size, complete (False until the last episode is
+                                   written), motion_columns, phases, scene, gains (JSON)
+    /motions/master_theta   (N, K, 3)  master joint angles θ_m [rad]
+    /motions/master_dtheta  (N, K, 3)  master velocities θ̇_m (10 Hz pseudo-derivative) [rad/s]
+    /motions/master_tau     (N, K, 3)  master reaction torque τ_m (RTOB) [N m]
+    /motions/slave_theta    (N, K, 3)  slave θ_s [rad]
+    /motions/slave_dtheta   (N, K, 3)  slave θ̇_s [rad/s]
+    /motions/slave_tau      (N, K, 3)  slave τ_s [N m]
+    /motions/block_pose     (N, K, 7)  block centre [m] and quaternion (w, x, y, z)
+    /motions/hand_force     (N, K, 3)  operator's force on the master tip [N]
+    /motions/master_tip     (N, K, 3)  master tip position [m]
+    /motions/slave_tip      (N, K, 3)  slave tip position [m]
+    /motions/phase          (N, K)     int8 operator phase (index into attrs["phases"])
+    /episodes/position_index (N,) int8 block position 0..5 (seqmotion.sim.pushing.POSITIONS)
+    /episodes/side          (N,)  str  "left" / "right"
+    /episodes/distance      (N,)  block centre's distance from the centre line [m]
+    /episodes/seed_key      (N, 3) int64 (seed, set id, episode): np.random.SeedSequence(seed,
+                                   spawn_key=(set id, episode)) regenerates the episode
+    /episodes/success       (N,)  bool: block centre across the centre line at the end
+    /episodes/crossed_time  (N,)  first time the centre crossed [s] (NaN if never)
+    /episodes/n_pushes      (N,)  int8 pushes the operator made
+    /episodes/block_initial_pose (N, 7)
+    /episodes/variation/<name>   scene variation (block offset/yaw, light, tints)
+    /operator/<name>        (N,)  operator parameters (seqmotion.lfd.operator.OperatorParams)
+    /images                 (N, 64, 64, 3) uint8, only in image sets: the webcam image
+                                   taken just before the motion
+    /cameras/<name>         attrs pos, target [m], fovy [deg] of every webcam pose
+
+Phase 2 reads 20 ms motions with :meth:`PushingDataset.motion` (``every=20``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "seqmotion.lfd.pushing"
+VERSION = 1
+MOTION_KEYS = ("master_theta", "master_dtheta", "master_tau", "slave_theta", "slave_dtheta", "slave_tau")
+"""The six recorded variables, in the column order of :meth:`PushingDataset.motion`."""
+EXTRA_KEYS = ("block_pose", "hand_force", "master_tip", "slave_tip")
+_WIDTH = {"block_pose": 7}
+
+
+@dataclass(frozen=True)
+class SetSpec:
+    """A dataset to collect: ``per_position`` episodes at each of the 6 block positions.
+
+    ``camera`` names the webcam pose the image is taken from, or ``None`` for motion-only sets.
+    ``set_id`` keeps seeds of different sets apart (it enters the episode's seed key).
+    """
+
+    per_position: int
+    camera: str | None
+    set_id: int
+
+
+SETS: dict[str, SetSpec] = {
+    "motions": SetSpec(15, None, 1),
+    "pairs_default": SetSpec(3, "default", 2),
+    "pairs_position1": SetSpec(3, "position1", 3),
+    "pairs_position2": SetSpec(3, "position2", 4),
+}
+"""The dissertation's sets (5.3.3 and Table 5.3)."""
+
+DEFAULT_DURATION = 4.0
+"""Recorded length of one demonstration [s] (4000 samples at 1 ms, 200 at 20 ms)."""
+
+
+@dataclass
+class SetReport:
+    """What :func:`collect_set` did: the file, success per position (6,), wall time [s]."""
+
+    name: str
+    path: Path
+    episodes: int
+    successes: np.ndarray
+    attempts: np.ndarray
+    seconds: float
+
+    @property
+    def success_rate(self) -> float:
+        return float(self.successes.sum() / max(self.attempts.sum(), 1))
+
+
+def episode_rng(seed: int, set_id: int, episode: int) -> np.random.Generator:
+    """The random generator of one episode (operator, scene variation, perception, tremor)."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(set_id, episode)))
+
+
+def _check_seed(seed: object) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
+
+
+def _scene_description() -> dict:
+    from ..sim import pushing
+
+    return {
+        "block_size_m": list(pushing.BLOCK_SIZE),
+        "block_mass_kg": pushing.BLOCK_MASS,
+        "block_table_friction": pushing.BLOCK_TABLE_FRICTION,
+        "pen_block_friction": pushing.PEN_BLOCK_FRICTION,
+        "block_reach_x_m": pushing.BLOCK_REACH_X,
+        "distances_m": list(pushing.DISTANCES),
+        "positions": [p.name for p in pushing.POSITIONS],
+        "arm": {k: v for k, v in dataclasses.asdict(pushing.ARM).items()},
+        "default_tip_m": pushing.DEFAULT_TIP.tolist(),
+    }
+
+
+def collect_set(
+    path: str | Path,
+    name: str = "motions",
+    seed: int = 0,
+    per_position: int | None = None,
+    camera: str | None | bool = True,
+    duration: float = DEFAULT_DURATION,
+    progress: bool = False,
+    overwrite: bool = False,
+) -> SetReport:
+    """Record one dataset of scripted-operator demonstrations into an HDF5 file.
+
+    Args:
+        path: the ``.h5`` file to write.
+        name: a key of :data:`SETS` (sets the default size, camera and seed stream).
+        seed: base seed; the same seed gives the same file.
+        per_position: episodes per block position (default: the set's, e.g. 15 for ``motions``).
+        camera: ``True`` for the set's camera, ``None``/``False`` for no images, or a camera name.
+        duration: recorded length of each episode [s].
+        progress: print a progress line to stderr.
+        overwrite: replace an existing file (otherwise an existing file is an error).
+
+    Returns:
+        A :class:`SetReport`.
+    """
+    import h5py
+
+    from ..sim import pushing
+    from .operator import PHASES, OperatorParams, ScriptedOperator
+    from .teleop import BilateralGains, teleoperate
+
+    if name not in SETS:
+        raise ValueError(f"unknown dataset {name!r}; choose one of {sorted(SETS)}")
+    spec = SETS[name]
+    seed = _check_seed(seed)
+    per_position = spec.per_position if per_position is None else per_position
+    if isinstance(per_position, bool) or not isinstance(per_position, int | np.integer) or per_position < 1:
+        raise ValueError(f"per_position must be a positive integer, got {per_position!r}")
+    if camera is True:
+        camera = spec.camera
+    elif camera is False:
+        camera = None
+    if camera is not None and camera not in pushing.CAMERAS:
+        raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)} or None")
+    if not (isinstance(duration, int | float) and math.isfinite(duration) and 0.5 <= duration <= 60):
+        raise ValueError(f"duration must be between 0.5 and 60 s, got {duration!r}")
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise ValueError(f"{path} already exists (pass overwrite=True to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+
+    gains = BilateralGains()
+    steps = round(duration / gains.dt)
+    n = per_position * len(pushing.POSITIONS)
+    scene, master = pushing.PushingScene(), pushing.MasterArm()
+    successes, attempts = np.zeros(6, dtype=int), np.zeros(6, dtype=int)
+    start = time.perf_counter()
+    float_opts = {"dtype": "f4", "compression": "gzip", "compression_opts": 4, "shuffle": True}
+    try:
+        with h5py.File(path, "w") as f:
+            f.attrs.update(
+                format=FORMAT, version=VERSION, set_name=name, seed=seed, dt=gains.dt, duration=float(duration),
+                n_episodes=n, samples=steps, camera=camera or "", image_size=pushing.IMAGE_SIZE, complete=False,
+                motion_columns=json.dumps(list(_motion_columns())), phases=json.dumps(list(PHASES)),
+                scene=json.dumps(_scene_description()), gains=json.dumps(dataclasses.asdict(gains)),
+            )
+            for cam_name, cam in pushing.CAMERAS.items():
+                g = f.create_group(f"cameras/{cam_name}")
+                g.attrs.update(pos=cam.pos, target=cam.target, fovy=cam.fovy)
+            motions = f.create_group("motions")
+            for key in (*MOTION_KEYS, *EXTRA_KEYS):
+                width = _WIDTH.get(key, 3)
+                motions.create_dataset(key, shape=(n, steps, width), chunks=(1, steps, width), **float_opts)
+            motions.create_dataset("phase", shape=(n, steps), dtype="i1", chunks=(1, steps), compression="gzip")
+            images = (
+                f.create_dataset("images", shape=(n, 64, 64, 3), dtype="u1", chunks=(1, 64, 64, 3))
+                if camera is not None
+                else None
+            )
+            rows: list[dict] = []
+            for episode in range(n):
+                position = pushing.POSITIONS[episode % len(pushing.POSITIONS)]
+                rng = episode_rng(seed, spec.set_id, episode)
+                params = OperatorParams.sample(rng)
+                variation = pushing.SceneVariation.sample(rng)
+                demo = teleoperate(
+                    scene, master, ScriptedOperator(params, rng), position, duration, variation, camera, gains
+                )
+                for key in (*MOTION_KEYS, *EXTRA_KEYS):
+                    motions[key][episode] = getattr(demo, key)
+                motions["phase"][episode] = demo.phase
+                if images is not None:
+                    images[episode] = demo.image
+                rows.append(
+                    {
+                        "position_index": position.index, "side": position.side, "distance": position.distance,
+                        "seed_key": (seed, spec.set_id, episode), "success": demo.success,
+                        "crossed_time": demo.crossed_time, "n_pushes": demo.n_pushes,
+                        "block_initial_pose": demo.block_pose[0], "variation": dataclasses.asdict(variation),
+                        "operator": params.as_dict(),
+                    }
+                )
+                attempts[position.index] += 1
+                successes[position.index] += int(demo.success)
+                if progress:
+                    elapsed = time.perf_counter() - start
+                    print(
+                        f"\r[{name}] {episode + 1}/{n} episodes, {successes.sum()} successful, {elapsed:.0f} s",
+                        end="" if episode + 1 < n else "\n", file=sys.stderr, flush=True,
+                    )
+            _write_episode_table(f, rows)
+            f.attrs["complete"] = True
+    finally:
+        scene.close()
+    return SetReport(name, path, n, successes, attempts, time.perf_counter() - start)
+
+
+def _motion_columns() -> tuple[str, ...]:
+    from .teleop import MOTION_COLUMNS
+
+    return MOTION_COLUMNS
+
+
+def _write_episode_table(f, rows: list[dict]) -> None:  # noqa: ANN001 - an open h5py.File
+    """Per-episode scalars into /episodes and /operator."""
+    ep = f.create_group("episodes")
+    ep["position_index"] = np.array([r["position_index"] for r in rows], dtype=np.int8)
+    ep["side"] = np.array([r["side"] for r in rows], dtype="S5")
+    ep["distance"] = np.array([r["distance"] for r in rows])
+    ep["seed_key"] = np.array([r["seed_key"] for r in rows], dtype=np.int64)
+    ep["success"] = np.array([r["success"] for r in rows], dtype=bool)
+    ep["crossed_time"] = np.array([r["crossed_time"] for r in rows])
+    ep["n_pushes"] = np.array([r["n_pushes"] for r in rows], dtype=np.int8)
+    ep["block_initial_pose"] = np.array([r["block_initial_pose"] for r in rows])
+    var = ep.create_group("variation")
+    for key in rows[0]["variation"]:
+        var[key] = np.array([np.asarray(r["variation"][key], dtype=np.float64) for r in rows])
+    op = f.create_group("operator")
+    for key in rows[0]["operator"]:
+        op[key] = np.array([r["operator"][key] for r in rows])
+
+
+def collect(
+    out_dir: str | Path,
+    sets: Iterable[str] = tuple(SETS),
+    seed: int = 0,
+    duration: float = DEFAULT_DURATION,
+    per_position: dict[str, int] | None = None,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> dict[str, SetReport]:
+    """Collect the chapter-5 datasets into ``out_dir/<name>.h5``.
+
+    Args:
+        out_dir: output directory (created).
+        sets: which of :data:`SETS` to collect (default all four: 90 motions and 3 × 18 pairs).
+        seed: base seed of every set.
+        duration: recorded length of each episode [s].
+        per_position: optional ``{set name: episodes per position}`` overrides (for quick runs).
+        progress: print progress lines to stderr.
+        overwrite: replace existing files.
+
+    Returns:
+        ``{set name: SetReport}`` in collection order.
+    """
+    sets = list(sets) if not isinstance(sets, str) else [sets]
+    if not sets:
+        raise ValueError("no dataset named; choose from " + ", ".join(SETS))
+    unknown = [s for s in sets if s not in SETS]
+    if unknown:
+        raise ValueError(f"unknown dataset(s) {unknown}; choose from {sorted(SETS)}")
+    per_position = per_position or {}
+    bad = [k for k in per_position if k not in sets]
+    if bad:
+        raise ValueError(f"per_position names sets that are not being collected: {bad}")
+    out_dir = Path(out_dir)
+    reports = {}
+    for name in sets:
+        reports[name] = collect_set(
+            out_dir / f"{name}.h5", name, seed, per_position.get(name), True, duration, progress, overwrite
+        )
+    return reports
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class PushingDataset:
+    """A dataset read back into memory (float64 arrays).
+
+    Attributes:
+        attrs: the file's root attributes (JSON ones decoded).
+        motions: ``{key: (N, K, w)}`` for every ``/motions`` array (``phase`` is int8 ``(N, K)``).
+        episodes: ``{key: (N, ...)}`` per-episode values (``side`` as str).
+        operator: ``{parameter: (N,)}``.
+        images: ``(N, 64, 64, 3)`` uint8 or ``None``.
+    """
+
+    path: Path
+    attrs: dict
+    motions: dict[str, np.ndarray]
+    episodes: dict[str, np.ndarray]
+    operator: dict[str, np.ndarray]
+    images: np.ndarray | None
+
+    def __len__(self) -> int:
+        return len(self.episodes["success"])
+
+    @property
+    def dt(self) -> float:
+        return float(self.attrs["dt"])
+
+    def motion(self, every: int = 20, episodes: Sequence[int] | None = None) -> np.ndarray:
+        """``(N, ceil(K / every), 18)``: master θ, θ̇, τ, slave θ, θ̇, τ, every ``every``-th sample.
+
+        ``every = 20`` gives the decoder's Δt_NN = 20 ms. Samples are picked, not averaged:
+        θ̇ and τ are already low-passed at 10 Hz by the pseudo-derivative and the RTOB.
+        """
+        if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
+            raise ValueError(f"every must be a positive integer, got {every!r}")
+        index = slice(None) if episodes is None else np.asarray(episodes)
+        return np.concatenate([self.motions[k][index, ::every] for k in MOTION_KEYS], axis=-1)
+
+
+def load_dataset(path: str | Path) -> PushingDataset:
+    """Read a file written by :func:`collect_set`; ``ValueError`` if it is not one or is incomplete."""
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise ValueError(f"{path} is not a readable HDF5 file: {exc}") from None
+    with f:
+        if f.attrs.get("format") != FORMAT:
+            raise ValueError(f"{path} is not a {FORMAT} dataset (format={f.attrs.get('format')!r})")
+        if int(f.attrs.get("version", -1)) != VERSION:
+            raise ValueError(f"{path} has format version {f.attrs.get('version')}, this code reads {VERSION}")
+        if not bool(f.attrs.get("complete", False)):
+            raise ValueError(f"{path} is incomplete (its collection was interrupted)")
+        attrs = {k: _decode_attr(k, v) for k, v in f.attrs.items()}
+        motions = {
+            k: (f["motions"][k][()].astype(np.float64) if k != "phase" else f["motions"][k][()])
+            for k in f["motions"]
+        }
+        episodes = {k: f["episodes"][k][()] for k in f["episodes"] if isinstance(f["episodes"][k], h5py.Dataset)}
+        episodes["side"] = episodes["side"].astype(str)
+        episodes["variation"] = {k: v[()] for k, v in f["episodes/variation"].items()}
+        operator = {k: v[()] for k, v in f["operator"].items()}
+        images = f["images"][()] if "images" in f else None
+    return PushingDataset(path, attrs, motions, episodes, operator, images)
+
+
+def _decode_attr(key: str, value: object) -> object:
+    if key in ("motion_columns", "phases", "scene", "gains"):
+        return json.loads(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
