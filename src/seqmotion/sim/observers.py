@@ -83,11 +83,16 @@ class DisturbanceObserver:
         self._lowpass = LowPass(cutoff, dt, np.zeros_like(self.nominal_inertia))
         self.estimate = np.zeros_like(self.nominal_inertia)
 
-    def reset(self, velocity: np.ndarray | float = 0.0) -> None:
-        """Start with a zero estimate at the given joint velocity."""
+    def reset(self, velocity: np.ndarray | float = 0.0, estimate: np.ndarray | float = 0.0) -> None:
+        """Start at the given joint velocity with the given estimate (default zero).
+
+        A known static disturbance (e.g. the gravity torque of the pose the robot starts in)
+        can be given as ``estimate`` so the robot does not sag while the observer converges.
+        """
         gjv = self.cutoff * self.nominal_inertia * np.asarray(velocity, dtype=np.float64)
-        self._lowpass.reset(gjv)
-        self.estimate = np.zeros_like(self.nominal_inertia)
+        start = np.asarray(estimate, dtype=np.float64) + np.zeros_like(self.nominal_inertia)
+        self._lowpass.reset(start + gjv)
+        self.estimate = start.copy()
 
     def update(self, torque_reference: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """Advance one period with the torque just applied and the measured velocity; return τ̂_dis."""

@@ -1,0 +1,418 @@
+"""MuJoCo scenes: a MOTOMAN-MH3F-like 6-DOF arm on a table holding a spatula or a frying pan.
+
+Read this file top to bottom to see the whole robot. Everything is written here as MJCF text
+(no asset files), from the named constants below, so the geometry a test or a figure refers
+to is the geometry simulated.
+
+World frame: z up, the robot's base (joint 1 axis) at the origin on a 0.2 m riser, facing +x;
+the table top at z = :data:`TABLE_TOP` = -0.2 m, so the blade clears it everywhere the
+position-type inputs go (z ≥ -0.3 in planar coordinates) and a pancake that leaves the
+spatula lands on it. The task-space commands of the dissertation (SPEC §§4–5) are poses of the
+**tool control site**:
+
+* spatula (chs. 2, 4): ``q = [0.5, y, z + 0.35, θ, π/2, 0]``; the site is the resting centre of
+  mass of the pancake on the blade, so the planar state ``(y, z, θ)`` is the pancake's centre
+  and the blade's tilt, exactly as in the 2-D model.
+* frying pan (ch. 3): ``q = [x_p + 0.65, y_p, 0.3, 0, π/2, 0]``; the site is the centre of the
+  pan's cooking surface.
+
+Tool frame (both tools, the site's frame): **z** along the tool away from the flange, **x** the
+surface's *down* normal (into the blade / pan), **y = z × x**. With the attitude convention of
+:mod:`seqmotion.sim.kinematics` (``R = Rx(a) Ry(b) Rz(c)``), ``(a, b, c) = (0, π/2, 0)`` points
+the tool along world +x with its surface facing up, and ``a = θ`` rolls it about world x.
+
+Arm (MH3F-like, reach ≈ 0.54 m from the joint-1 axis to the wrist centre; the MH3F datasheet
+gives 532 mm): S (z), L (y), U (y), R (forearm axis), B (y), T (flange axis), all torque
+driven, joint ranges left unlimited (the controller never commands a configuration the runner
+has not reached by continuous motion; limits would only add constraint rows). Arm links do
+not collide with anything; only the tool surfaces, the table and the manipulated objects do.
+
+Contact model (chosen so that MuJoCo's friction is the Coulomb friction of the 2-D models;
+the calibration is in ``tests/test_sim_physics.py`` and ``benchmarks/RESULTS_sim.md``):
+
+* ``cone="elliptic"``: an isotropic Coulomb cone ``|f_t| ≤ μ f_n``, the cone of eq. 2.6 and of
+  the sliding model (a pyramidal cone would make friction direction dependent).
+* ``condim=3``: sliding friction only. The pancake and the object touch their tool through
+  several contact points (below), so rotation about the normal is resisted by sliding friction
+  at the points, as for a real flat contact, without MuJoCo's torsional-friction parameter.
+* ``impratio=10`` and ``noslip_iterations`` (see :data:`NOSLIP_ITERATIONS`): MuJoCo's soft
+  contacts otherwise let a loaded contact creep even inside the cone; the dissertation's model
+  sticks exactly. The NoSlip post-solver removes the creep (measured: < 0.1 mm/s at 40°).
+* ``solref="0.004 1"`` (stiff, critically damped normal contact: rest penetration ≈ 0.1 mm)
+  with ``solimp="0.95 0.99 0.001"``; physics time step :data:`PHYSICS_DT` = 0.5 ms (2 substeps
+  per 1 ms control period), so ``solref[0] ≥ 2 × timestep`` holds with margin.
+* friction rows of the object–tool contacts use ``solreffriction`` with damping
+  :data:`FRICTION_DAMPING` = 1 / timestep: a slip velocity is removed in one step, i.e. sticking
+  is a hard velocity constraint. Why: MuJoCo's friction rows relax slip velocity with the
+  contact time constant, and on an articulated arm the tool's velocity-product acceleration
+  ``J̇ q̇`` re-injects slip every step, giving a steady slip ``≈ J̇ q̇ / b`` (~1 cm/s with the
+  default ``b`` at 2 m/s tool speeds: the pancake crept 3 mm over feasible motions; a free
+  blade replaying the same motion did not). NoSlip cannot remove it (it keeps the reference
+  acceleration). With ``b = 1/h`` the creep is ~0.4 mm over such a motion. These contacts are
+  explicit ``<pair>`` elements (tool geoms have ``contype="2" conaffinity="0"`` so they are
+  not also generated dynamically).
+* friction coefficients: pancake and blade 1.0 (μ of ch. 2); object and pan 0.5 (μ = μ' of the
+  ch.-3 3-D check; MuJoCo has one coefficient for static and dynamic friction). MuJoCo mixes
+  equal-priority geoms by the maximum, so both sides of each pair carry the same value.
+* ``jacobian="dense"``: the model is small (nv = 12), and MuJoCo 4.0.0's sparse Cholesky has a
+  known bug (fixed in 4.0.1, issue #3767) that dense avoids.
+
+Objects: the pancake is a rigid disc (radius :data:`PANCAKE_RADIUS`, 1 cm thick) whose
+collision shape is a centre sphere plus a ring of spheres of radius = half its thickness — a
+flat disc with a rounded ("soft") edge; the frying-pan object is a cylinder whose base is a
+ring of small spheres (its real contact is its rim) and whose side is a cylinder geom for
+impacts with the pan's wall. Sphere–box and sphere–cylinder contacts are analytic in MuJoCo,
+so a flat object rests on several exact contact points instead of one convex-collision point.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+CONTROL_DT = 1e-3
+"""Control period [s] (SPEC §2: 1 ms everywhere)."""
+PHYSICS_DT = 5e-4
+"""MuJoCo time step [s]; the torque is held for ``CONTROL_DT / PHYSICS_DT`` steps."""
+SUBSTEPS = round(CONTROL_DT / PHYSICS_DT)
+NOSLIP_ITERATIONS = 3
+"""NoSlip post-solver sweeps per step (MuJoCo's guidance: 1–3 suppress creep strongly)."""
+GRAVITY = 9.8
+"""[m/s²], the 2-D models' value (MuJoCo's default is 9.81)."""
+
+ARM_JOINTS = ("s", "l", "u", "r", "b", "t")
+"""Joint names, base to flange (Yaskawa's S, L, U, R, B, T axes)."""
+SHOULDER_HEIGHT = 0.35
+"""Height of the L axis above the table [m] (the nominal tool height of chs. 2 and 4)."""
+SHOULDER_OFFSET = 0.03
+"""Forward offset of the L axis from the S axis [m]."""
+UPPER_ARM = 0.25
+"""L axis to U axis [m]."""
+FOREARM = 0.26
+"""U axis to the wrist centre (B axis) [m]."""
+WRIST_TO_FLANGE = 0.05
+"""B axis to the flange [m]."""
+
+# Spatula and pancake (chs. 2, 4).
+SPATULA_HANDLE = 0.085
+"""Flange to the blade's near edge [m]."""
+BLADE_HALF = (0.0015, 0.075, 0.075)
+"""Blade box half sizes along the tool (x: thickness, y: width, z: length) [m]."""
+BLADE_CENTRE = SPATULA_HANDLE + BLADE_HALF[2]
+"""Flange to the blade centre along the tool axis [m]."""
+PANCAKE_RADIUS = 0.055
+"""Outer radius of the pancake's contact shape [m]."""
+PANCAKE_HALF_THICKNESS = 0.005
+"""[m]; also the radius of its edge spheres."""
+PANCAKE_MASS = 0.08
+"""[kg] (a rubber plate of this size, as in §4.4.1)."""
+PANCAKE_RING = 8
+"""Number of edge spheres (plus one at the centre)."""
+MU_PANCAKE = 1.0
+"""Friction between pancake and spatula (SPEC §3)."""
+
+# Frying pan and object (ch. 3).
+PAN_HANDLE = 0.18
+"""Flange to the pan's rim along the tool axis [m]."""
+PAN_RADIUS = 0.12
+"""Radius of the pan's flat cooking surface [m]."""
+PAN_CENTRE = PAN_HANDLE + PAN_RADIUS
+"""Flange to the pan centre along the tool axis [m]."""
+PAN_WALL_HEIGHT = 0.035
+"""[m]"""
+PAN_WALL_SEGMENTS = 24
+OBJECT_RADIUS = 0.03
+"""[m]"""
+OBJECT_HALF_HEIGHT = 0.03
+"""[m]; tipping needs a/g > radius / half-height = 1 > μ = 0.5, so it slides before it tips."""
+OBJECT_MASS = 0.2
+"""[kg]"""
+OBJECT_FOOT_RADIUS = 0.003
+"""Radius of the spheres forming the object's base rim [m]."""
+OBJECT_FEET = 8
+MU_OBJECT = 0.5
+"""Friction between object and pan: μ = μ' = 0.5 (§3.5.1)."""
+
+TABLE_TOP = -0.2
+"""Height of the table surface [m]."""
+
+# Where the tasks put the tool (SPEC §§4–5).
+PANCAKE_ORIGIN = np.array([0.5, 0.0, 0.35])
+"""Tool position for the planar state (y, z) = (0, 0) [m]."""
+PAN_ORIGIN = np.array([0.65, 0.0, 0.3])
+"""Tool position for the pan state (x_p, y_p) = (0, 0) [m]."""
+TOOL_PITCH = math.pi / 2
+"""The fixed second attitude angle of both commands."""
+
+CONTACT_SOLREF = "0.004 1"
+CONTACT_SOLIMP = "0.95 0.99 0.001"
+CONTACT_DEFAULTS = f'condim="3" solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}"'
+"""Contact parameters shared by every colliding geom (see the module docstring)."""
+FRICTION_DAMPING = 1.0 / PHYSICS_DT
+"""Damping of the friction rows of object–tool contacts [1/s]: slip removed within one step."""
+TOOL_SURFACE = 'contype="2" conaffinity="0"'
+"""Tool surfaces touch the object only through explicit pairs (see the module docstring)."""
+
+_VISUAL = 'contype="0" conaffinity="0" group="1" density="0"'
+
+
+def import_mujoco():
+    """Import MuJoCo on first use (``import seqmotion.sim`` stays cheap).
+
+    On a Linux machine without a display, offscreen rendering needs ``MUJOCO_GL=egl``, which
+    MuJoCo reads when it is first imported; set it unless the user chose a backend.
+    """
+    if "mujoco" not in sys.modules and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+        os.environ.setdefault("MUJOCO_GL", "egl")
+    import mujoco
+
+    return mujoco
+
+
+def _arm_xml(tool: str) -> str:
+    """The arm's kinematic chain with ``tool`` (MJCF of the tool body's children) on the flange.
+
+    At zero joint angles the upper arm is vertical and the forearm and flange point along +x.
+    The tool body is rotated by Ry(π/2) from the flange so that its z axis is the flange axis
+    and its x axis points down: the arm's zero pose holds the tool at attitude (0, π/2, 0).
+    """
+    q_tool = f"{math.cos(math.pi / 4):.12f} 0 {math.sin(math.pi / 4):.12f} 0"
+    return f"""
+    <body name="base" pos="0 0 0">
+      <geom type="cylinder" size="0.09 0.05" pos="0 0 0.05" rgba="0.2 0.3 0.6 1" {_VISUAL}/>
+      <body name="link1" pos="0 0 0.1">
+        <joint name="s" axis="0 0 1" armature="0.1" damping="1.0"/>
+        <inertial pos="0.01 0 0.12" mass="6" diaginertia="0.06 0.06 0.03"/>
+        <geom type="cylinder" size="0.075 0.12" pos="0 0 0.12" rgba="0.2 0.3 0.6 1" {_VISUAL}/>
+        <body name="link2" pos="{SHOULDER_OFFSET} 0 {SHOULDER_HEIGHT - 0.1}">
+          <joint name="l" axis="0 1 0" armature="0.1" damping="1.0"/>
+          <inertial pos="0 0 {UPPER_ARM / 2}" mass="4" diaginertia="0.03 0.03 0.006"/>
+          <geom type="capsule" fromto="0 0 0 0 0 {UPPER_ARM}" size="0.05" rgba="0.85 0.85 0.9 1" {_VISUAL}/>
+          <body name="link3" pos="0 0 {UPPER_ARM}">
+            <joint name="u" axis="0 1 0" armature="0.08" damping="0.8"/>
+            <inertial pos="0.05 0 0" mass="2.5" diaginertia="0.005 0.01 0.01"/>
+            <geom type="capsule" fromto="-0.03 0 0 0.1 0 0" size="0.045" rgba="0.85 0.85 0.9 1" {_VISUAL}/>
+            <body name="link4" pos="0 0 0">
+              <joint name="r" axis="1 0 0" armature="0.02" damping="0.2"/>
+              <inertial pos="{FOREARM * 0.6} 0 0" mass="1.5" diaginertia="0.002 0.008 0.008"/>
+              <geom type="capsule" fromto="0.1 0 0 {FOREARM - 0.03} 0 0" size="0.035" rgba="0.85 0.85 0.9 1"
+                    {_VISUAL}/>
+              <body name="link5" pos="{FOREARM} 0 0">
+                <joint name="b" axis="0 1 0" armature="0.02" damping="0.2"/>
+                <inertial pos="0.02 0 0" mass="0.8" diaginertia="0.0008 0.0008 0.0008"/>
+                <geom type="cylinder" size="0.035 0.03" quat="0.7071068 0.7071068 0 0" rgba="0.2 0.3 0.6 1"
+                      {_VISUAL}/>
+                <body name="link6" pos="{WRIST_TO_FLANGE} 0 0">
+                  <joint name="t" axis="1 0 0" armature="0.01" damping="0.05"/>
+                  <inertial pos="-0.01 0 0" mass="0.2" diaginertia="0.0002 0.0002 0.0002"/>
+                  <geom type="cylinder" size="0.03 0.01" pos="-0.01 0 0" quat="0.7071068 0 0.7071068 0"
+                        rgba="0.3 0.3 0.3 1" {_VISUAL}/>
+                  <site name="flange" size="0.005"/>
+                  <body name="tool" quat="{q_tool}">
+{tool}
+                  </body>
+                </body>
+              </body>
+            </body>
+          </body>
+        </body>
+      </body>
+    </body>"""
+
+
+def _spatula_xml() -> str:
+    """Spatula in the tool frame (z along it, x down); the site is the pancake's resting centre."""
+    bx, by, bz = BLADE_HALF
+    site_x = -bx - PANCAKE_HALF_THICKNESS  # above the blade's top face by half a pancake
+    return f"""
+                    <geom name="spatula_handle" type="capsule" fromto="0 0 0 0 0 {SPATULA_HANDLE}" size="0.007"
+                          rgba="0.4 0.3 0.2 1" contype="0" conaffinity="0" group="1" mass="0.05"/>
+                    <geom name="blade" type="box" size="{bx} {by} {bz}" pos="0 0 {BLADE_CENTRE}" mass="0.1"
+                          rgba="0.75 0.75 0.78 1" {TOOL_SURFACE}/>
+                    <site name="tool" pos="{site_x} 0 {BLADE_CENTRE}" size="0.004" rgba="1 0 0 1"/>"""
+
+
+def _pan_xml() -> str:
+    """Frying pan in the tool frame; the site is the centre of its cooking surface."""
+    bottom_half = 0.004
+    wall_half_len = math.pi * PAN_RADIUS / PAN_WALL_SEGMENTS * 1.05
+    walls = []
+    for i in range(PAN_WALL_SEGMENTS):
+        phi = 2 * math.pi * i / PAN_WALL_SEGMENTS
+        y, z = (PAN_RADIUS + 0.003) * math.sin(phi), PAN_CENTRE + (PAN_RADIUS + 0.003) * math.cos(phi)
+        # Box axes: x along the pan normal, y tangential, z radial (rotate about x by -phi).
+        quat = f"{math.cos(-phi / 2):.9f} {math.sin(-phi / 2):.9f} 0 0"
+        walls.append(
+            f'<geom type="box" size="{PAN_WALL_HEIGHT / 2} {wall_half_len:.5f} 0.003" '
+            f'pos="{-PAN_WALL_HEIGHT / 2} {y:.6f} {z:.6f}" quat="{quat}" friction="{MU_OBJECT} 0.005 0.0001" '
+            f'mass="0.01" rgba="0.15 0.15 0.15 1" {CONTACT_DEFAULTS}/>'
+        )
+    wall_xml = "\n                    ".join(walls)
+    return f"""
+                    <geom name="pan_handle" type="capsule" fromto="0 0 0 -0.01 0 {PAN_HANDLE}" size="0.01"
+                          rgba="0.1 0.1 0.1 1" contype="0" conaffinity="0" group="1" mass="0.15"/>
+                    <geom name="pan" type="cylinder" size="{PAN_RADIUS + 0.006} {bottom_half}"
+                          pos="{bottom_half} 0 {PAN_CENTRE}" quat="0.7071068 0 0.7071068 0" mass="0.6"
+                          rgba="0.2 0.2 0.2 1" {TOOL_SURFACE}/>
+                    {wall_xml}
+                    <site name="tool" pos="0 0 {PAN_CENTRE}" size="0.004" rgba="1 0 0 1"/>"""
+
+
+def _pancake_xml() -> str:
+    """The pancake: a free rigid disc whose body z axis is its top face's normal."""
+    r, h, n = PANCAKE_RADIUS, PANCAKE_HALF_THICKNESS, PANCAKE_RING
+    spheres = [f'<geom name="pancake_0" type="sphere" size="{h}" pos="0 0 0" friction="{MU_PANCAKE} 0.005 0.0001" '
+               f'{CONTACT_DEFAULTS} rgba="0.9 0.7 0.3 0" group="3"/>']
+    for i in range(n):
+        phi = 2 * math.pi * i / n
+        spheres.append(
+            f'<geom name="pancake_{i + 1}" type="sphere" size="{h}" '
+            f'pos="{(r - h) * math.cos(phi):.6f} {(r - h) * math.sin(phi):.6f} 0" '
+            f'friction="{MU_PANCAKE} 0.005 0.0001" {CONTACT_DEFAULTS} rgba="0.9 0.7 0.3 0" group="3"/>'
+        )
+    # A thin disc has Ixx = Iyy = m(3r² + t²)/12 and Izz = m r²/2.
+    ixx = PANCAKE_MASS * (3 * r**2 + (2 * h) ** 2) / 12
+    izz = PANCAKE_MASS * r**2 / 2
+    sphere_xml = "\n      ".join(spheres)
+    return f"""
+    <body name="pancake" pos="0 0 1">
+      <freejoint name="pancake"/>
+      <inertial pos="0 0 0" mass="{PANCAKE_MASS}" diaginertia="{ixx:.4e} {ixx:.4e} {izz:.4e}"/>
+      <geom type="cylinder" size="{r} {h}" rgba="0.93 0.75 0.4 1" {_VISUAL}/>
+      <geom type="cylinder" size="{r * 0.6} {h * 1.02}" rgba="0.75 0.5 0.2 1" {_VISUAL}/>
+      {sphere_xml}
+    </body>"""
+
+
+def _object_xml() -> str:
+    """The cylinder on the pan: a ring of feet below, a side cylinder for impacts with the wall."""
+    r, hh, fr = OBJECT_RADIUS, OBJECT_HALF_HEIGHT, OBJECT_FOOT_RADIUS
+    feet = []
+    for i in range(OBJECT_FEET):
+        phi = 2 * math.pi * i / OBJECT_FEET
+        feet.append(
+            f'<geom name="foot_{i}" type="sphere" size="{fr}" '
+            f'pos="{(r - fr) * math.cos(phi):.6f} {(r - fr) * math.sin(phi):.6f} {-hh + fr}" '
+            f'friction="{MU_OBJECT} 0.005 0.0001" {CONTACT_DEFAULTS} rgba="0.8 0.2 0.2 0" group="3"/>'
+        )
+    feet_xml = "\n      ".join(feet)
+    side_half = hh - 0.005
+    return f"""
+    <body name="object" pos="0 0 1">
+      <freejoint name="object"/>
+      <inertial pos="0 0 0" mass="{OBJECT_MASS}" diaginertia="{OBJECT_MASS * (3 * r**2 + 4 * hh**2) / 12:.4e}
+                {OBJECT_MASS * (3 * r**2 + 4 * hh**2) / 12:.4e} {OBJECT_MASS * r**2 / 2:.4e}"/>
+      <geom type="cylinder" size="{r} {hh}" rgba="0.8 0.2 0.15 1" {_VISUAL}/>
+      <geom type="cylinder" size="{r} {side_half}" pos="0 0 0.005" friction="{MU_OBJECT} 0.005 0.0001"
+            {CONTACT_DEFAULTS} rgba="0.8 0.2 0.15 0" group="3"/>
+      {feet_xml}
+    </body>"""
+
+
+def _pairs_xml(objects: list[str], surface: str, mu: float) -> str:
+    """Explicit contact pairs between the object's contact geoms and the tool surface."""
+    rows = [
+        f'    <pair geom1="{g}" geom2="{surface}" condim="3" friction="{mu} {mu} 0.005 0.0001 0.0001" '
+        f'solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}" solreffriction="-1 {-FRICTION_DAMPING:g}"/>'
+        for g in objects
+    ]
+    return "  <contact>\n" + "\n".join(rows) + "\n  </contact>"
+
+
+def scene_xml(kind: str) -> str:
+    """The full MJCF text of the ``"pancake"`` or ``"sliding"`` scene."""
+    if kind == "pancake":
+        tool, obj = _spatula_xml(), _pancake_xml()
+        pairs = _pairs_xml([f"pancake_{i}" for i in range(PANCAKE_RING + 1)], "blade", MU_PANCAKE)
+        cameras = """
+    <camera name="front" pos="1.55 0 0.42" xyaxes="0 1 0 0 0 1" fovy="40"/>
+    <camera name="oblique" pos="1.3 -0.9 0.85" xyaxes="0.6 0.8 0 -0.3 0.22 0.93" fovy="45"/>"""
+    elif kind == "sliding":
+        tool, obj = _pan_xml(), _object_xml()
+        pairs = _pairs_xml([f"foot_{i}" for i in range(OBJECT_FEET)], "pan", MU_OBJECT)
+        cameras = """
+    <camera name="front" pos="1.5 -0.75 0.95" xyaxes="0.45 0.89 0 -0.45 0.23 0.86" fovy="45"/>
+    <camera name="top" pos="0.65 0 1.3" xyaxes="0 1 0 -1 0 0" fovy="45"/>"""
+    else:
+        raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
+    return f"""<mujoco model="seqmotion-{kind}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{PHYSICS_DT}" gravity="0 0 {-GRAVITY}" integrator="implicitfast" cone="elliptic"
+          impratio="10" noslip_iterations="{NOSLIP_ITERATIONS}" jacobian="dense" solver="Newton"
+          tolerance="1e-10"/>
+  <visual>
+    <global offwidth="1280" offheight="960"/>
+    <quality shadowsize="2048"/>
+  </visual>
+  <asset>
+    <texture name="grid" type="2d" builtin="checker" rgb1="0.82 0.78 0.7" rgb2="0.76 0.72 0.64" width="256"
+             height="256"/>
+    <material name="table" texture="grid" texrepeat="6 6"/>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.95 0.96 0.98" rgb2="0.7 0.75 0.82" width="256"
+             height="256"/>
+  </asset>
+  <worldbody>
+    <light name="key" pos="0.8 -0.6 2.0" dir="-0.3 0.3 -1" diffuse="0.8 0.8 0.8" castshadow="true"/>
+    <light name="fill" pos="1.5 1.0 1.5" dir="-1 -0.6 -0.8" diffuse="0.35 0.35 0.35" castshadow="false"/>
+    <geom name="table" type="box" size="1.0 0.9 0.02" pos="0.35 0 {TABLE_TOP - 0.02}" material="table"
+          friction="1 0.005 0.0001" {CONTACT_DEFAULTS}/>
+    <geom name="riser" type="box" size="0.13 0.13 {-TABLE_TOP / 2}" pos="0 0 {TABLE_TOP / 2}" rgba="0.35 0.35 0.38 1"
+          {_VISUAL}/>
+{cameras}
+{_arm_xml(tool)}
+{obj}
+  </worldbody>
+{pairs}
+  <actuator>
+{"".join(f'    <motor name="{j}" joint="{j}" gear="1"/>{chr(10)}' for j in ARM_JOINTS)}  </actuator>
+</mujoco>
+"""
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A compiled scene and the indices a controller and a runner need.
+
+    Attributes:
+        kind: ``"pancake"`` or ``"sliding"``.
+        model: the compiled ``mujoco.MjModel``.
+        site: id of the tool control site.
+        arm_qpos: ``(6,)`` qpos addresses of the arm joints (base to flange).
+        arm_dof: ``(6,)`` dof addresses of the arm joints.
+        body: id of the manipulated body (pancake or object).
+        body_qpos: qpos address of its free joint (position 3, then quaternion 4).
+        body_dof: dof address of its free joint (linear 3, then angular 3).
+    """
+
+    kind: str
+    model: object
+    site: int
+    arm_qpos: np.ndarray
+    arm_dof: np.ndarray
+    body: int
+    body_qpos: int
+    body_dof: int
+
+
+def build_scene(kind: str) -> Scene:
+    """Compile the ``"pancake"`` (spatula) or ``"sliding"`` (frying pan) scene."""
+    mujoco = import_mujoco()
+    model = mujoco.MjModel.from_xml_string(scene_xml(kind))
+    joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in ARM_JOINTS]
+    body_name = "pancake" if kind == "pancake" else "object"
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body_name)
+    free = model.body_jntadr[body]
+    return Scene(
+        kind=kind,
+        model=model,
+        site=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tool"),
+        arm_qpos=np.array([model.jnt_qposadr[j] for j in joint_ids]),
+        arm_dof=np.array([model.jnt_dofadr[j] for j in joint_ids]),
+        body=body,
+        body_qpos=int(model.jnt_qposadr[free]),
+        body_dof=int(model.jnt_dofadr[free]),
+    )
