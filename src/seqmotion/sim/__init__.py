@@ -26,6 +26,10 @@ _LAZY = {
     "TaskSpaceController": ("control", "TaskSpaceController"),
     "build_scene": ("scene", "build_scene"),
     "planar_reference": ("kinematics", "planar_reference"),
+    "plot_pancake_tracking": ("plots", "plot_pancake_tracking"),
+    "plot_pancake_psi": ("plots", "plot_pancake_psi"),
+    "plot_sliding": ("plots", "plot_sliding"),
+    "motions": ("motions", None),
     "pan_reference": ("kinematics", "pan_reference"),
 }
 
@@ -37,7 +41,8 @@ def __getattr__(name: str) -> Any:
         import importlib
 
         module, attr = _LAZY[name]
-        value = getattr(importlib.import_module(f"{__name__}.{module}"), attr)
+        mod = importlib.import_module(f"{__name__}.{module}")
+        value = mod if attr is None else getattr(mod, attr)
         globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -141,7 +141,7 @@ class _Log:
     wall_time: float
     simulated_time: float
     frames: list = field(default_factory=list)
-    frame_times: list = field(default_factory=list)
+    frame_steps: list = field(default_factory=list)
 
 
 def _execute(
@@ -186,6 +186,7 @@ def _execute(
            [("tool_pos", 3), ("tool_quat", 4), ("tool_twist", 6), ("body_pos", 3), ("body_quat", 4), ("torque", 6)]}
     site, bq = scene.site, scene.body_qpos
     n_settle = round(settle_time / ref.dt)
+    frame_steps_done: list[int] = []
     diverged = None
     steps = 0
     start = _time.perf_counter()
@@ -204,6 +205,7 @@ def _execute(
                 log["torque"][k] = tau
                 if recorder is not None and k in frame_steps:
                     recorder.capture(d, k * ref.dt)
+                    frame_steps_done.append(k)
                 steps = k + 1
             if not np.all(np.isfinite(tau)) or np.linalg.norm(ctl._err[:3]) > TRACKING_LIMIT:
                 diverged = f"lost tracking at t = {k * ref.dt:.3f} s (tool error {np.linalg.norm(ctl._err[:3]):.3f} m)"
@@ -227,29 +229,52 @@ def _execute(
         wall_time=wall,
         simulated_time=(n_settle + steps) * ref.dt,
         frames=[] if recorder is None else recorder.frames,
-        frame_times=[] if recorder is None else recorder.times,
+        frame_steps=frame_steps_done,
     )
 
 
-def _frame_schedule(n: int, n_motion: int, video: bool, snapshots: int, fps: float, slow_motion: float) -> set[int]:
-    steps: set[int] = set()
-    if video:
-        every = max(1, round(1.0 / (fps * slow_motion * CONTROL_DT)))
-        steps.update(range(0, n, every))
-    if snapshots:
-        steps.update(np.linspace(0, min(n, n_motion + 100) - 1, snapshots).round().astype(int).tolist())
-    return steps
+@dataclass
+class _Media:
+    """Which control periods to render, and where to write the results."""
 
+    video: str | Path | None
+    snapshots: str | Path | None
+    video_steps: set[int]
+    snapshot_steps: list[int]
+    fps: float
 
-def _write_media(log: _Log, video, snapshots, n_snapshots: int, fps: float, snap_steps: list[int]) -> None:
-    from .render import write_strip, write_video
+    @classmethod
+    def plan(cls, ref: Reference, video, snapshots, n_snapshots: int, fps: float, slow_motion: float) -> _Media:
+        video_steps: set[int] = set()
+        if video is not None:
+            if not (fps > 0 and slow_motion > 0):
+                raise ValueError(f"fps and slow_motion must be positive, got {fps} and {slow_motion}")
+            every = max(1, round(1.0 / (fps * slow_motion * ref.dt)))  # a frame every this many periods
+            video_steps = set(range(0, len(ref), every))
+        snap_steps: list[int] = []
+        if snapshots is not None:
+            if n_snapshots < 1:
+                raise ValueError(f"n_snapshots must be at least 1, got {n_snapshots}")
+            last = min(len(ref), ref.n_motion + round(0.1 / ref.dt)) - 1  # the motion and its deceleration
+            snap_steps = sorted(set(np.linspace(0, last, n_snapshots).round().astype(int).tolist()))
+        return cls(video, snapshots, video_steps, snap_steps, fps)
 
-    if video is not None:
-        write_video(log.frames, video, fps=fps)
-    if snapshots is not None:
-        times = np.asarray(log.frame_times)
-        picks = [int(np.argmin(np.abs(times - k * CONTROL_DT))) for k in snap_steps]
-        write_strip([log.frames[i] for i in picks], snapshots, labels=[f"t = {times[i]:.2f} s" for i in picks])
+    @property
+    def steps(self) -> set[int] | None:
+        return (self.video_steps | set(self.snapshot_steps)) or None
+
+    def write(self, log: _Log) -> None:
+        from .render import write_strip, write_video
+
+        by_step = dict(zip(log.frame_steps, log.frames, strict=True))
+        if not by_step:  # the run was cut short before its first frame
+            return
+        if self.video is not None:
+            write_video([by_step[k] for k in sorted(self.video_steps) if k in by_step], self.video, fps=self.fps)
+        if self.snapshots is not None:
+            picks = [k for k in self.snapshot_steps if k in by_step]
+            labels = [f"t = {k * CONTROL_DT:.2f} s" for k in picks]
+            write_strip([by_step[k] for k in picks], self.snapshots, labels=labels)
 
 
 def _single_trajectory(array: object, dim: int, name: str) -> np.ndarray:
@@ -336,6 +361,20 @@ class PancakeResult:
             "diverged": self.diverged,
         }
 
+    def describe(self) -> str:
+        """One line for people: tracking, and what the pancake did."""
+        track = f"tracking {self.position_rmse * 1e3:.1f} mm / {np.degrees(self.attitude_rmse):.2f}° RMSE"
+        if self.diverged:
+            return f"{track}; run cut short: {self.diverged}"
+        if self.contact_lost:
+            what = (f"pancake lost contact at t = {self.contact_lost_time:.3f} s "
+                    f"(max slip {self.max_slip * 1e3:.0f} mm, gap {self.max_gap * 1e3:.0f} mm)")
+        else:
+            what = f"pancake stayed on (max slip {self.max_slip * 1e3:.1f} mm, gap {self.max_gap * 1e3:.1f} mm)"
+        end = "turned over" if self.turned_over else "face up"
+        where = "on the spatula" if self.on_spatula else "off the spatula"
+        return f"{track}; {what}; ends {end}, {where}"
+
 
 def _place_on_tool(scene: Scene, height: float, offset: np.ndarray):
     """A ``place(data)`` that puts the object on the tool surface, face up, ``height`` above the site.
@@ -375,7 +414,7 @@ def run_pancake(
     video: str | Path | None = None,
     snapshots: str | Path | None = None,
     n_snapshots: int = 6,
-    camera: str = "front",
+    camera: str = "oblique",
     decel_time: float = 0.1,
     hold_time: float = 0.5,
     settle_time: float = 0.2,
@@ -397,7 +436,7 @@ def run_pancake(
         gains: ``"ch2"``, ``"ch3"``, ``"ch4"`` or a :class:`~seqmotion.sim.control.Gains`.
         video: write an MP4 here (``slow_motion`` × slower than real time, at ``fps``).
         snapshots: write a PNG strip of ``n_snapshots`` frames over the motion here.
-        camera: ``"front"`` (looks along -x at the y–z plane of the motion) or ``"oblique"``.
+        camera: ``"oblique"`` (default) or ``"front"`` (looks along -x at the y–z plane of the motion).
         decel_time, hold_time, settle_time: [s]; ``settle_time`` is held at the first pose
             before the motion so the pancake comes to rest.
         model_bias: feed gravity/Coriolis forward instead of leaving them to the DOB.
@@ -413,16 +452,13 @@ def run_pancake(
     if check_workspace and (problem := workspace_problem(ref, "pancake")) is not None:
         raise ValueError(f"the spatula command leaves the arm's workspace at {problem}")
     scene = get_scene("pancake")
-    frame_steps = _frame_schedule(len(ref), ref.n_motion, video is not None, n_snapshots if snapshots else 0,
-                                  fps, slow_motion)
+    media = _Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion)
     log = _execute(
         scene, ref, gains, model_bias=model_bias, place=_place_on_tool(scene, 0.0, np.zeros(2)),
         load=np.array([0.0, 0.0, -PANCAKE_MASS * GRAVITY]), settle_time=settle_time,
-        frame_steps=frame_steps or None, camera=camera,
+        frame_steps=media.steps, camera=camera,
     )
-    if video is not None or snapshots is not None:
-        snap = sorted(_frame_schedule(len(ref), ref.n_motion, False, n_snapshots, fps, slow_motion))
-        _write_media(log, video, snapshots, n_snapshots, fps, [k for k in snap if k < log.steps])
+    media.write(log)
     return _pancake_metrics(ref, log, arr)
 
 
@@ -558,6 +594,17 @@ class SlidingResult:
             "diverged": self.diverged,
         }
 
+    def describe(self) -> str:
+        """One line for people: how well the object followed, and whether it stayed on."""
+        parts = []
+        if self.rmse is not None:
+            parts.append(f"object RMSE {self.rmse * 1e3:.1f} mm against the command")
+        parts.append(f"pan within {self.pan_excursion * 1e3:.0f} mm of its start")
+        parts.append("object fell off" if self.fell_off else ("object tipped" if self.tipped else "object stayed on"))
+        if self.diverged:
+            parts.append(f"run cut short: {self.diverged}")
+        return "; ".join(parts)
+
 
 def run_sliding(
     plan_or_pan_states: object,
@@ -623,17 +670,14 @@ def run_sliding(
     if np.hypot(*start) > PAN_RADIUS - 0.04:
         raise ValueError(f"the object's start {start.tolist()} m is not on the pan (radius {PAN_RADIUS} m)")
     scene = get_scene("sliding")
-    frame_steps = _frame_schedule(len(ref), ref.n_motion, video is not None, n_snapshots if snapshots else 0,
-                                  fps, slow_motion)
+    media = _Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion)
     # Planar (x, y) on the pan = the tool's (z, y) axes.
     log = _execute(
         scene, ref, gains, model_bias=model_bias, place=_place_on_tool(scene, OBJECT_HALF_HEIGHT, start),
         load=np.array([0.0, 0.0, -OBJECT_MASS * GRAVITY]), settle_time=settle_time,
-        frame_steps=frame_steps or None, camera=camera,
+        frame_steps=media.steps, camera=camera,
     )
-    if video is not None or snapshots is not None:
-        snap = sorted(_frame_schedule(len(ref), ref.n_motion, False, n_snapshots, fps, slow_motion))
-        _write_media(log, video, snapshots, n_snapshots, fps, [k for k in snap if k < log.steps])
+    media.write(log)
     return _sliding_metrics(ref, log, cmd if cmd is not None else plan_rel, plan_rel)
 
 

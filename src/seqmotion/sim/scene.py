@@ -329,14 +329,14 @@ def scene_xml(kind: str) -> str:
         tool, obj = _spatula_xml(), _pancake_xml()
         pairs = _pairs_xml([f"pancake_{i}" for i in range(PANCAKE_RING + 1)], "blade", MU_PANCAKE)
         cameras = """
-    <camera name="front" pos="1.55 0 0.42" xyaxes="0 1 0 0 0 1" fovy="40"/>
-    <camera name="oblique" pos="1.3 -0.9 0.85" xyaxes="0.6 0.8 0 -0.3 0.22 0.93" fovy="45"/>"""
+    <camera name="front" pos="1.4 0 0.4" xyaxes="0 1 0 0 0 1" fovy="42"/>
+    <camera name="oblique" pos="1.25 -0.75 0.75" xyaxes="0.64 0.77 0 -0.3 0.25 0.92" fovy="45"/>"""
     elif kind == "sliding":
         tool, obj = _pan_xml(), _object_xml()
         pairs = _pairs_xml([f"foot_{i}" for i in range(OBJECT_FEET)], "pan", MU_OBJECT)
         cameras = """
     <camera name="front" pos="1.5 -0.75 0.95" xyaxes="0.45 0.89 0 -0.45 0.23 0.86" fovy="45"/>
-    <camera name="top" pos="0.65 0 1.3" xyaxes="0 1 0 -1 0 0" fovy="45"/>"""
+    <camera name="top" pos="0.65 0 0.95" xyaxes="0 1 0 -1 0 0" fovy="40"/>"""
     else:
         raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
     return f"""<mujoco model="seqmotion-{kind}">

@@ -1,0 +1,97 @@
+"""``seqmotion simulate pancake|sliding --trajectory FILE [--video out.mp4]``.
+
+``add_parser(subparsers)`` registers the ``simulate`` command on the main parser and
+``run(args)`` executes it. MuJoCo is imported only when a simulation runs.
+
+Trajectory files:
+
+* pancake — ``.npz`` with an array ``states`` ``(K, 6)``, or ``.csv`` with one sample per row
+  ``y, z, θ, v_y, v_z, v_θ`` (an optional header row is skipped); 1 ms per sample.
+* sliding — ``.npz`` with ``pan_states`` ``(K, 4)`` and optionally ``rel_states`` (the plan's
+  predicted object path) and ``command`` (the object path asked for), or ``.csv`` with rows
+  ``x_p, y_p, vx_p, vy_p``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add ``simulate`` (with ``pancake`` and ``sliding``) to the main parser's subcommands."""
+    parser = subparsers.add_parser("simulate", help="execute a motion on the simulated MuJoCo arm")
+    parser.add_argument("scene", choices=["pancake", "sliding"], help="spatula + pancake, or frying pan + object")
+    parser.add_argument("--trajectory", required=True, help=".npz or .csv at 1 ms (see `seqmotion.sim.cli`)")
+    parser.add_argument("--video", help="write an MP4 here")
+    parser.add_argument("--snapshots", help="write a PNG strip of snapshots here")
+    parser.add_argument("--gains", choices=["ch2", "ch3", "ch4"],
+                        help="controller preset (default: ch2 for pancake, ch3 for sliding)")
+    parser.add_argument("--camera", help="scene camera (pancake: oblique | front; sliding: front | top)")
+    parser.add_argument("--json", help="also write the metrics (and the logged paths) here as JSON")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
+    """Arrays from an ``.npz`` (the first key required, the rest optional) or a ``.csv`` (first key)."""
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist")
+    if path.suffix == ".npz":
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if keys[0] not in data:
+                    raise ValueError(f"{path} has no array {keys[0]!r} (has {sorted(data.files)})")
+                return {k: np.asarray(data[k]) for k in keys if k in data}
+        except (OSError, EOFError) as exc:
+            raise ValueError(f"cannot read {path}: {exc}") from None
+    if path.suffix == ".csv":
+        try:
+            arr = np.loadtxt(path, delimiter=",", ndmin=2)
+        except ValueError:  # a header row
+            try:
+                arr = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
+            except ValueError as exc:
+                raise ValueError(f"cannot read {path} as {dim} numeric columns: {exc}") from None
+        return {keys[0]: arr}
+    raise ValueError(f"unsupported trajectory file {path} (use .npz or .csv)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the simulation named by the parsed arguments; print and optionally save the metrics."""
+    from . import runner
+
+    path = Path(args.trajectory)
+    common = {"video": args.video, "snapshots": args.snapshots}
+    if args.camera:
+        common["camera"] = args.camera
+    if args.scene == "pancake":
+        arrays = _read(path, ("states",), 6)
+        result = runner.run_pancake(arrays["states"], gains=args.gains or "ch2", **common)
+        logged = {"time": result.time, "command": result.command, "response": result.response,
+                  "slip": result.slip, "gap": result.gap}
+    else:
+        arrays = _read(path, ("pan_states", "rel_states", "command"), 4)
+        pan = arrays["pan_states"]
+        if "rel_states" in arrays:
+            plan = argparse.Namespace(pan_states=pan, rel_states=arrays["rel_states"])
+            result = runner.run_sliding(plan, arrays.get("command"), gains=args.gains or "ch3", **common)
+        else:
+            result = runner.run_sliding(pan, arrays.get("command"), gains=args.gains or "ch3", **common)
+        logged = {"time": result.time, "pan_command": result.pan_command, "pan_response": result.pan_response,
+                  "object_path": result.object_path}
+    print(f"{args.scene}: {result.describe()}")
+    print(f"simulated {result.time[-1] if len(result.time) else 0:.3f} s at {result.realtime_factor:.1f}x real time")
+    for name in ("video", "snapshots"):
+        if getattr(args, name):
+            print(f"{name}: {getattr(args, name)}")
+    if args.json:
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        payload = {"metrics": result.summary(), **{k: np.asarray(v).tolist() for k, v in logged.items()}}
+        out.write_text(json.dumps(payload))
+        print(f"metrics: {out}")
+    return 0

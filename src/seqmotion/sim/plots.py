@@ -1,0 +1,108 @@
+"""Figures of the robot experiments: tracking (Fig. 2.8), ψ on the robot (Fig. 2.9), sliding (Fig. 3.8)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..physics.pancake import MU, psi
+from .runner import PancakeResult, SlidingResult
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_pancake_tracking(
+    states: np.ndarray, result: PancakeResult, path: str | Path, original: np.ndarray | None = None
+) -> Path:
+    """Fig. 2.8: y, z, θ of the original input (dotted), the command (dashed) and the robot (solid).
+
+    Args:
+        states: ``(K, 6)`` the executed command (e.g. the deformed trajectory).
+        result: what :func:`~seqmotion.sim.run_pancake` returned for ``states``.
+        original: ``(K', 6)`` the undeformed input, if any.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(6.5, 6), sharex=True)
+    t = result.time * 1e3
+    for i, (ax, name, unit) in enumerate(zip(axes, ("y", "z", "θ"), ("m", "m", "rad"), strict=True)):
+        if original is not None:
+            ax.plot(np.arange(len(original)), original[:, i], ":", color="tab:blue", label="original")
+        ax.plot(np.arange(len(states)), states[:, i], "--", color="tab:blue", label="command")
+        ax.plot(t, result.response[:, i], "-", color="tab:red", lw=1.2, label="robot")
+        ax.axvline(result.n_motion - 1, color="0.7", lw=0.8)
+        ax.set_ylabel(f"{name} [{unit}]")
+    axes[0].legend(fontsize=8, loc="best")
+    axes[-1].set_xlabel("time [ms] (grey: end of the input; then 0.1 s deceleration)")
+    fig.suptitle(f"Tracking: {result.position_rmse * 1e3:.1f} mm, {math.degrees(result.attitude_rmse):.2f}° RMSE")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
+def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu: float = MU) -> Path:
+    """Fig. 2.9: ψ of the commanded motion and of the robot's, with the friction cone shaded.
+
+    Args:
+        deformed: an object with ``states (K, 6)`` and ``accel (K-1, 3)`` (a deformer's result), or
+            a ``(K, 6)`` states array (its accelerations are taken from its velocities).
+        result: the robot run of those states.
+    """
+    plt = _pyplot()
+    if hasattr(deformed, "states"):
+        states, accel = np.asarray(deformed.states), np.asarray(deformed.accel)
+    else:
+        states = np.asarray(deformed)
+        accel = np.diff(states[:, 3:], axis=0) / 1e-3
+    k = result.n_motion
+    resp = result.response[:k]
+    resp_psi = psi(resp, np.diff(resp[:, 3:], axis=0) / 1e-3) if k >= 2 else np.zeros(0)
+    cone = math.atan(mu)
+    fig, ax = plt.subplots(figsize=(6.5, 3.2))
+    ax.axhspan(-cone, cone, color="tab:blue", alpha=0.15, label="friction cone")
+    ax.plot(np.arange(len(accel)), psi(states, accel), "--", color="tab:blue", label="command")
+    ax.plot(np.arange(len(resp_psi)), resp_psi, "-", color="tab:red", lw=1.0, label="robot")
+    ax.set(xlabel="time [ms]", ylabel="arg(g − u) − θ [rad]", ylim=(-math.pi, math.pi))
+    ax.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
+def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Path:
+    """Fig. 3.8: the object's path in the pan frame against the command, and the pan's path."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4))
+    k = result.n_motion
+    if result.command is not None:
+        axes[0].plot(result.command[:, 0], result.command[:, 1], "--", color="0.3", label="command")
+    axes[0].plot(result.object_path[:k, 0], result.object_path[:k, 1], "-", color="tab:red", label="object (robot)")
+    axes[0].set(xlabel="x_d [m]", ylabel="y_d [m]", title="(a) object, pan frame", aspect="equal")
+    axes[1].plot(result.pan_command[:k, 0], result.pan_command[:k, 1], "--", color="0.3", label="command")
+    axes[1].plot(result.pan_response[:k, 0], result.pan_response[:k, 1], "-", color="tab:blue", label="pan (robot)")
+    axes[1].set(xlabel="x_p [m]", ylabel="y_p [m]", title="(b) frying pan", aspect="equal")
+    for ax in axes:
+        ax.legend(fontsize=8)
+    rmse = "" if result.rmse is None else f"object RMSE {result.rmse * 1e3:.1f} mm"
+    fig.suptitle(f"{label} {rmse}".strip())
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
