@@ -33,9 +33,11 @@ What the operator does (dissertation Fig. 5.4), with ``s = ±1`` the side of the
    the block turns away from the pen — so, like a person, the operator steers: the pen
    slides along the face towards the side that turns the block back (``steer_gain`` metres
    per radian of block yaw, integrated with time constant ``steer_lag``).
-5. ``check``     — pause and look. If the block has not clearly crossed the centre line:
-   ``back_off`` (leave the face), ``realign`` with the block's face as it is now, and push
-   again (up to ``max_pushes`` pushes in all).
+5. ``check``     — pause and look. If the block has not clearly crossed the centre line, push
+   again (up to ``max_pushes`` pushes in all): if the pen is still behind the block's outer
+   face, ``back_off`` a centimetre, ``realign`` with the face as it is now and push; if it
+   slipped past or onto the block, ``back_off`` by lifting it clear, then approach and
+   descend again. A push that stalls for ``STALL_TIME`` is abandoned and checked.
 6. ``retract``   — lift the pen away, then ``hold``.
 
 The operator sees the slave-side block (its true pose) with Gaussian perception noise each
@@ -55,6 +57,8 @@ from ..sim.pushing import BlockPosition
 PHASES = ("wait", "approach", "descend", "push", "check", "back_off", "realign", "retract", "hold")
 """Phase names; a demonstration's ``phase`` array holds indices into this tuple."""
 _P = {name: i for i, name in enumerate(PHASES)}
+STALL_TIME = 0.6
+"""A push whose stroke has not advanced for this long [s] is abandoned (then checked and redone)."""
 
 
 @dataclass(frozen=True)
@@ -80,9 +84,10 @@ class OperatorParams:
         push_force: feed-forward force the hand leans into the stroke with [N].
         push_ramp: time to build up ``push_force`` [s].
         hesitant: whether the first push deliberately stops short (forcing a correction).
+        shortfall: how far short of the centre line a hesitant push aims the block's centre [m].
         max_pushes: pushes allowed before giving up [-].
         steer_gain: lateral shift of the aim point per radian of block yaw while pushing [m/rad].
-        steer_lag: time constant of the steering correction [s].
+        steer_lag: time constant of the steering (aim point and pen height) corrections [s].
         lag_comfort: slave-tip lag behind the target at which the operator starts to slow down [m].
         lag_stop: lag at which the operator's target stops advancing [m].
     """
@@ -105,9 +110,10 @@ class OperatorParams:
     push_force: float = 0.6
     push_ramp: float = 0.3
     hesitant: bool = False
+    shortfall: float = 0.02
     max_pushes: int = 3
     steer_gain: float = 0.05
-    steer_lag: float = 0.15
+    steer_lag: float = 0.2
     lag_comfort: float = 0.01
     lag_stop: float = 0.02
 
@@ -125,7 +131,7 @@ class OperatorParams:
             approach_height=float(rng.uniform(0.075, 0.09)),
             bulge_height=float(rng.uniform(0.0, 0.02)),
             bulge_forward=float(rng.uniform(-0.015, 0.015)),
-            push_height=float(rng.uniform(0.018, 0.032)),
+            push_height=float(rng.uniform(0.012, 0.024)),
             aim_offset=float(rng.normal(0.0, 0.005)),
             standoff=float(rng.uniform(0.004, 0.015)),
             push_speed=float(rng.uniform(0.10, 0.16)),
@@ -133,8 +139,9 @@ class OperatorParams:
             push_force=float(rng.uniform(0.4, 0.8)),
             push_ramp=float(rng.uniform(0.2, 0.4)),
             hesitant=bool(rng.random() < hesitant_probability),
+            shortfall=float(rng.uniform(0.012, 0.03)),
             steer_gain=float(rng.uniform(0.035, 0.07)),
-            steer_lag=float(rng.uniform(0.1, 0.2)),
+            steer_lag=float(rng.uniform(0.15, 0.3)),
             lag_comfort=float(rng.uniform(0.008, 0.012)),
             lag_stop=float(rng.uniform(0.016, 0.024)),
         )
@@ -192,7 +199,7 @@ class ScriptedOperator:
         self._clock = 0.0  # the operator's own pace [s]: slows down when the slave lags
         self._time = 0.0  # real time since the reset [s]
         self._relax = math.exp(-pushing.DT / 0.1)  # the lean fades with a 0.1 s time constant
-        self._steer = 0.0  # current steering offset of the aim point along x [m]
+        self._steer = np.zeros(3)  # current steering offset of the aim point [m]
         self._segment = _Segment(tip.copy(), tip.copy(), 0.0, self.params.reaction_time, np.zeros(3))
         self._tremor_decay = math.exp(-pushing.DT / 0.1)  # 0.1 s correlation time
         self._tremor_kick = p.tremor * math.sqrt(1 - self._tremor_decay**2)
@@ -211,14 +218,20 @@ class ScriptedOperator:
             block_pose: the block's pose ``(7,)`` (seen, with perception noise at planning moments).
         """
         p = self.params
+        self._slave_tip = slave_tip
         target, target_velocity, done = self._segment.at(self._clock)
         if done:
             self._next(self._clock, target, block_pose)
             target, target_velocity, _ = self._segment.at(self._clock)
         if self.phase == _P["push"]:
-            target = target + np.array([self._steering(block_pose, slave_tip), 0.0, 0.0])
+            target = target + self._steering(block_pose, slave_tip)
             lag = self.side * (slave_tip[1] - target[1])  # how far the slave trails along the stroke
             pace = min(1.0, max(0.0, (p.lag_stop - lag) / (p.lag_stop - p.lag_comfort)))
+            self._stalled = self._stalled + pushing.DT if pace < 0.1 else 0.0
+            if self._stalled > STALL_TIME:  # the stroke is stuck (pen caught on the block): stop and look
+                self._stalled = 0.0
+                self._next(self._clock, target, block_pose)
+                target, target_velocity, _ = self._segment.at(self._clock)
         else:
             pace = 1.0
         self._clock += pace * pushing.DT
@@ -237,22 +250,23 @@ class ScriptedOperator:
         return force * (p.force_limit / norm) if norm > p.force_limit else force
 
     # -- decisions ---------------------------------------------------------------------------------
-    def _steering(self, block_pose: np.ndarray, slave_tip: np.ndarray) -> float:
-        """Shift [m] of the aim point along x that keeps the block from turning away.
+    def _steering(self, block_pose: np.ndarray, slave_tip: np.ndarray) -> np.ndarray:
+        """Shift ``(3,)`` [m] of the aim point that keeps the slave's pen where it should push.
 
         The operator watches where the *slave's* pen touches the face and integrates the
-        error to the point it wants: the block's centre, moved by ``side * steer_gain * yaw``.
-        (The slave's pen sits off the master's aim by the arm's compliance, so a proportional
-        correction alone would leave the pen off-centre and the block would keep turning.)
+        error to the point it wants: along x, the block's centre moved by
+        ``side * steer_gain * yaw`` so that a turning block is turned back; along z, the push
+        height (the contact force lifts the slave's pen, whose position follows the master
+        only through the soft bilateral coupling, so the operator presses it back down).
         """
         p = self.params
         w, z = block_pose[3], block_pose[6]
         yaw = 2.0 * math.atan2(z, w)  # the block only turns about the vertical
         # Pushing towards -side*y at an offset dx from the centre turns the block by -side*dx*F;
         # putting the pen at +side*k*yaw therefore turns it back.
-        wanted = block_pose[0] + p.aim_offset + self.side * p.steer_gain * yaw
-        self._steer += pushing.DT / p.steer_lag * (wanted - slave_tip[0])
-        self._steer = min(max(self._steer, -0.03), 0.03)  # a person would not chase the block further
+        turn_back = min(max(self.side * p.steer_gain * yaw, -0.015), 0.015)
+        error = np.array([block_pose[0] + p.aim_offset + turn_back - slave_tip[0], 0.0, 0.0])
+        self._steer = np.clip(self._steer + pushing.DT / p.steer_lag * error, -0.02, 0.02)
         return self._steer
 
     def _look(self, block_pose: np.ndarray) -> np.ndarray:
@@ -289,15 +303,15 @@ class ScriptedOperator:
             # Aim the block's centre past the line; a hesitant first push stops short of it.
             goal_centre = -s * (p.overshoot + 0.01 * (self.n_pushes - 1))
             if p.hesitant and self.n_pushes == 1:
-                goal_centre = s * 0.012
+                goal_centre = s * p.shortfall
             end = here.copy()
             end[1] = goal_centre + s * (pushing.BLOCK_SIZE[1] / 2 + pushing.ARM.pen_radius)
             stroke = abs(end[1] - here[1])
             self._move("push", t, here, end, (0.15 + stroke / p.push_speed) / p.speed)
-            self._push_x, self._steer, self._push_start = float(here[0]), 0.0, self._time
+            self._steer, self._push_start, self._stalled = np.zeros(3), self._time, 0.0
             self._push_block_y, self._yielded, self._lean = float(block_pose[1]), False, 0.0
         elif phase == "push":
-            here = here + np.array([self._steer, 0.0, 0.0])  # keep the steered aim point
+            here = here + self._steer  # keep the steered aim point
             self._move("check", t, here, here, 0.15 / p.speed)
         elif phase == "check":
             block = self._look(block_pose)
@@ -306,10 +320,24 @@ class ScriptedOperator:
                 lifted[2] = p.approach_height
                 self._move("retract", t, here, lifted, 0.4 / p.speed)
             else:
-                away = here + np.array([0.0, s * 0.012, 0.0])
-                self._move("back_off", t, here, away, 0.2 / p.speed)
+                yaw = 2.0 * math.atan2(block_pose[6], block_pose[3])
+                face_y = block[1] + s * pushing.BLOCK_SIZE[1] / 2
+                pen = self._slave_tip
+                self._quick = s * (pen[1] - face_y) > 0.0 and abs(yaw) < math.radians(20) and pen[2] < 0.045
+                if self._quick:  # still behind the face: step back and push again
+                    away = here + np.array([0.0, s * 0.012, 0.0])
+                    self._move("back_off", t, here, away, 0.15 / p.speed)
+                else:  # slipped past or onto the block: lift the pen clear, then go round
+                    up = here.copy()
+                    up[2] = p.approach_height
+                    self._move("back_off", t, here, up, 0.25 / p.speed)
         elif phase == "back_off":
-            ready = self._behind(self._look(block_pose), p.push_height)
-            self._move("realign", t, here, ready, 0.3 / p.speed)
+            if self._quick:
+                ready = self._behind(self._look(block_pose), p.push_height)
+                self._move("realign", t, here, ready, 0.25 / p.speed)
+            else:
+                above = self._behind(self._look(block_pose), p.approach_height)
+                distance = float(np.linalg.norm(above - here))
+                self._move("approach", t, here, above, (0.2 + distance / 0.22) / p.speed)
         else:  # retract or hold: keep the hand where it is
             self._move("hold", t, here, here, 10.0)
