@@ -111,3 +111,16 @@ def test_inverse_kinematics_reaches_the_poses_and_refuses_the_unreachable():
         assert planar_tilt(d.site_xmat[scene.site].reshape(3, 3)) == pytest.approx(theta, abs=1e-6)
     with pytest.raises(ValueError, match="reach"):
         solve_ik(scene, np.array([1.5, 0.0, 0.35]), ref.quat[0])
+
+
+def test_observer_can_start_from_a_known_disturbance():
+    from seqmotion.sim.observers import DisturbanceObserver
+
+    dob = DisturbanceObserver(np.ones(3), cutoff=12.57, dt=1e-3)
+    known = np.array([1.0, -2.0, 0.5])
+    dob.reset(velocity=np.array([0.3, 0.0, -0.1]), estimate=known)
+    assert dob.estimate == pytest.approx(known)
+    # At rest, applying exactly the disturbance-cancelling command keeps the estimate there.
+    for _ in range(100):
+        out = dob.update(known, np.array([0.3, 0.0, -0.1]))
+    assert out == pytest.approx(known)

@@ -190,3 +190,14 @@ def test_pancake_env_drops_the_pancake_when_tilted_too_far():
         _, reward, terminated, _, _ = env.step(np.array([0.0, 0.0, math.radians(60)]))
         steps += 1
     assert terminated and reward == 0.0
+
+
+def test_figures_are_written(tmp_path, pancake_result):
+    from seqmotion.sim import plot_pancake_psi, plot_pancake_tracking, plot_sliding
+
+    states = straight((0.05, 0.03, 0.4), 150)
+    assert plot_pancake_tracking(states, pancake_result, tmp_path / "a.png", original=states).stat().st_size > 0
+    deformed = SimpleNamespace(states=states, accel=np.diff(states[:, 3:], axis=0) / 1e-3)
+    assert plot_pancake_psi(deformed, pancake_result, tmp_path / "b.png").stat().st_size > 0
+    sliding = run_sliding(np.zeros((50, 4)), np.zeros((50, 4)), hold_time=0.0, decel_time=0.0)
+    assert plot_sliding(sliding, tmp_path / "c.png", label="still").stat().st_size > 0

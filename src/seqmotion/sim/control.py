@@ -169,6 +169,16 @@ class TaskSpaceController:
         self._command = start.copy()
         self.disturbance = start.copy()
 
+    @property
+    def last_error(self) -> np.ndarray:
+        """``(6,)`` pose error ``[p_cmd - p, rotvec(R_cmd Rᵀ)]`` of the latest :meth:`torque` call [m, rad]."""
+        return self._err
+
+    @property
+    def last_twist(self) -> np.ndarray:
+        """``(6,)`` measured tool ``[v, ω]`` of the latest :meth:`torque` call [m/s, rad/s]."""
+        return self._twist
+
     def tool_twist(self, data) -> np.ndarray:
         """The site's world-frame ``[v, ω]`` ``(6,)`` [m/s, rad/s] (needs current kinematics)."""
         self._mj.mj_jacSite(self.scene.model, data, self._jac[:3], self._jac[3:], self.scene.site)

@@ -205,7 +205,7 @@ def _execute(
                 tau = ctl.torque(d, ref.pos[k], ref.quat[k], twist[k], accel[k])
                 log["tool_pos"][k] = d.site_xpos[site]
                 log["tool_quat"][k] = d.site_xquat[site]
-                log["tool_twist"][k] = ctl._twist  # measured by the controller at this state
+                log["tool_twist"][k] = ctl.last_twist  # measured by the controller at this state
                 log["body_pos"][k] = d.qpos[bq : bq + 3]
                 log["body_quat"][k] = d.qpos[bq + 3 : bq + 7]
                 log["torque"][k] = tau
@@ -214,7 +214,7 @@ def _execute(
                     frame_steps_done.append(k)
                 steps = k + 1
             # Cheap per-period checks (NaN fails every comparison): torque finite, tool within reach of the command.
-            err = ctl._err
+            err = ctl.last_error
             if not (tau @ tau < 1e12) or not (err[0] * err[0] + err[1] * err[1] + err[2] * err[2] < limit2):
                 diverged = f"lost tracking at t = {k * ref.dt:.3f} s (tool error {np.linalg.norm(err[:3]):.3f} m)"
                 break
