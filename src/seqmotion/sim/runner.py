@@ -430,6 +430,7 @@ def run_pancake(
     hold_time: float = 0.5,
     settle_time: float = 0.2,
     model_bias: bool = False,
+    accel_feedforward: bool = True,
     check_workspace: bool = True,
     fps: float = 30.0,
     slow_motion: float = 4.0,
@@ -451,6 +452,9 @@ def run_pancake(
         decel_time, hold_time, settle_time: [s]; ``settle_time`` is held at the first pose
             before the motion so the pancake comes to rest.
         model_bias: feed gravity/Coriolis forward instead of leaving them to the DOB.
+        accel_feedforward: feed the states' accelerations forward (default). Without it the PD
+            acts on position and velocity errors only; §4.4.1 is ambiguous on this, and the
+            acceleration then lags the plan (see ``benchmarks/RESULTS_sim.md``).
         check_workspace: refuse (``ValueError``) commands the arm cannot reach.
 
     Returns:
@@ -460,6 +464,8 @@ def run_pancake(
     _check_times(decel_time=decel_time, hold_time=hold_time, settle_time=settle_time)
     gains = resolve_gains(gains)
     ref = planar_reference(arr, decel_time=decel_time, hold_time=hold_time)
+    if not accel_feedforward:
+        ref.acc[:], ref.alpha[:] = 0.0, 0.0
     if check_workspace and (problem := workspace_problem(ref, "pancake")) is not None:
         raise ValueError(f"the spatula command leaves the arm's workspace at {problem}")
     scene = get_scene("pancake")
@@ -634,6 +640,7 @@ def run_sliding(
     hold_time: float = 0.2,
     settle_time: float = 0.2,
     model_bias: bool = False,
+    accel_feedforward: bool = True,
     check_workspace: bool = True,
     fps: float = 30.0,
     slow_motion: float = 2.0,
@@ -653,7 +660,8 @@ def run_sliding(
             the RMSE is measured against it. Without it, a plan's ``rel_states`` are used.
         gains: ``"ch3"`` (default), ``"ch2"``, ``"ch4"`` or a :class:`~seqmotion.sim.control.Gains`.
         video, snapshots, n_snapshots, camera (``"front"`` or ``"top"``), decel_time, hold_time,
-        settle_time, model_bias, check_workspace, fps, slow_motion: as in :func:`run_pancake`.
+        settle_time, model_bias, accel_feedforward, check_workspace, fps, slow_motion: as in
+        :func:`run_pancake`.
 
     Returns:
         A :class:`SlidingResult`.
@@ -679,6 +687,8 @@ def run_sliding(
     _check_times(decel_time=decel_time, hold_time=hold_time, settle_time=settle_time)
     gains = resolve_gains(gains)
     ref = pan_reference(pan, decel_time=decel_time, hold_time=hold_time)
+    if not accel_feedforward:
+        ref.acc[:], ref.alpha[:] = 0.0, 0.0
     if check_workspace and (problem := workspace_problem(ref, "sliding")) is not None:
         raise ValueError(f"the pan command leaves the arm's workspace at {problem}")
     start = cmd[0] if cmd is not None else (plan_rel[0, :2] if plan_rel is not None else np.zeros(2))
