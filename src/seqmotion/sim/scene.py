@@ -23,9 +23,10 @@ the tool along world +x with its surface facing up, and ``a = θ`` rolls it abou
 
 Arm (MH3F-like, reach ≈ 0.54 m from the joint-1 axis to the wrist centre; the MH3F datasheet
 gives 532 mm): S (z), L (y), U (y), R (forearm axis), B (y), T (flange axis), all torque
-driven, joint ranges left unlimited (the controller never commands a configuration the runner
-has not reached by continuous motion; limits would only add constraint rows). Arm links do
-not collide with anything; only the tool surfaces, the table and the manipulated objects do.
+driven without torque limits; joint ranges are not modelled (the tasks stay well inside the
+MH3F's ±170°…±360° axes, and :func:`seqmotion.sim.runner.workspace_problem` keeps commands
+inside the reach). Arm links do not collide with anything; only the tool surfaces, the table
+and the manipulated objects do.
 
 Contact model (chosen so that MuJoCo's friction is the Coulomb friction of the 2-D models;
 the calibration is in ``tests/test_sim_physics.py`` and ``benchmarks/RESULTS_sim.md``):
@@ -36,8 +37,8 @@ the calibration is in ``tests/test_sim_physics.py`` and ``benchmarks/RESULTS_sim
   several contact points (below), so rotation about the normal is resisted by sliding friction
   at the points, as for a real flat contact, without MuJoCo's torsional-friction parameter.
 * ``impratio=10`` (MuJoCo's advice for manipulation): friction rows stiffer than normal rows,
-  so a loaded contact inside the cone does not creep (measured: 2 µm/s at 40°, below).
-* ``solref="0.004 1"`` (stiff, critically damped normal contact: rest penetration ≈ 0.1 mm)
+  so a loaded contact inside the cone barely creeps (measured: 3 µm in 1.5 s held at 40°).
+* ``solref="0.004 1"`` (stiff, critically damped normal contact: the pancake rests ~25 µm deep)
   with ``solimp="0.95 0.99 0.001"``; physics time step :data:`PHYSICS_DT` = 0.5 ms (2 substeps
   per 1 ms control period), so ``solref[0] ≥ 2 × timestep`` holds with margin.
 * friction rows of the object–tool contacts use ``solreffriction`` with damping
