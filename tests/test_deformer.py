@@ -52,11 +52,11 @@ def test_online_generator_fed_its_own_states_reproduces_deform(deformer):
     np.testing.assert_array_equal(accel, r.accel)  # bit for bit
     # and closing the loop with the library's own integrator gives the same motion
     g.reset()
-    x, outs = states[0], []
-    for k in range(deformer.model.num_chunks(95)):
-        u = g.step(None if k == 0 else chunk_states)
-        chunk_states = integrator.integrate_numpy(x, u)[1:]
-        x = chunk_states[-1]
+    x, outs, measured = states[0], [], None
+    for _ in range(deformer.model.num_chunks(95)):
+        u = g.step(measured)
+        measured = integrator.integrate_numpy(x, u)[1:]
+        x = measured[-1]
         outs.append(u)
     np.testing.assert_allclose(np.concatenate(outs)[:94], r.accel, rtol=1e-6, atol=1e-6)
 

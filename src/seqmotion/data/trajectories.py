@@ -164,3 +164,23 @@ def path_states(
     duration = (lengths[:, None, None] - 1) * dt
     vel = dpos * ds[..., None] / duration
     return np.concatenate([pos, vel], axis=-1)
+
+
+def uniform_bspline(control: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Evaluate uniform cubic B-splines and their first two derivatives.
+
+    Args:
+        control: ``(B, N, dim)`` control points, N ≥ 4, on a uniform knot grid.
+        u: ``(B, K)`` spline parameters in ``[0, N - 3]`` (segment index plus fraction).
+
+    Returns:
+        ``(value, d/du, d²/du²)``, each ``(B, K, dim)``.
+    """
+    n = control.shape[1]
+    seg = np.clip(np.floor(u).astype(np.int64), 0, n - 4)
+    t = (u - seg)[..., None]
+    basis = ((1 - t) ** 3 / 6, (3 * t**3 - 6 * t**2 + 4) / 6, (-3 * t**3 + 3 * t**2 + 3 * t + 1) / 6, t**3 / 6)
+    d1 = (-((1 - t) ** 2) / 2, (3 * t**2 - 4 * t) / 2, (-3 * t**2 + 2 * t + 1) / 2, t**2 / 2)
+    d2 = (1 - t, 3 * t - 2, -3 * t + 1, t)
+    pts = [np.take_along_axis(control, (seg + j)[..., None], axis=1) for j in range(4)]
+    return tuple(sum(w * p for w, p in zip(ws, pts, strict=True)) for ws in (basis, d1, d2))  # type: ignore[return-value]

@@ -1,0 +1,137 @@
+"""Command trajectories for sliding manipulation (ch. 3 §3.4.2, SPEC §4).
+
+A command is the object's state relative to the pan, ``x_d = [x, y, vx, vy]`` (K, 4), from
+rest at 0. Two families, seeded and vectorised:
+
+* **physics type** — random pan shaking rolled out through the contact model. The pan's
+  position is a uniform cubic B-spline through random control points 40–120 ms apart with a
+  random amplitude of 5–30 mm, so its acceleration often exceeds μg and the object slides;
+  the pan trajectory that produced the command is kept (``extras["pan_states"]``) for the
+  supervised loss L'.
+* **B-spline type** — the object's relative acceleration ``u_d`` is a uniform cubic B-spline
+  through random control points 100–300 ms apart, integrated to ``x_d`` and scaled so the
+  object travels at most 10–80 mm from its start: arbitrary paths with no pan behind them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..physics import sliding as contact
+from ..physics.integrator import DT, integrate
+from .trajectories import TrajectoryBatch, draw_lengths, normalized_time, repeat_last, s_curve, uniform_bspline
+
+DEFAULT_LENGTH = (500, 1500)
+SHAKE_SPACING_MS = (40, 120)
+SHAKE_AMPLITUDE = (0.005, 0.03)  # m
+COMMAND_SPACING_MS = (100, 300)
+COMMAND_REACH = (0.01, 0.08)  # m: the farthest the object gets from its start
+
+
+def _knots(rng: np.random.Generator, lengths: np.ndarray, spacing_ms: tuple[int, int], dt: float):
+    """Per trajectory: samples per B-spline segment and the parameter u of every sample."""
+    samples_per_segment = rng.uniform(*spacing_ms, size=len(lengths)) * 1e-3 / dt
+    k = np.arange(int(lengths.max()) - 1)[None, :]
+    u = np.minimum(k, lengths[:, None] - 2) / samples_per_segment[:, None]
+    n_control = int(np.ceil(u.max())) + 4
+    return samples_per_segment, u, n_control
+
+
+def physics_type(
+    n: int,
+    rng: np.random.Generator,
+    *,
+    length: int | tuple[int, int] | np.ndarray = DEFAULT_LENGTH,
+    mu: float = contact.MU,
+    mu_dyn: float = contact.MU_DYN,
+    dt: float = DT,
+) -> TrajectoryBatch:
+    """Commands produced by random pan shaking (returns the pan's states too, in ``extras``)."""
+    lengths = draw_lengths(rng, n, length)
+    per_segment, u, n_control = _knots(rng, lengths, SHAKE_SPACING_MS, dt)
+    amplitude = rng.uniform(*SHAKE_AMPLITUDE, size=(n, 1, 1))
+    control = amplitude * rng.normal(size=(n, n_control, 2))
+    control[:, :3] = 0.0  # start at rest at the origin
+    _, _, d2 = uniform_bspline(control, u)
+    pan_accel = d2 / (per_segment[:, None, None] * dt) ** 2
+    valid = np.arange(pan_accel.shape[1])[None, :] < (lengths[:, None] - 1)
+    pan_accel = np.where(valid[..., None], pan_accel, 0.0)
+    pan_states, rel_states = contact.rollout(pan_accel, mu, mu_dyn, dt)
+    return TrajectoryBatch(
+        states=repeat_last(rel_states, lengths),
+        lengths=lengths,
+        extras={"pan_states": repeat_last(pan_states, lengths), "pan_accel": pan_accel},
+    )
+
+
+def bspline_type(
+    n: int,
+    rng: np.random.Generator,
+    *,
+    length: int | tuple[int, int] | np.ndarray = DEFAULT_LENGTH,
+    dt: float = DT,
+) -> TrajectoryBatch:
+    """Commands whose relative acceleration is a random cubic B-spline (no pan behind them)."""
+    lengths = draw_lengths(rng, n, length)
+    per_segment, u, n_control = _knots(rng, lengths, COMMAND_SPACING_MS, dt)
+    control = rng.normal(size=(n, n_control, 2))
+    control[:, :2] = 0.0  # u_d starts from 0
+    accel, _, _ = uniform_bspline(control, u)
+    valid = np.arange(accel.shape[1])[None, :] < (lengths[:, None] - 1)
+    accel = np.where(valid[..., None], accel, 0.0)
+    states = integrate(torch.zeros(n, 4, dtype=torch.float64), torch.from_numpy(accel), dt).numpy()
+    states = repeat_last(states, lengths)
+    reach = np.linalg.norm(states[..., :2], axis=-1).max(axis=1)
+    scale = rng.uniform(*COMMAND_REACH, size=n) / np.maximum(reach, 1e-12)
+    return TrajectoryBatch(states=states * scale[:, None, None], lengths=lengths, accel=accel * scale[:, None, None])
+
+
+def mixture(
+    n: int,
+    rng: np.random.Generator,
+    *,
+    bspline_prob: float,
+    length: int | tuple[int, int] = DEFAULT_LENGTH,
+    dt: float = DT,
+) -> TrajectoryBatch:
+    """B-spline type with probability ``bspline_prob``, else physics type (the ch. 3 curriculum's mixture).
+
+    ``extras["pan_states"]`` holds the pan trajectory where one exists (zeros otherwise) and
+    ``extras["has_pan"]`` (n,) says where.
+    """
+    if not 0.0 <= bspline_prob <= 1.0:
+        raise ValueError(f"bspline_prob must be in [0, 1], got {bspline_prob}")
+    pick_bspline = rng.random(n) < bspline_prob
+    lengths = draw_lengths(rng, n, length)
+    k_max = int(lengths.max())
+    states, pan = np.zeros((n, k_max, 4)), np.zeros((n, k_max, 4))
+    for use_bspline in (True, False):
+        idx = np.flatnonzero(pick_bspline == use_bspline)
+        if idx.size == 0:
+            continue
+        make = bspline_type if use_bspline else physics_type
+        part = make(idx.size, rng, length=lengths[idx], dt=dt)
+        k = part.states.shape[1]
+        states[idx, :k], states[idx, k:] = part.states, part.states[:, -1:]
+        if not use_bspline:
+            pan_part = part.extras["pan_states"]
+            pan[idx, :k], pan[idx, k:] = pan_part, pan_part[:, -1:]
+    return TrajectoryBatch(states=states, lengths=lengths, extras={"pan_states": pan, "has_pan": ~pick_bspline})
+
+
+def circle(radius: float = 0.05, length: int = 1200, dt: float = DT) -> np.ndarray:
+    """A command moving the object once around a circle of ``radius`` [m], rest to rest: ``(K, 4)``.
+
+    It starts at the origin (the circle's centre is at ``(-radius, 0)``) and follows an S-curve in angle.
+    """
+    if not radius > 0 or length < 2:
+        raise ValueError("need radius > 0 and length >= 2")
+    tau = normalized_time(np.array([length]))[0]
+    s, ds, _ = s_curve(tau)
+    phi, dphi = 2 * math.pi * s, 2 * math.pi * ds / ((length - 1) * dt)
+    pos = radius * np.stack([np.cos(phi) - 1.0, np.sin(phi)], axis=1)
+    vel = radius * dphi[:, None] * np.stack([-np.sin(phi), np.cos(phi)], axis=1)
+    return np.concatenate([pos, vel], axis=1)

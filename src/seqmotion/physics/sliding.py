@@ -1,0 +1,278 @@
+"""An object sliding on a frying pan: planar Coulomb stick/slip contact (ch. 3, eq. 3.9, SPEC §4).
+
+Pan state ``x_p = [x_p, y_p, vx_p, vy_p]`` follows the double integrator under the pan's
+acceleration ``u_p``. The object's state relative to the pan, ``x_d = x_o − x_p``, follows it
+under ``u_d``, which friction decides (g = 9.8 m/s², static μ, dynamic μ'):
+
+* sliding (``ṗ_d ≠ 0``):                 ``u_d = −u_p − μ' g ṗ_d / |ṗ_d|``
+* sticking and ``|u_p| ≥ μ g`` (breakaway): ``u_d = −u_p + μ g u_p / |u_p|``
+* sticking and ``|u_p| < μ g``:             ``u_d = 0``
+
+**Discrete time.** A step of ``dt`` that would reverse the sliding velocity (dynamic
+friction overshooting zero) ends with the object at rest, relative velocity exactly 0; from
+rest it stays put until ``|u_p| ≥ μ g``. So nothing chatters, an object on a still pan stops
+and stays stopped, and with the pan still friction only ever removes relative kinetic energy.
+The position update uses the velocity change actually taken (``p' = p + dt (v + v') / 2``),
+i.e. the double integrator driven by the effective ``u_d = (v' − v) / dt``.
+
+**Gradients.** The step loop is a numba kernel; its backward pass is derived by hand per
+branch and wrapped in a ``torch.autograd.Function``. Through a sticking (or stopping) step
+the gradient with respect to ``u_p`` is exactly zero — the "gradient-vanishing zone" the
+chapter-3 curriculum exists for; through sliding and breakaway it is not.
+``J = ∂u_d/∂u_p`` per sample (−I while sliding, 0 while stuck, ``−I + μg (I − m mᵀ)/|u_p|``
+at breakaway) is returned to propagate covariances, ``S_ud = J S_up Jᵀ`` (SPEC §2); it is
+treated as a constant in the backward pass.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+
+from ..errors import as_trajectories
+from .integrator import DT, CovarianceCarry, integrate, propagate_covariance
+
+GRAVITY = 9.8
+MU = 1.0
+MU_DYN = 0.5
+STATE_DIM = 4  # [x, y, vx, vy]
+ACCEL_DIM = 2
+
+# Which case of eq. 3.9 a step took.
+STICK, BREAKAWAY, SLIDE, STOP = 0, 1, 2, 3
+
+
+@numba.njit(cache=True)
+def _forward_kernel(p0, v0, u, mu, mu_dyn, dt, g, p_out, v_out, jac_out, branch_out):  # pragma: no cover - jit
+    batch, steps = u.shape[0], u.shape[1]
+    for b in range(batch):
+        px, py, vx, vy = p0[b, 0], p0[b, 1], v0[b, 0], v0[b, 1]
+        slide_decel, stick_limit = mu_dyn[b] * g, mu[b] * g
+        for k in range(steps):
+            ux, uy = u[b, k, 0], u[b, k, 1]
+            jxx = jxy = jyy = 0.0
+            speed = math.sqrt(vx * vx + vy * vy)
+            if speed > 0.0:
+                nx, ny = vx / speed, vy / speed
+                wx = vx + dt * (-ux - slide_decel * nx)
+                wy = vy + dt * (-uy - slide_decel * ny)
+                if wx * vx + wy * vy <= 0.0:  # friction would reverse the motion: it stops
+                    nvx = nvy = 0.0
+                    code = STOP
+                else:
+                    nvx, nvy = wx, wy
+                    code = SLIDE
+                    jxx = jyy = -1.0
+            else:
+                un = math.sqrt(ux * ux + uy * uy)
+                if un >= stick_limit and un > 0.0:
+                    mx, my = ux / un, uy / un
+                    nvx = dt * (-ux + stick_limit * mx)
+                    nvy = dt * (-uy + stick_limit * my)
+                    code = BREAKAWAY
+                    f = stick_limit / un
+                    jxx = -1.0 + f * (1.0 - mx * mx)
+                    jyy = -1.0 + f * (1.0 - my * my)
+                    jxy = -f * mx * my
+                else:
+                    nvx = nvy = 0.0
+                    code = STICK
+            px += 0.5 * dt * (vx + nvx)
+            py += 0.5 * dt * (vy + nvy)
+            vx, vy = nvx, nvy
+            p_out[b, k, 0], p_out[b, k, 1] = px, py
+            v_out[b, k, 0], v_out[b, k, 1] = vx, vy
+            jac_out[b, k, 0, 0], jac_out[b, k, 0, 1] = jxx, jxy
+            jac_out[b, k, 1, 0], jac_out[b, k, 1, 1] = jxy, jyy
+            branch_out[b, k] = code
+
+
+@numba.njit(cache=True)
+def _backward_kernel(  # pragma: no cover - jit
+    v0, u, v_out, branch, mu, mu_dyn, dt, g, grad_p, grad_v, grad_u, grad_p0, grad_v0
+):
+    batch, steps = u.shape[0], u.shape[1]
+    for b in range(batch):
+        slide_decel, stick_limit = mu_dyn[b] * g, mu[b] * g
+        lpx = lpy = lvx = lvy = 0.0  # adjoints of the state after the current step
+        for k in range(steps - 1, -1, -1):
+            lpx += grad_p[b, k, 0]
+            lpy += grad_p[b, k, 1]
+            lvx += grad_v[b, k, 0]
+            lvy += grad_v[b, k, 1]
+            if k == 0:
+                vx, vy = v0[b, 0], v0[b, 1]
+            else:
+                vx, vy = v_out[b, k - 1, 0], v_out[b, k - 1, 1]
+            # dv'/dv = [[a, c], [c, d]], dv'/du = [[e, h], [h, f]] (both symmetric)
+            a = c = d = e = h = f = 0.0
+            code = branch[b, k]
+            if code == SLIDE:
+                speed = math.sqrt(vx * vx + vy * vy)
+                nx, ny = vx / speed, vy / speed
+                s = dt * slide_decel / speed
+                a = 1.0 - s * (1.0 - nx * nx)
+                d = 1.0 - s * (1.0 - ny * ny)
+                c = s * nx * ny
+                e = f = -dt
+            elif code == BREAKAWAY:
+                ux, uy = u[b, k, 0], u[b, k, 1]
+                un = math.sqrt(ux * ux + uy * uy)
+                mx, my = ux / un, uy / un
+                r = stick_limit / un
+                e = dt * (-1.0 + r * (1.0 - mx * mx))
+                f = dt * (-1.0 + r * (1.0 - my * my))
+                h = -dt * r * mx * my
+            # p' = p + dt/2 (v + v'):  dp'/dv = dt/2 (I + dv'/dv), dp'/du = dt/2 dv'/du
+            half = 0.5 * dt
+            grad_u[b, k, 0] = half * (e * lpx + h * lpy) + e * lvx + h * lvy
+            grad_u[b, k, 1] = half * (h * lpx + f * lpy) + h * lvx + f * lvy
+            nlvx = half * ((1.0 + a) * lpx + c * lpy) + a * lvx + c * lvy
+            nlvy = half * (c * lpx + (1.0 + d) * lpy) + c * lvx + d * lvy
+            lvx, lvy = nlvx, nlvy
+        grad_p0[b, 0], grad_p0[b, 1] = lpx, lpy
+        grad_v0[b, 0], grad_v0[b, 1] = lvx, lvy
+
+
+def _f64(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().cpu().numpy(), dtype=np.float64)
+
+
+def _friction(value: float | torch.Tensor, batch: int) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(value.detach().cpu() if torch.is_tensor(value) else value, dtype=np.float64),
+                          (batch,))
+    return np.ascontiguousarray(arr)
+
+
+class ContactChunk(torch.autograd.Function):
+    """Relative motion over C samples under pan accelerations (differentiable in ``p0, v0, u_p``)."""
+
+    @staticmethod
+    def forward(ctx, p0, v0, u, mu, mu_dyn, dt):  # noqa: ANN001, ANN205
+        b, c, _ = u.shape
+        mu_np, mud_np = _friction(mu, b), _friction(mu_dyn, b)
+        p_out, v_out = np.empty((b, c, 2)), np.empty((b, c, 2))
+        jac, branch = np.empty((b, c, 2, 2)), np.empty((b, c), dtype=np.int8)
+        v0_np, u_np = _f64(v0), _f64(u)
+        _forward_kernel(_f64(p0), v0_np, u_np, mu_np, mud_np, float(dt), GRAVITY, p_out, v_out, jac, branch)
+        ctx.save_for_backward(p0, v0, u)
+        ctx.saved_numpy = (v0_np, u_np, v_out, branch, mu_np, mud_np, float(dt))
+        as_t = {"dtype": u.dtype, "device": u.device}
+        jac_t, branch_t = torch.as_tensor(jac, **as_t), torch.as_tensor(branch, device=u.device)
+        ctx.mark_non_differentiable(jac_t, branch_t)
+        return torch.as_tensor(p_out, **as_t), torch.as_tensor(v_out, **as_t), jac_t, branch_t
+
+    @staticmethod
+    def backward(ctx, grad_p, grad_v, _grad_jac, _grad_branch):  # noqa: ANN001, ANN205
+        p0, v0, u = ctx.saved_tensors
+        v0_np, u_np, v_out, branch, mu_np, mud_np, dt = ctx.saved_numpy
+        b, c, _ = u.shape
+        zeros = np.zeros((b, c, 2))
+        gp = zeros if grad_p is None else _f64(grad_p)
+        gv = zeros if grad_v is None else _f64(grad_v)
+        grad_u, grad_p0, grad_v0 = np.empty((b, c, 2)), np.empty((b, 2)), np.empty((b, 2))
+        _backward_kernel(v0_np, u_np, v_out, branch, mu_np, mud_np, dt, GRAVITY, gp, gv, grad_u, grad_p0, grad_v0)
+        as_t = {"dtype": u.dtype, "device": u.device}
+        return (torch.as_tensor(grad_p0, **as_t), torch.as_tensor(grad_v0, **as_t),
+                torch.as_tensor(grad_u, **as_t), None, None, None)
+
+
+def contact_chunk(
+    rel_state: torch.Tensor, pan_accel: torch.Tensor, mu: float | torch.Tensor = MU,
+    mu_dyn: float | torch.Tensor = MU_DYN, dt: float = DT,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Advance the object's relative state through C pan accelerations.
+
+    Args:
+        rel_state: ``(B, 4)`` relative state before the chunk.
+        pan_accel: ``(B, C, 2)`` pan accelerations ``u_p``.
+        mu, mu_dyn: friction coefficients, scalars or ``(B,)`` per trajectory.
+
+    Returns:
+        ``(rel_states (B, C, 4), jacobian (B, C, 2, 2) = ∂u_d/∂u_p, branch (B, C) int8)``.
+    """
+    p, v, jac, branch = ContactChunk.apply(rel_state[:, :2], rel_state[:, 2:], pan_accel, mu, mu_dyn, dt)
+    return torch.cat([p, v], dim=-1), jac, branch
+
+
+def rollout(
+    pan_accel: object, mu: float = MU, mu_dyn: float = MU_DYN, dt: float = DT
+) -> tuple[np.ndarray, np.ndarray]:
+    """Roll pan accelerations out through the contact model (SPEC §7).
+
+    Args:
+        pan_accel: ``(K-1, 2)`` or ``(B, K-1, 2)`` pan accelerations [m/s²].
+        mu, mu_dyn: static and dynamic friction coefficients (``0 ≤ μ' ≤ μ``).
+
+    Returns:
+        ``(pan_states, rel_states)``, each ``(K, 4)`` (or batched), starting at rest at 0:
+        the pan ``[x, y, vx, vy]`` and the object relative to it.
+    """
+    if not (mu > 0 and 0 <= mu_dyn <= mu):
+        raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu={mu}, mu_dyn={mu_dyn}")
+    if not dt > 0:
+        raise ValueError(f"dt must be positive, got {dt}")
+    accel, single = as_trajectories(pan_accel, ACCEL_DIM, "pan_accel", min_length=1)
+    u = torch.from_numpy(accel)
+    zero = torch.zeros(u.shape[0], STATE_DIM, dtype=torch.float64)
+    pan = integrate(zero, u, dt)
+    with torch.no_grad():
+        rel, _, _ = contact_chunk(zero, u, mu, mu_dyn, dt)
+    rel = torch.cat([zero.unsqueeze(1), rel], dim=1)
+    pan_np, rel_np = pan.numpy(), rel.numpy()
+    return (pan_np[0], rel_np[0]) if single else (pan_np, rel_np)
+
+
+class SlidingDynamics:
+    """Pan integrator + contact model as a decoder's :class:`~seqmotion.models.seq2seq.ChunkDynamics`.
+
+    States are 8-D: ``[x_p (4), x_d (4)]``; the decoder reads them as they are. Outputs per
+    chunk: ``states``, ``pos_cov`` (the object's relative-position covariance, for L),
+    ``pan_pos_cov`` (the pan's, for L'), ``rel_accel`` (u_d) and ``branch`` (which case of
+    eq. 3.9 each sample took).
+
+    Args:
+        mu, mu_dyn: friction, scalars or ``(B,)``.
+        detach_contact: ``(B,)`` bool; where true, no gradient flows back through the
+            contact model (the L' stages: the pan is supervised directly).
+    """
+
+    def __init__(
+        self, mu: float | torch.Tensor = MU, mu_dyn: float | torch.Tensor = MU_DYN, dt: float = DT,
+        detach_contact: torch.Tensor | None = None,
+    ) -> None:
+        self.mu, self.mu_dyn, self.dt, self.detach_contact = mu, mu_dyn, dt, detach_contact
+
+    def start(self, x0: torch.Tensor) -> tuple:
+        b = x0.shape[0]
+        zeros = CovarianceCarry.zeros(b, 2, x0.dtype, x0.device)
+        return x0[:, :4], x0[:, 4:], zeros, zeros
+
+    def step(self, carry: tuple, mean: torch.Tensor, cov: torch.Tensor | None) -> tuple[tuple, dict]:
+        pan, rel, cov_pan, cov_rel = carry
+        pan_states = integrate(pan, mean, self.dt)[:, 1:]
+        rel_states, jac, branch = contact_chunk(rel, mean, self.mu, self.mu_dyn, self.dt)
+        if self.detach_contact is not None:
+            rel_states = torch.where(self.detach_contact.view(-1, 1, 1), rel_states.detach(), rel_states)
+        out = {
+            "states": torch.cat([pan_states, rel_states], dim=-1),
+            "rel_accel": (torch.diff(rel_states[..., 2:], dim=1, prepend=rel[:, None, 2:]) / self.dt).detach(),
+            "branch": branch,
+        }
+        if cov is not None:
+            out["pan_pos_cov"], cov_pan = propagate_covariance(cov_pan, cov, self.dt)
+            rel_cov = jac @ cov @ jac.transpose(-1, -2)
+            out["pos_cov"], cov_rel = propagate_covariance(cov_rel, rel_cov, self.dt)
+        return (pan_states[:, -1], rel_states[:, -1], cov_pan, cov_rel), out
+
+    def decoder_input(self, states: torch.Tensor) -> torch.Tensor:
+        return states
+
+    def restart(self, carry: tuple, state: torch.Tensor, mask: torch.Tensor) -> tuple:
+        pan, rel, cov_pan, cov_rel = carry
+        m = mask.view(-1, 1)
+        return (torch.where(m, state[:, :4], pan), torch.where(m, state[:, 4:], rel),
+                cov_pan.reset_where(mask), cov_rel.reset_where(mask))

@@ -1,0 +1,1 @@
+"""One module per chapter: ``seqmotion reproduce chN`` runs ``seqmotion.reproduce.chN.run``."""
