@@ -21,6 +21,8 @@ _EXPORTS = {
     "load_dataset": "dataset",
     "PushingDataset": "dataset",
     "SETS": "dataset",
+    "MOTION_KEYS": "dataset",
+    "episode_rng": "dataset",
     "teleoperate": "teleop",
     "run_autonomous": "teleop",
     "ReplayMaster": "teleop",
@@ -28,6 +30,7 @@ _EXPORTS = {
     "ArmState": "teleop",
     "Demonstration": "teleop",
     "AutonomousRun": "teleop",
+    "MOTION_COLUMNS": "teleop",
     "ScriptedOperator": "operator",
     "OperatorParams": "operator",
 }

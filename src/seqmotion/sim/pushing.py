@@ -230,7 +230,7 @@ class CameraPose:
 
 CAMERAS: dict[str, CameraPose] = {
     # In front of the robot, looking back at it over the workspace (Fig. 5.3, default).
-    "default": CameraPose((0.52, 0.0, 0.34), (0.14, 0.0, 0.02)),
+    "default": CameraPose((0.44, 0.0, 0.30), (0.14, 0.0, 0.02)),
     # Position 1: low and to the robot's right, an oblique view.
     "position1": CameraPose((0.36, -0.40, 0.20), (0.15, 0.0, 0.03)),
     # Position 2: high on the robot's left, looking down over its shoulder.
