@@ -254,9 +254,14 @@ class SlidingDynamics:
     def step(self, carry: tuple, mean: torch.Tensor, cov: torch.Tensor | None) -> tuple[tuple, dict]:
         pan, rel, cov_pan, cov_rel = carry
         pan_states = integrate(pan, mean, self.dt)[:, 1:]
-        rel_states, jac, branch = contact_chunk(rel, mean, self.mu, self.mu_dyn, self.dt)
-        if self.detach_contact is not None:
-            rel_states = torch.where(self.detach_contact.view(-1, 1, 1), rel_states.detach(), rel_states)
+        detach = self.detach_contact
+        if detach is not None and bool(detach.all()):  # nothing to backpropagate: build no graph
+            with torch.no_grad():
+                rel_states, jac, branch = contact_chunk(rel, mean, self.mu, self.mu_dyn, self.dt)
+        else:
+            rel_states, jac, branch = contact_chunk(rel, mean, self.mu, self.mu_dyn, self.dt)
+            if detach is not None:
+                rel_states = torch.where(detach.view(-1, 1, 1), rel_states.detach(), rel_states)
         out = {
             "states": torch.cat([pan_states, rel_states], dim=-1),
             "rel_accel": (torch.diff(rel_states[..., 2:], dim=1, prepend=rel[:, None, 2:]) / self.dt).detach(),
