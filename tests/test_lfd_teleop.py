@@ -124,6 +124,8 @@ def test_bad_arguments(arms):
         teleop.BilateralGains(kp=-1.0)
     with pytest.raises(ValueError, match="cutoff_hz"):
         teleop.BilateralGains(cutoff_hz=0.0)
+    with pytest.raises(ValueError, match="simulation steps"):
+        teleop.teleoperate(scene, master, operator, pushing.POSITIONS[0], 1.0, gains=teleop.BilateralGains(dt=2e-3))
     with pytest.raises(ValueError, match="duration"):
         teleop.teleoperate(scene, master, operator, pushing.POSITIONS[0], duration=0.0)
     with pytest.raises(ValueError, match="duration"):

@@ -53,6 +53,7 @@ import numpy as np
 
 from ..sim import pushing
 from ..sim.pushing import BlockPosition
+from .teleop import Operator
 
 PHASES = ("wait", "approach", "descend", "push", "check", "back_off", "realign", "retract", "hold")
 """Phase names; a demonstration's ``phase`` array holds indices into this tuple."""
@@ -175,12 +176,18 @@ class _Segment:
         return pos, vel, False
 
 
-class ScriptedOperator:
+class ScriptedOperator(Operator):
     """A person teleoperating the master (see the module docstring).
 
     Args:
         params: the operator's style (sampled per episode by the collector).
         rng: randomness of perception and tremor, seeded by the collector.
+
+    Attributes (read by the teleoperation loop and for inspection):
+        phase: index of the current phase in :data:`PHASES`.
+        n_pushes: pushes started so far.
+        target: the hand's current virtual target ``(3,)`` [m].
+        pace: rate of the operator's clock (1 = as planned, 0 = waiting for the slave).
     """
 
     def __init__(self, params: OperatorParams, rng: np.random.Generator) -> None:
@@ -200,6 +207,11 @@ class ScriptedOperator:
         self._time = 0.0  # real time since the reset [s]
         self._relax = math.exp(-pushing.DT / 0.1)  # the lean fades with a 0.1 s time constant
         self._steer = np.zeros(3)  # current steering offset of the aim point [m]
+        self._stalled = 0.0  # how long the push stroke has not advanced [s]
+        self._push_start, self._push_block_y, self._yielded, self._lean = 0.0, 0.0, False, 0.0
+        self._quick = False  # whether the current re-push skips lifting the pen
+        self._slave_tip = tip.copy()
+        self.target, self.pace = tip.copy(), 1.0
         self._segment = _Segment(tip.copy(), tip.copy(), 0.0, self.params.reaction_time, np.zeros(3))
         self._tremor_decay = math.exp(-pushing.DT / 0.1)  # 0.1 s correlation time
         self._tremor_kick = p.tremor * math.sqrt(1 - self._tremor_decay**2)
@@ -219,25 +231,23 @@ class ScriptedOperator:
         """
         p = self.params
         self._slave_tip = slave_tip
-        target, target_velocity, done = self._segment.at(self._clock)
+        planned, target_velocity, done = self._segment.at(self._clock)
         if done:
-            self._next(self._clock, target, block_pose)
-            target, target_velocity, _ = self._segment.at(self._clock)
+            self._next(self._clock, planned, block_pose)
+            planned, target_velocity, _ = self._segment.at(self._clock)
+        target, pace = planned, 1.0
         if self.phase == _P["push"]:
-            target = target + self._steering(block_pose, slave_tip)
+            target = planned + self._steering(block_pose, slave_tip)
             lag = self.side * (slave_tip[1] - target[1])  # how far the slave trails along the stroke
             pace = min(1.0, max(0.0, (p.lag_stop - lag) / (p.lag_stop - p.lag_comfort)))
             self._stalled = self._stalled + pushing.DT if pace < 0.1 else 0.0
             if self._stalled > STALL_TIME:  # the stroke is stuck (pen caught on the block): stop and look
-                self._stalled = 0.0
-                self._next(self._clock, target, block_pose)
+                self._next(self._clock, planned, block_pose)
                 target, target_velocity, _ = self._segment.at(self._clock)
-        else:
-            pace = 1.0
         self._clock += pace * pushing.DT
         self._time += pushing.DT
         target_velocity = pace * target_velocity
-        self.target, self.pace = target, pace  # for inspection
+        self.target, self.pace = target, pace
         self._tremor = self._tremor_decay * self._tremor + self._tremor_kick * self.rng.standard_normal(3)
         force = p.stiffness * (target - tip) + p.damping * (target_velocity - tip_velocity) + self._tremor
         if self.phase == _P["push"]:
@@ -251,13 +261,13 @@ class ScriptedOperator:
 
     # -- decisions ---------------------------------------------------------------------------------
     def _steering(self, block_pose: np.ndarray, slave_tip: np.ndarray) -> np.ndarray:
-        """Shift ``(3,)`` [m] of the aim point that keeps the slave's pen where it should push.
+        """Shift ``(3,)`` [m] of the aim point (along x) that keeps the block from turning away.
 
         The operator watches where the *slave's* pen touches the face and integrates the
-        error to the point it wants: along x, the block's centre moved by
-        ``side * steer_gain * yaw`` so that a turning block is turned back; along z, the push
-        height (the contact force lifts the slave's pen, whose position follows the master
-        only through the soft bilateral coupling, so the operator presses it back down).
+        error to the point it wants: the block's centre, moved by ``side * steer_gain * yaw``
+        so that a turning block is turned back. (The slave's pen sits off the master's aim by
+        the soft bilateral coupling, so a proportional correction alone would leave it off
+        centre and the block would keep turning.)
         """
         p = self.params
         w, z = block_pose[3], block_pose[6]
@@ -299,7 +309,6 @@ class ScriptedOperator:
             self._move("descend", t, here, ready, 0.3 / p.speed)
         elif phase in ("descend", "realign"):
             self.n_pushes += 1
-            block = self._look(block_pose)
             # Aim the block's centre past the line; a hesitant first push stops short of it.
             goal_centre = -s * (p.overshoot + 0.01 * (self.n_pushes - 1))
             if p.hesitant and self.n_pushes == 1:

@@ -5,9 +5,10 @@ from the 10 Hz pseudo-derivative, a disturbance observer (DOB) that makes the jo
 like its nominal inertia ``J_n``, and a reaction-torque observer (RTOB) that estimates τ,
 the torque the arm exerts on its surroundings (the hand on the master, the block on the
 slave). Sign: with the plant written ``J_n θ̈ = τ_ref − τ_dis``, τ = τ_dis − (modelled
-gravity and friction) = − (external torque acting on the joint). Pushing the master's
-stylus forward therefore reads negative on the master, and the slave pressing forward on
-the block reads positive: in steady contact ``τ_m + τ_s ≈ 0`` (action = reaction).
+gravity and friction) = − (external torque acting on the joint). A hand turning the
+master's joint in its positive direction therefore reads negative on the master, and the
+slave pressing on the block in the same direction reads positive: in steady contact
+``τ_m + τ_s ≈ 0`` (action = reaction).
 
 Control law per joint (acceleration-based 4-channel bilateral control, Sakaino/Tsuji group;
 position law on the difference, force law on the sum)::
@@ -232,11 +233,22 @@ def _check_duration(duration: float, dt: float) -> int:
     return steps
 
 
+def _check_timestep(gains: BilateralGains, *sims: ArmSim) -> None:
+    for sim in sims:
+        if abs(sim.model.opt.timestep - gains.dt) > 1e-12:
+            raise ValueError(f"gains.dt = {gains.dt} s but the simulation steps {sim.model.opt.timestep} s")
+
+
 # ----------------------------------------------------------------------------------------------
 # Loops
 # ----------------------------------------------------------------------------------------------
 class Operator:
-    """What the teleoperation loop needs from an operator (see :class:`~seqmotion.lfd.operator.ScriptedOperator`)."""
+    """What the teleoperation loop needs from an operator (see :class:`~seqmotion.lfd.operator.ScriptedOperator`).
+
+    ``hand_force`` is called once per period with the master's tip position and velocity
+    (what the hand feels), the slave's tip and the block pose (what the operator sees), and
+    returns the force ``(3,)`` [N] the hand applies to the master's tip.
+    """
 
     def reset(self, tip: np.ndarray, block_pose: np.ndarray, position: BlockPosition) -> None:  # pragma: no cover
         raise NotImplementedError
@@ -280,6 +292,7 @@ def teleoperate(
     """
     gains = gains or BilateralGains()
     steps = _check_duration(duration, gains.dt)
+    _check_timestep(gains, scene, master)
     variation = variation or SceneVariation()
     scene.reset(position, variation)
     master.reset()
@@ -384,6 +397,7 @@ def run_autonomous(
     """
     gains = gains or BilateralGains()
     steps = _check_duration(duration, gains.dt)
+    _check_timestep(gains, scene)
     every = round(command_interval / gains.dt)
     if every < 1 or abs(every * gains.dt - command_interval) > 1e-9:
         raise ValueError(f"command_interval must be a positive multiple of dt={gains.dt} s, got {command_interval!r}")
