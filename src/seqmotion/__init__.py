@@ -3,11 +3,27 @@
 >>> import seqmotion as sm
 >>> d = sm.load_pretrained("pancake")        # a Deformer
 >>> r = d.deform(states)                     # (K, 6) → feasible (K, 6), accelerations, F_c, latent
+>>> res = sm.optimize_latent(d, states, sm.objectives.EndPose((0.1, 0.0, 3.14)))
+
+``sm.sim`` (MuJoCo) and ``sm.lfd`` (learning from demonstration) are imported on first use.
 """
+
+import importlib
+from typing import Any
 
 from . import data, physics
 from .api import load, load_pretrained
 from .errors import CheckpointError
+from .latent import objectives, optimize_latent, optimize_trajectory
 
 __version__ = "0.1.0"
-__all__ = ["CheckpointError", "data", "load", "load_pretrained", "physics"]
+__all__ = [
+    "CheckpointError", "data", "lfd", "load", "load_pretrained", "objectives", "optimize_latent",
+    "optimize_trajectory", "physics", "sim",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in ("sim", "lfd"):  # heavy (MuJoCo): imported only when used
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'seqmotion' has no attribute {name!r}")

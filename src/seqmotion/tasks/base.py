@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -106,3 +107,61 @@ class Task(ABC):
 
     def build_model(self, config: TrainConfig) -> ChunkedSeq2Seq:
         return ChunkedSeq2Seq(Seq2SeqConfig.from_dict(config.model))
+
+
+class TrainedModel:
+    """What every task's user-facing model shares: encode, decode and integrate, in torch.
+
+    Subclasses say which dynamics close the decoder's loop and how the decoder's start state
+    follows from an input trajectory. Latent optimisation (:mod:`seqmotion.latent`) works on
+    any subclass through these three differentiable maps.
+    """
+
+    task: ClassVar[str]
+    input_dim: ClassVar[int]  # features per sample of the trajectories the encoder reads
+
+    def __init__(self, model: ChunkedSeq2Seq, config: dict) -> None:
+        self.model = model.eval()
+        self.config = config
+
+    def dynamics(self, **physics: Any) -> Any:
+        """The :class:`~seqmotion.models.seq2seq.ChunkDynamics` the decoder runs with."""
+        raise NotImplementedError
+
+    def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
+        """Decoder start state ``(B, state_dim)`` for input trajectories ``(B, K, input_dim)``."""
+        raise NotImplementedError
+
+    def encode_torch(self, inputs: torch.Tensor) -> torch.Tensor:
+        """``(B, K, input_dim)`` → latents ``(B, L·H)``."""
+        return self.model.encode(inputs.float())
+
+    def decode_torch(
+        self, latent: torch.Tensor, x0: torch.Tensor, length: int, **physics: Any
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Decode latents from start states into ``(states (B, K, S), accel (B, K-1, d))``, differentiably.
+
+        The physics runs in the dtype of ``x0`` (float64 gives exact bookkeeping).
+        """
+        from ..models.seq2seq import rollout
+
+        out = rollout(self.model, latent, x0, self.dynamics(**physics), self.model.num_chunks(length), need_cov=False)
+        return out.states[:, :length], out.accel[:, : length - 1].to(x0.dtype)
+
+    def integrate_torch(self, x0: torch.Tensor, accel: torch.Tensor, **physics: Any) -> torch.Tensor:
+        """States ``(B, N+1, S)`` that accelerations ``(B, N, d)`` produce from ``x0`` through the task's physics."""
+        dynamics = self.dynamics(**physics)
+        _, out = dynamics.step(dynamics.start(x0), accel.to(x0.dtype), None)
+        return torch.cat([x0.unsqueeze(1), out["states"]], dim=1)
+
+    def save_pretrained(self, directory: str | Path) -> None:
+        """Write ``model.safetensors`` + ``config.json`` (loadable with ``sm.load``)."""
+        from ..training.checkpoint import write_model
+
+        write_model(Path(directory), self.model.state_dict(), self.config)
+
+    @classmethod
+    def from_pretrained(cls, directory: str | Path) -> TrainedModel:
+        from ..api import load
+
+        return load(directory, expected_task=cls.task)

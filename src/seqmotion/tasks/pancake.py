@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -31,7 +30,7 @@ from ..physics.integrator import DT, DoubleIntegratorDynamics
 from ..physics.pancake import ACCEL_DIM, MU, STATE_DIM, violation_angle, violation_torch
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import DEFAULT_VARIANCE_FLOOR, gaussian_nll_1d, gaussian_nll_2d
-from .base import Task, TrainConfig
+from .base import Task, TrainConfig, TrainedModel
 
 THETA_WEIGHT = 0.1
 """D's scaling of the attitude against positions (eq. 2.25): 1 rad counts like 0.1 m."""
@@ -223,34 +222,20 @@ class DeformResult:
         return bool(ok) if np.ndim(ok) == 0 else ok
 
 
-class Deformer:
+class Deformer(TrainedModel):
     """A trained chapter-2 model: turns rough motions into ones that keep the pancake on.
 
     Obtain one with ``sm.load_pretrained("pancake")`` or ``sm.load(run_dir)``.
     """
 
     task = "pancake"
+    input_dim = STATE_DIM
 
-    def __init__(self, model: ChunkedSeq2Seq, config: dict) -> None:
-        self.model = model.eval()
-        self.config = config
-        self.dynamics = DoubleIntegratorDynamics(3, DT)
+    def dynamics(self) -> DoubleIntegratorDynamics:
+        return DoubleIntegratorDynamics(3, DT)
 
-    # encoder and decoder, in torch (for latent optimisation and custom pipelines)
-
-    def encode_torch(self, states: torch.Tensor) -> torch.Tensor:
-        """``(B, K, 6)`` → latents ``(B, L·H)``."""
-        return self.model.encode(states.float())
-
-    def decode_torch(
-        self, latent: torch.Tensor, x0: torch.Tensor, length: int
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Decode latents into ``(states (B, K, 6), accel (B, K-1, 3))``, differentiably.
-
-        The physics runs in the dtype of ``x0`` (use float64 for exact bookkeeping).
-        """
-        out = rollout(self.model, latent, x0, self.dynamics, self.model.num_chunks(length), need_cov=False)
-        return out.states[:, :length], out.accel[:, : length - 1].to(x0.dtype)
+    def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
+        return inputs[:, 0]
 
     # NumPy API
 
@@ -306,20 +291,6 @@ class Deformer:
         else:
             raise ValueError("give either states, or both latent and x0")
         return OnlineGenerator(self.model, z, start, single)
-
-    # persistence
-
-    def save_pretrained(self, directory: str | Path) -> None:
-        """Write ``model.safetensors`` + ``config.json`` (loadable with ``sm.load``)."""
-        from ..training.checkpoint import write_model
-
-        write_model(Path(directory), self.model.state_dict(), self.config)
-
-    @classmethod
-    def from_pretrained(cls, directory: str | Path) -> Deformer:
-        from ..api import load
-
-        return load(directory, expected_task=cls.task)
 
 
 class OnlineGenerator:

@@ -1,0 +1,137 @@
+"""Latent-space adjustment (ch. 4): objectives, cases 1–3, batching, other tasks, errors."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+import seqmotion as sm
+from seqmotion import tasks
+from seqmotion.data import pancake as gen
+from seqmotion.data import sliding as commands
+from seqmotion.latent.objectives import EndPose, Ranges
+from seqmotion.physics import integrator
+from seqmotion.training.trainer import train
+
+
+@pytest.fixture(scope="module")
+def deformer(tmp_path_factory):
+    run = tmp_path_factory.mktemp("pancake-tiny")
+    train(tasks.get("pancake").train_config("tiny"), run, progress=False)
+    return sm.load(run)
+
+
+def test_end_pose_matches_eq_4_3():
+    states = torch.zeros(1, 5, 6, dtype=torch.float64)
+    states[0, -1, :3] = torch.tensor([0.1, -0.2, 1.0])
+    accel = torch.zeros(1, 4, 3, dtype=torch.float64)
+    j = EndPose((0.0, 0.0, 0.0))(states, accel)
+    assert float(j) == pytest.approx(0.1**2 + 0.2**2 + (0.1 * 1.0) ** 2)
+    # the cone term: a still spatula at 50° everywhere violates by 5° per sample
+    states[0, :, 2] = math.radians(50)
+    states[0, -1, :3] = 0.0
+    states[0, -1, 2] = math.radians(50)
+    j = EndPose((0.0, 0.0, math.radians(50)), alpha=1.0)(states, accel)
+    assert float(j) == pytest.approx(4 * math.radians(5))
+
+
+def test_ranges_terms_are_zero_inside_every_band():
+    s = torch.zeros(1, 50, 6, dtype=torch.float64)
+    s[0, -1, :3] = torch.tensor([0.1, 0.1, -3 * math.pi / 4 + 0.3])
+    s[0, :, 3:] = torch.tensor([1.0, -1.0, 4.0])
+    assert float(Ranges()(s, torch.zeros(1, 49, 3, dtype=torch.float64))) == 0.0
+    s[0, 10, 3] = 2.5  # 1 m/s over the y limit in one sample: β/K · 1²
+    assert float(Ranges()(s, torch.zeros(1, 49, 3, dtype=torch.float64))) == pytest.approx(0.01 / 50)
+
+
+def test_objectives_compose():
+    s = torch.zeros(2, 5, 6, dtype=torch.float64)
+    a = torch.zeros(2, 4, 3, dtype=torch.float64)
+    e = EndPose((0.1, 0.0, 0.0))
+
+    def f(states, accel):
+        return states[:, -1, 0] + 1.0
+
+    combo = 2 * e + f
+    torch.testing.assert_close(combo(s, a), 2 * e(s, a) + 1.0)
+    from seqmotion.latent.objectives import as_objective
+
+    with pytest.raises(ValueError, match="callable"):
+        as_objective("nope")
+
+
+@pytest.mark.parametrize("case", ["encoder", "random", "trajectory"])
+def test_each_case_reduces_the_end_pose_objective(deformer, case):
+    start = gen.straight((0.05, 0.05, 1.0), 120)
+    objective = EndPose((0.05, 0.05, 1.0))
+    if case == "trajectory":
+        res = sm.optimize_trajectory(deformer, start, objective, steps=15, lr=1000.0)
+        assert res.latent is None
+    else:
+        res = sm.optimize_latent(deformer, start, objective, steps=15, lr=0.5, init=case, optimizer="adam")
+        assert res.latent.shape == (deformer.model.latent_dim,)
+    assert res.history.shape == (16,)
+    assert res.history[-1] < res.history[0]
+    assert res.states.shape == (120, 6) and res.accel.shape == (119, 3)
+    np.testing.assert_allclose(integrator.step_reference(res.states[:-1], res.accel), res.states[1:], atol=1e-12)
+    # the reported final objective is the objective of the returned motion
+    final = objective(torch.from_numpy(res.states)[None], torch.from_numpy(res.accel)[None])
+    assert float(final) == pytest.approx(res.history[-1], rel=1e-9)
+
+
+def test_plain_gradient_descent_is_eq_4_2(deformer):
+    start = gen.straight((0.0, 0.1, -1.0), 80)
+    objective = EndPose((0.0, 0.1, -1.0))
+    one = sm.optimize_latent(deformer, start, objective, steps=1, lr=3.0)
+    x = torch.from_numpy(start)[None]
+    z = deformer.encode_torch(x).detach().requires_grad_(True)
+    states, accel = deformer.decode_torch(z, x[:, 0], 80)
+    objective(states, accel).sum().backward()
+    np.testing.assert_allclose(one.latent, (z - 3.0 * z.grad).detach().numpy()[0], rtol=1e-5, atol=1e-6)
+
+
+def test_batched_targets_match_one_by_one(deformer):
+    targets = np.array([[0.1, 0.0, math.pi], [-0.1, 0.1, 0.0], [0.0, -0.1, -math.pi]])
+    starts = np.stack([gen.straight(t, 100) for t in targets])
+    batch = sm.optimize_latent(deformer, starts, EndPose(targets), steps=5, lr=1.0)
+    assert batch.history.shape == (6, 3) and batch.states.shape == (3, 100, 6)
+    single = sm.optimize_latent(deformer, starts[1], EndPose(targets[1]), steps=5, lr=1.0)
+    np.testing.assert_allclose(batch.history[:, 1], single.history, rtol=1e-4, atol=1e-7)
+
+
+def test_model_weights_are_untouched(deformer):
+    before = {k: v.clone() for k, v in deformer.model.state_dict().items()}
+    sm.optimize_latent(deformer, gen.straight((0.1, 0, 1), 60), EndPose((0.1, 0, 1)), steps=3, lr=1.0)
+    assert all(torch.equal(before[k], v) for k, v in deformer.model.state_dict().items())
+    assert all(p.requires_grad for p in deformer.model.parameters())
+
+
+def test_works_for_the_sliding_planner(tmp_path):
+    train(tasks.get("sliding").train_config("tiny"), tmp_path, progress=False)
+    planner = sm.load(tmp_path)
+    command = commands.circle(0.03, 100)
+
+    def pan_stays_home(states, accel):  # a new objective for a chapter-3 model
+        return (states[:, :, :2] ** 2).sum((1, 2)) + 1e-4 * (accel**2).sum((1, 2))
+
+    res = sm.optimize_latent(planner, command, pan_stays_home, steps=5, lr=0.3, optimizer="adam")
+    assert res.states.shape == (100, 8) and res.history[-1] < res.history[0]
+    res3 = sm.optimize_trajectory(planner, command, pan_stays_home, steps=3, lr=10.0)
+    assert res3.history[-1] < res3.history[0]
+
+
+def test_bad_arguments(deformer):
+    s = gen.straight((0.1, 0, 1), 60)
+    with pytest.raises(ValueError, match="init"):
+        sm.optimize_latent(deformer, s, EndPose((0, 0, 0)), init="zeros")
+    with pytest.raises(ValueError, match="optimizer"):
+        sm.optimize_latent(deformer, s, EndPose((0, 0, 0)), optimizer="lbfgs")
+    with pytest.raises(ValueError, match="lr"):
+        sm.optimize_latent(deformer, s, EndPose((0, 0, 0)), lr=-1)
+    with pytest.raises(ValueError, match="trained seqmotion model"):
+        sm.optimize_latent("model", s, EndPose((0, 0, 0)))
+    with pytest.raises(ValueError, match="target"):
+        EndPose((0, 0))
+    with pytest.raises(ValueError, match="columns"):
+        sm.optimize_latent(deformer, np.zeros((60, 4)), EndPose((0, 0, 0)))
