@@ -23,19 +23,20 @@ Arm (Geomagic Touch, three active joints; the three passive gimbal joints are lo
 * ``elbow``    — pitch at the end of the upper arm; at zero angle the forearm is perpendicular
   to the upper arm, pointing down; positive angles swing it forward.
 * The locked gimbal holds the pen (length ``ARM.pen``) bent ``ARM.pen_bend`` back from the
-  forearm axis, so that while pushing the pen stands nearly vertical and only its side
-  touches the block. The **tip** is the centre of the pen's rounded end.
+  forearm axis, so that in every pushing pose the pen stands vertical or leans away from the
+  block at the top (3°–22°): only its rounded end touches the block's face and it cannot
+  catch the block's top edge. The **tip** is the centre of that rounded end.
 
 Block (10 cm wide, 5 cm high, 5 cm deep, dissertation 5.3.1): its 10 cm side lies along the
-robot's forward axis (``x``), so the face the robot pushes (10 × 5 cm) faces the centre line
-and a single pen contact pushes it stably. The six positions of Fig. 5.5 are read as
-"left/right" = which side of the centre line the block lies on, and "4.5 / 8.0 / 11.5 cm from
-the robot" = the lateral distance of the block's centre from the robot's centre line, at a
-fixed reach ``BLOCK_REACH_X`` in front of the robot. The robot pushes a block on its left to
-the right and vice versa; the task succeeds when the block's centre crosses the centre line
-(``y`` changes sign). The other reading (distance along the forward axis at a fixed lateral
-offset) was considered; it would spread the blocks over 7 cm of the Touch's shallow (16.5 cm)
-depth workspace, close to the base, and is not used.
+robot's forward axis (``x``), so the face the robot pushes (10 × 5 cm) faces the centre line.
+(Pushing it with one point still turns it unless the pusher steers — see the operator.) The six
+positions of Fig. 5.5 are read as "left/right" = which side of the centre line the block lies
+on, and "4.5 / 8.0 / 11.5 cm from the robot" = the lateral distance of the block's centre from
+the robot's centre line, at a fixed reach ``BLOCK_REACH_X`` in front of the robot. The robot
+pushes a block on its left to the right and vice versa; the task succeeds when the block's
+centre crosses the centre line (``y`` changes sign). The other reading (distance along the
+forward axis at a fixed lateral offset) was considered; it would spread the blocks over 7 cm of
+the Touch's shallow (16.5 cm) depth workspace, close to the base, and is not used.
 
 Friction: dry wood on a lacquered/laminated wooden table has a sliding coefficient of roughly
 0.3–0.5 (static a little higher); MuJoCo has one coefficient per contact, so block–table uses
