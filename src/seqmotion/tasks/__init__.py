@@ -1,4 +1,9 @@
-"""Task registry: every module in this package that defines ``TASK`` is a trainable task."""
+"""Task registry: every module in this package that defines ``TASK`` registers it.
+
+A ``TASK`` is normally a :class:`Task` (trained by the shared seq2seq trainer). Models that
+are trained otherwise (learning from demonstration) register an object with a ``name`` and a
+``load(directory)`` method, so ``sm.load`` and ``sm.load_pretrained`` still find them.
+"""
 
 from __future__ import annotations
 
@@ -10,7 +15,7 @@ from .base import Task, TrainConfig
 _REGISTRY: dict[str, Task] | None = None
 
 
-def _discover() -> dict[str, Task]:
+def _discover() -> dict[str, Task]:  # values: Task, or any object with .name and .load
     global _REGISTRY
     if _REGISTRY is None:
         found: dict[str, Task] = {}
@@ -19,7 +24,7 @@ def _discover() -> dict[str, Task]:
                 continue
             module = importlib.import_module(f"{__name__}.{info.name}")
             task = getattr(module, "TASK", None)
-            if isinstance(task, Task):
+            if isinstance(task, Task) or (hasattr(task, "name") and hasattr(task, "load")):
                 found[task.name] = task
         _REGISTRY = found
     return _REGISTRY
