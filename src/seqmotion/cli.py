@@ -123,6 +123,23 @@ def cmd_deform(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plan(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from seqmotion.data import sliding as commands
+
+    planner = _model_arg(args.model)
+    command = commands.circle(args.circle, args.length) if args.circle else read_trajectory(args.command)
+    plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
+    write_arrays(args.output, {"pan_states": plan.pan_states, "rel_states": plan.rel_states,
+                               "pan_accel": plan.pan_accel, "command": command, "latent": plan.latent})
+    rmse = 1000 * np.sqrt(((plan.rel_states[:, :2] - command[:, :2]) ** 2).sum(1).mean())
+    reach = 1000 * np.linalg.norm(plan.pan_states[:, :2], axis=1).max()
+    print(f"planned {len(command)} samples → {args.output}: object RMSE {rmse:.1f} mm against the command, "
+          f"pan within {reach:.0f} mm of its start (2-D physics, μ = {args.mu}, μ' = {args.mu_dyn})")
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     module = importlib.import_module(f"seqmotion.reproduce.{args.chapter}")
     out = Path(args.out or f"reproduce/{args.chapter}")
@@ -164,6 +181,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input", required=True, help=".npz (array 'states') or .csv: (K, 6) rows y,z,θ,vy,vz,vθ")
     p.add_argument("--output", required=True, help=".npz or .csv")
     p.set_defaults(func=cmd_deform)
+
+    p = sub.add_parser("plan", help="plan pan shaking that slides an object along a command (ch. 3)")
+    p.add_argument("--model", default="sliding", help="shipped model name or model/run directory")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--command", help=".npz (array 'states') or .csv: (K, 4) object x, y, vx, vy relative to the pan")
+    src.add_argument("--circle", type=float, metavar="RADIUS", help="a circle of this radius [m] as the command")
+    p.add_argument("--length", type=int, default=1200, help="K of the --circle command")
+    p.add_argument("--mu", type=float, default=1.0, help="static friction of the 2-D physics")
+    p.add_argument("--mu-dyn", type=float, default=0.5, help="dynamic friction of the 2-D physics")
+    p.add_argument("--output", required=True, help=".npz or .csv")
+    p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("reproduce", help="reproduce a chapter's figures and tables")
     p.add_argument("chapter", choices=["ch2", "ch3", "ch4", "ch5"])

@@ -111,7 +111,7 @@ def optimize_latent(
     objective: object,
     steps: int = 100,
     lr: float = 200.0,
-    init: str = "encoder",
+    init: str | np.ndarray = "encoder",
     optimizer: str = "sgd",
     seed: int = 0,
     **physics: Any,
@@ -126,7 +126,8 @@ def optimize_latent(
             ``f(states, accel) -> tensor``.
         steps: number of updates.
         lr: step size η (200 in the dissertation for cases 1 and 2).
-        init: ``"encoder"`` (case 1) or ``"random"`` (case 2: z ~ N(0, I), seeded by ``seed``).
+        init: ``"encoder"`` (case 1), ``"random"`` (case 2: z ~ N(0, I), seeded by ``seed``), or
+            latents to continue from (``(L·H,)`` / ``(B, L·H)``, e.g. a previous result's ``latent``).
         optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2) or ``"adam"``.
         physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding).
     """
@@ -136,13 +137,17 @@ def optimize_latent(
     x = torch.from_numpy(batch)
     x0, length = model.start_state(x), x.shape[1]
     with torch.no_grad():
-        if init == "encoder":
+        if isinstance(init, str) and init == "encoder":
             z0 = model.encode_torch(x)
-        elif init == "random":
+        elif isinstance(init, str) and init == "random":
             gen = torch.Generator().manual_seed(seed)
             z0 = torch.randn(len(batch), model.model.latent_dim, generator=gen)
+        elif not isinstance(init, str):  # continue from given latents
+            z0 = torch.as_tensor(np.atleast_2d(np.asarray(init, dtype=np.float32)))
+            if z0.shape != (len(batch), model.model.latent_dim) or not torch.isfinite(z0).all():
+                raise ValueError(f"init latent must be finite with shape ({len(batch)}, {model.model.latent_dim})")
         else:
-            raise ValueError(f"init must be 'encoder' or 'random', got {init!r}")
+            raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
     with _frozen(model.model):
         z, out_states, out_accel, history, seconds = _descend(
             z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer

@@ -1,0 +1,307 @@
+"""Chapter 4, reproduced: latent optimisation against the dissertation's figures and a solver peer.
+
+``seqmotion reproduce ch4 [--model RUN] [--out DIR] [--quick]`` writes:
+
+* ``fig4_2_objective.png`` — mean J1 per update with 95 % bands for cases 1, 2, 3 over the 27
+  targets (y, z ∈ {−0.1, 0, 0.1} m, θ ∈ {−π, 0, π}; S-curve inputs, K = 500; η = 200, 200,
+  1000; 100 plain gradient-descent updates);
+* ``fig4_3_theta_-pi.png``, ``fig4_4_theta_0.png``, ``fig4_5_theta_pi.png`` — case-1 results:
+  time–position, y–z paths with targets, ψ against the cone;
+* ``fig4_6_end_rmse.png`` and ``table4_end_rmse.md`` — end-position and end-attitude RMSE per case;
+* ``fig4_8_j2_velocity.png``, ``fig4_9_j2_psi.png`` — the J2 study at updates 0, 10, 20;
+* ``table4_timing.md`` — seconds per update per case (one trajectory, and all 27 in a batch);
+* with CasADi: ``table4_peer.md`` — IPOPT by direct transcription vs latent optimisation;
+* with MuJoCo: ``fig4_10_robot.png``, ``fig4_11_snapshots.png`` — the J2 motion on the arm.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..data import pancake as inputs
+from ..latent import optimize_latent, optimize_trajectory
+from ..latent.objectives import EndPose, Ranges
+from ..tasks.pancake import FEASIBLE_TOLERANCE, Deformer
+from .ch2 import load_deformer
+
+TARGETS = np.array([(y, z, t) for y in (-0.1, 0.0, 0.1) for z in (-0.1, 0.0, 0.1) for t in (-math.pi, 0.0, math.pi)])
+LENGTH = 500
+CASES = {  # name: (how, step size η) as in §4.3.2
+    "case 1 (encoder z)": ("encoder", 200.0),
+    "case 2 (random z)": ("random", 200.0),
+    "case 3 (accelerations)": ("trajectory", 1000.0),
+}
+
+
+def starts(targets: np.ndarray = TARGETS) -> np.ndarray:
+    """S-curve inputs from the origin to each target (eq. 4.8's trajectories), ``(N, K, 6)``."""
+    return np.stack([inputs.straight(t, LENGTH) for t in targets])
+
+
+def run_case(deformer: Deformer, how: str, lr: float, steps: int, targets: np.ndarray = TARGETS, seed: int = 0):
+    x = starts(targets)
+    objective = EndPose(targets)
+    if how == "trajectory":
+        return optimize_trajectory(deformer, x, objective, steps=steps, lr=lr)
+    return optimize_latent(deformer, x, objective, steps=steps, lr=lr, init=how, seed=seed)
+
+
+def end_errors(states: np.ndarray, targets: np.ndarray = TARGETS) -> tuple[np.ndarray, np.ndarray]:
+    """End-position error [mm] and end-attitude error [deg] per target."""
+    pos = 1000 * np.linalg.norm(states[:, -1, :2] - targets[:, :2], axis=1)
+    att = np.degrees(np.abs(states[:, -1, 2] - targets[:, 2]))
+    return pos, att
+
+
+def _band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mean = values.mean(1)
+    half = 1.96 * values.std(1, ddof=1) / math.sqrt(values.shape[1])
+    return mean, half
+
+
+def figures_cases(results: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for name, res in results.items():
+        mean, half = _band(res.history)
+        steps = np.arange(len(mean))
+        ax.plot(steps, mean, label=name)
+        ax.fill_between(steps, np.maximum(mean - half, 1e-12), mean + half, alpha=0.2)
+    ax.axhline(1e-3, color="gray", ls=":", lw=1)
+    ax.set(yscale="log", xlabel="update", ylabel="J1 (mean of 27 targets)", title="Fig. 4.2: progress of the objective")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "fig4_2_objective.png", dpi=130)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.5))
+    names = list(results)
+    for i, name in enumerate(names):
+        pos, att = end_errors(results[name].states)
+        for ax, err in zip(axes, (pos, att), strict=True):
+            rmse = math.sqrt((err**2).mean())
+            ax.bar(i, rmse, color=f"C{i}")
+    axes[0].set(ylabel="end-position RMSE [mm]", xticks=range(3), xticklabels=["1", "2", "3"], xlabel="case")
+    axes[1].set(ylabel="end-attitude RMSE [deg]", xticks=range(3), xticklabels=["1", "2", "3"], xlabel="case")
+    fig.suptitle("Fig. 4.6: end-pose errors after 100 updates")
+    fig.tight_layout()
+    fig.savefig(out / "fig4_6_end_rmse.png", dpi=130)
+    plt.close(fig)
+
+    res = results[names[0]]
+    psi = _psi(res.states, res.accel)
+    for theta, label, fname in ((-math.pi, "-π", "fig4_3_theta_-pi.png"), (0.0, "0", "fig4_4_theta_0.png"),
+                                (math.pi, "π", "fig4_5_theta_pi.png")):
+        idx = np.flatnonzero(np.isclose(TARGETS[:, 2], theta))
+        fig, axes = plt.subplots(1, 3, figsize=(14, 3.8))
+        t = np.arange(LENGTH)
+        for i in idx:
+            for j, style in enumerate(("-", "--", ":")):
+                axes[0].plot(t, res.states[i, :, j], style, lw=0.8, color=f"C{j}")
+            axes[1].plot(res.states[i, :, 0], res.states[i, :, 1], lw=1)
+            axes[1].plot(*TARGETS[i, :2], "kx")
+            axes[2].plot(t[:-1], psi[i], lw=0.8)
+        axes[0].set(xlabel="time [ms]", ylabel="y, z [m] (–, --), θ [rad] (:)", title="(a) time–position")
+        axes[1].set(xlabel="y [m]", ylabel="z [m]", title="(b) paths; × targets")
+        axes[1].set_aspect("equal", adjustable="datalim")
+        axes[2].axhspan(-math.pi / 4, math.pi / 4, color="tab:blue", alpha=0.15)
+        axes[2].set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="(c) cone angle")
+        fig.suptitle(f"Case 1 after 100 updates, final attitude {label}")
+        fig.tight_layout()
+        fig.savefig(out / fname, dpi=120)
+        plt.close(fig)
+
+
+def _psi(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    from ..physics import pancake
+
+    return pancake.psi(states[..., :-1, :], accel)
+
+
+def j2_study(deformer: Deformer, out: Path) -> dict:
+    """§4.4.2: J2 from a uniform motion to (0, 0, −3π/4) in 0.5 s, η = 100, updates 0, 10, 20."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = inputs.straight((0.0, 0.0, -3 * math.pi / 4), LENGTH, timing="linear")
+    objective = Ranges()
+    snapshots = {0: optimize_latent(deformer, x, objective, steps=0, lr=100.0)}
+    latent = snapshots[0].latent
+    for upto in (10, 20):
+        snapshots[upto] = optimize_latent(deformer, x, objective, steps=10, lr=100.0, init=latent)
+        latent = snapshots[upto].latent
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig2, ax2 = plt.subplots(figsize=(7, 3.5))
+    t = np.arange(LENGTH)
+    for k, (update, res) in enumerate(snapshots.items()):
+        for j, style in enumerate(("-", "--", ":")):
+            axes[0].plot(t, res.states[:, j], style, color=f"C{k}", lw=1, label=f"update {update}" if j == 0 else None)
+            axes[1].plot(t, res.states[:, 3 + j], style, color=f"C{k}", lw=1)
+        ax2.plot(t[:-1], _psi(res.states, res.accel), color=f"C{k}", label=f"update {update}")
+    axes[0].set(xlabel="time [ms]", ylabel="y, z [m], θ [rad]", title="(a) time–position")
+    axes[1].set(xlabel="time [ms]", ylabel="v_y, v_z [m/s], v_θ [rad/s]", title="(b) time–velocity")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Fig. 4.8: optimising J2")
+    fig.tight_layout()
+    fig.savefig(out / "fig4_8_j2_velocity.png", dpi=120)
+    ax2.axhspan(-math.pi / 4, math.pi / 4, color="tab:blue", alpha=0.15)
+    ax2.set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="Fig. 4.9: ψ while optimising J2")
+    ax2.legend(fontsize=8)
+    fig2.tight_layout()
+    fig2.savefig(out / "fig4_9_j2_psi.png", dpi=120)
+    plt.close(fig)
+    plt.close(fig2)
+    final = snapshots[20]
+    np.savez(out / "j2_trajectory.npz", states=final.states, accel=final.accel, latent=final.latent)
+    return {
+        f"update_{u}": {
+            "J2": float(r.history[-1]),
+            "max_speed_yz": float(np.abs(r.states[:, 3:5]).max()),
+            "max_speed_theta": float(np.abs(r.states[:, 5]).max()),
+            "max_fc": float(_fc(r.states, r.accel).max()),
+            "end": r.states[-1, :3].tolist(),
+        }
+        for u, r in snapshots.items()
+    } | {"final_states": final.states}
+
+
+def _fc(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    from ..physics import pancake
+
+    return pancake.violation(states[..., :-1, :], accel)
+
+
+def timing(deformer: Deformer) -> dict:
+    """Seconds per update for one K = 500 trajectory and for all 27 in one batch, per case."""
+    out = {}
+    for name, (how, lr) in CASES.items():
+        one = run_case(deformer, how, lr, 10, TARGETS[:1])
+        batch = run_case(deformer, how, lr, 10)
+        out[name] = {"one_trajectory_s": one.seconds_per_update, "batch_of_27_s": batch.seconds_per_update}
+    return out
+
+
+def peer(deformer: Deformer, targets: np.ndarray, threshold: float = 1e-3) -> list[dict]:
+    """IPOPT by direct transcription against case 1, target by target, timed in the same run."""
+    from ..latent.transcription import solve_end_pose
+
+    rows = []
+    for target in targets:
+        start = time.perf_counter()
+        res = run_case(deformer, "encoder", 200.0, 100, target[None])
+        total = time.perf_counter() - start
+        reached = np.flatnonzero(res.history < threshold)
+        latent_time = None
+        if reached.size:  # time a fresh run that stops at the first update below the threshold
+            start = time.perf_counter()
+            run_case(deformer, "encoder", 200.0, int(reached[0]), target[None])
+            latent_time = time.perf_counter() - start
+        ipopt = solve_end_pose(tuple(target), threshold=threshold)
+        rows.append({
+            "target": target.tolist(),
+            "latent_seconds_to_threshold": latent_time,
+            "latent_final_j1": float(res.history[-1]),
+            "latent_max_fc": float(_fc(res.states, res.accel).max()),
+            "latent_total_seconds_100_updates": total,
+            "ipopt_seconds_to_threshold": ipopt.seconds_to_threshold,
+            "ipopt_final_j1": ipopt.j1,
+            "ipopt_max_fc": ipopt.max_fc,
+            "ipopt_solve_seconds": ipopt.solve_seconds,
+            "ipopt_status": ipopt.status,
+        })
+    return rows
+
+
+def _peer_table(rows: list[dict]) -> str:
+    def fmt(v: float | None) -> str:
+        return "never" if v is None else f"{v:.3g}"
+
+    lines = [
+        "| target (y, z, θ) | latent: s to J1<1e-3 | latent final J1 | latent max F_c | IPOPT: s to J1<1e-3 "
+        "| IPOPT final J1 | IPOPT max F_c | IPOPT status |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        t = ", ".join(f"{v:.2f}" for v in r["target"])
+        lines.append(
+            f"| {t} | {fmt(r['latent_seconds_to_threshold'])} | {r['latent_final_j1']:.2e} | {r['latent_max_fc']:.4f} "
+            f"| {fmt(r['ipopt_seconds_to_threshold'])} | {r['ipopt_final_j1']:.2e} | {r['ipopt_max_fc']:.4f} "
+            f"| {r['ipopt_status']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def robot(final_states: np.ndarray, out: Path) -> dict:
+    """Figs. 4.10–4.11: the J2 motion on the simulated arm (PD + DOB, ch. 4 gains, 2 Hz DOB)."""
+    from .. import sim
+
+    result = sim.run_pancake(final_states, gains="ch4", snapshots=out / "fig4_11_snapshots.png")
+    sim.plot_pancake_tracking(final_states, result, out / "fig4_10_robot.png")
+    return result.summary()
+
+
+def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0) -> dict:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    deformer = load_deformer(model)
+    steps = 20 if quick else 100
+    results = {name: run_case(deformer, how, lr, steps, seed=seed) for name, (how, lr) in CASES.items()}
+    figures_cases(results, out)
+
+    summary: dict = {"cases": {}}
+    lines = ["| case | mean J1 at update 5 | mean J1 at the end | end-position RMSE [mm] | end-attitude RMSE [deg] "
+             "| outputs with max F_c ≤ 0.01 rad |", "|---|---|---|---|---|---|"]
+    for name, res in results.items():
+        pos, att = end_errors(res.states)
+        fc = _fc(res.states, res.accel).max(axis=1)
+        row = {
+            "mean_j1_by_update": res.history.mean(1).tolist(),
+            "end_position_rmse_mm": float(math.sqrt((pos**2).mean())),
+            "end_attitude_rmse_deg": float(math.sqrt((att**2).mean())),
+            "feasible_share": float((fc <= FEASIBLE_TOLERANCE).mean()),
+            "max_fc": float(fc.max()),
+        }
+        summary["cases"][name] = row
+        lines.append(
+            f"| {name} | {res.history[min(5, steps)].mean():.2e} | {res.history[-1].mean():.2e} "
+            f"| {row['end_position_rmse_mm']:.3f} | {row['end_attitude_rmse_deg']:.3f} "
+            f"| {100 * row['feasible_share']:.0f} % |"
+        )
+    (out / "table4_end_rmse.md").write_text("\n".join(lines) + "\n")
+
+    j2 = j2_study(deformer, out)
+    final_states = j2.pop("final_states")
+    summary["j2"] = j2
+    summary["timing"] = timing(deformer)
+    timing_lines = ["| case | s/update, one K = 500 trajectory | s/update, 27 targets in one batch |", "|---|---|---|"]
+    for name, t in summary["timing"].items():
+        timing_lines.append(f"| {name} | {t['one_trajectory_s']:.4f} | {t['batch_of_27_s']:.4f} |")
+    (out / "table4_timing.md").write_text("\n".join(timing_lines) + "\n")
+
+    try:
+        import casadi  # noqa: F401
+    except ImportError:
+        summary["peer_skipped"] = "CasADi is not installed (pip install 'seqmotion[peer]')"
+    else:
+        rows = peer(deformer, TARGETS[::9] if quick else TARGETS)
+        summary["peer"] = rows
+        (out / "table4_peer.md").write_text(_peer_table(rows))
+    try:
+        summary["robot_j2"] = robot(final_states, out)
+    except (ImportError, ValueError) as exc:  # no MuJoCo, or a motion the arm cannot execute
+        summary["robot_skipped"] = str(exc)
+    (out / "results.json").write_text(json.dumps(summary, indent=2))
+    print((out / "table4_end_rmse.md").read_text())
+    print((out / "table4_timing.md").read_text())
+    return summary
