@@ -18,14 +18,16 @@ import numpy as np
 PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli")
 
 
-def _model_arg(value: str):  # noqa: ANN202 - returns the task's user-facing object
-    """A shipped model name (``pancake``...) or a path to a model/run directory."""
+def _model_arg(value: str, expected_task: str | None = None):  # noqa: ANN202 - the task's user-facing object
+    """A shipped model name (``pancake``...) or a path to a model/run directory, of ``expected_task`` if given."""
     import seqmotion as sm
     from seqmotion.api import PRETRAINED
 
     if value in PRETRAINED and not Path(value).exists():
+        if expected_task is not None and value != expected_task:
+            raise ValueError(f"the shipped model {value!r} is not a {expected_task!r} model")
         return sm.load_pretrained(value)
-    return sm.load(value)
+    return sm.load(value, expected_task=expected_task)
 
 
 def read_trajectory(path: str | Path, key: str = "states") -> np.ndarray:
@@ -107,7 +109,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_deform(args: argparse.Namespace) -> int:
-    deformer = _model_arg(args.model)
+    deformer = _model_arg(args.model, "pancake")
     states = read_trajectory(args.input)
     result = deformer.deform(states)
     write_arrays(
@@ -128,7 +130,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     from seqmotion.data import sliding as commands
 
-    planner = _model_arg(args.model)
+    planner = _model_arg(args.model, "sliding")
     command = commands.circle(args.circle, args.length) if args.circle else read_trajectory(args.command)
     plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
     write_arrays(args.output, {"pan_states": plan.pan_states, "rel_states": plan.rel_states,

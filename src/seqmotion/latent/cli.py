@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from . import optimize_latent, optimize_trajectory
     from .objectives import EndPose, Ranges
 
-    model = _model_arg(args.model)
+    model = _model_arg(args.model, "pancake")  # J1/J2 are pancake objectives
     if args.preset == "j2":
         objective = Ranges()
         default_input = inputs.straight((0.0, 0.0, -3 * math.pi / 4), args.length, timing="linear")

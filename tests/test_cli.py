@@ -1,0 +1,59 @@
+"""The command line mirrors the API: train, deform, plan, optimize; bad input → clear message, exit 2."""
+
+import numpy as np
+import pytest
+
+from seqmotion.cli import main
+from seqmotion.data import pancake as gen
+from seqmotion.data import sliding as commands
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli")
+    assert main(["train", "pancake", "--config", "tiny", "--out", str(root / "pancake"), "--quiet"]) == 0
+    assert main(["train", "sliding", "--config", "tiny", "--variant", "B", "--out", str(root / "sliding"),
+                 "--quiet", "--epochs", "2"]) == 0
+    return root
+
+
+def test_train_writes_a_loadable_run_and_resumes(runs, capsys):
+    assert (runs / "pancake" / "model.safetensors").is_file()
+    assert (runs / "pancake" / "metrics.csv").is_file()
+    # running the same command again resumes (nothing left to do) rather than starting over
+    assert main(["train", "pancake", "--config", "tiny", "--out", str(runs / "pancake"), "--quiet"]) == 0
+
+
+def test_deform_csv_round_trip(runs, tmp_path, capsys):
+    sketch = gen.straight((0.1, 0.0, 2.0), 150)
+    np.savetxt(tmp_path / "in.csv", sketch, delimiter=",", header="y,z,theta,vy,vz,vtheta", comments="")
+    assert main(["deform", "--model", str(runs / "pancake"), "--input", str(tmp_path / "in.csv"),
+                 "--output", str(tmp_path / "out.npz")]) == 0
+    out = np.load(tmp_path / "out.npz")
+    assert out["states"].shape == (150, 6) and out["accel"].shape == (149, 3)
+    assert "max F_c" in capsys.readouterr().out
+
+
+def test_plan_and_optimize(runs, tmp_path):
+    np.savez(tmp_path / "cmd.npz", states=commands.circle(0.02, 200))
+    assert main(["plan", "--model", str(runs / "sliding"), "--command", str(tmp_path / "cmd.npz"),
+                 "--output", str(tmp_path / "plan.csv")]) == 0
+    table = np.loadtxt(tmp_path / "plan.csv", delimiter=",", skiprows=1)
+    assert table.shape[0] == 200
+    assert main(["optimize", "--model", str(runs / "pancake"), "--target", "0.05", "0", "1.0", "--steps", "2",
+                 "--lr", "0.5", "--output", str(tmp_path / "opt.npz"), "--plot", str(tmp_path / "opt.png")]) == 0
+    assert np.load(tmp_path / "opt.npz")["history"].shape == (3,)
+    assert (tmp_path / "opt.png").stat().st_size > 0
+
+
+def test_bad_input_gives_a_message_not_a_traceback(runs, tmp_path, capsys):
+    np.savetxt(tmp_path / "bad.csv", np.zeros((10, 4)), delimiter=",")
+    code = main(["deform", "--model", str(runs / "pancake"), "--input", str(tmp_path / "bad.csv"),
+                 "--output", str(tmp_path / "x.npz")])
+    assert code == 2 and "6 columns" in capsys.readouterr().err
+    code = main(["deform", "--model", str(runs / "sliding"), "--input", str(tmp_path / "bad.csv"),
+                 "--output", str(tmp_path / "x.npz")])
+    assert code == 2 and "not 'pancake'" in capsys.readouterr().err
+    assert main(["train", "nosuchtask", "--config", "tiny"]) == 2
+    assert "unknown task" in capsys.readouterr().err
+    assert main(["train", "pancake", "--config", "huge"]) == 2
