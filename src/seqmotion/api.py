@@ -11,7 +11,13 @@ from .errors import CheckpointError
 from .models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from .training import checkpoint as ckpt
 
-PRETRAINED = ("pancake", "sliding", "pushing")
+PRETRAINED = {  # shipped model → its task
+    "pancake": "pancake",  # ch. 2/4: 2 × 64 LN-LSTM Deformer
+    "sliding": "sliding",  # ch. 3: model A (full curriculum), the SlidingPlanner
+    "sliding-B": "sliding",  # ch. 3 baselines for `seqmotion reproduce ch3`
+    "sliding-C": "sliding",
+    "pushing": "pushing",  # ch. 5: SeqAE + CNN policy
+}
 
 
 def load_model(path: str | Path, expected_task: str | None = None) -> tuple[ChunkedSeq2Seq, dict]:
@@ -56,7 +62,7 @@ def load(path: str | Path, expected_task: str | None = None) -> Any:
 def pretrained_dir(name: str) -> Path:
     """Where a shipped pretrained model lives inside the installed package."""
     if name not in PRETRAINED:
-        raise ValueError(f"unknown pretrained model {name!r}; shipped models: {PRETRAINED}")
+        raise ValueError(f"unknown pretrained model {name!r}; shipped models: {sorted(PRETRAINED)}")
     path = Path(str(resources.files("seqmotion") / "pretrained" / name))
     if not (path / ckpt.WEIGHTS).is_file():
         raise CheckpointError(f"pretrained model {name!r} is not shipped in this installation ({path})")
@@ -66,4 +72,4 @@ def pretrained_dir(name: str) -> Path:
 def load_pretrained(name: str) -> Any:
     """A model shipped with the package: ``"pancake"`` → Deformer, ``"sliding"`` → SlidingPlanner,
     ``"pushing"`` → the learning-from-demonstration policy."""
-    return load(pretrained_dir(name), expected_task=name)
+    return load(pretrained_dir(name), expected_task=PRETRAINED.get(name))

@@ -24,7 +24,7 @@ def _model_arg(value: str, expected_task: str | None = None):  # noqa: ANN202 - 
     from seqmotion.api import PRETRAINED
 
     if value in PRETRAINED and not Path(value).exists():
-        if expected_task is not None and value != expected_task:
+        if expected_task is not None and PRETRAINED[value] != expected_task:
             raise ValueError(f"the shipped model {value!r} is not a {expected_task!r} model")
         return sm.load_pretrained(value)
     return sm.load(value, expected_task=expected_task)
