@@ -42,8 +42,18 @@ class LayerNormLSTMCell(nn.Module):
         self, x: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``x`` (B, input_size), ``state = (h, c)`` each (B, H) → new ``(h, c)``."""
+        return self.step_projected(self.project_input(x), state)
+
+    def project_input(self, x: torch.Tensor) -> torch.Tensor:
+        """``LN(W_x x)`` for inputs of any leading shape: done once for a whole sequence when known."""
+        return self.ln_input(self.input_proj(x))
+
+    def step_projected(
+        self, gates_x: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One step given the projected input ``LN(W_x x)`` (B, 4H)."""
         h, c = state
-        gates = self.ln_input(self.input_proj(x)) + self.ln_hidden(self.hidden_proj(h))
+        gates = gates_x + self.ln_hidden(self.hidden_proj(h))
         i, f, o, g = gates.chunk(4, dim=-1)
         c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
         h = torch.sigmoid(o) * torch.tanh(self.ln_cell(c))
@@ -64,6 +74,32 @@ class StackedLSTM(nn.Module):
     def zero_state(self, batch: int, like: torch.Tensor) -> LSTMState:
         z = like.new_zeros(batch, self.hidden_size)
         return tuple((z, z) for _ in self.cells)
+
+    def run_sequence(self, x: torch.Tensor, active: torch.Tensor | None = None) -> LSTMState:
+        """Run a whole known input sequence ``(B, N, input_size)`` from a zero state; return the final state.
+
+        Layer by layer rather than step by step: each layer's input projection for all N steps
+        is one matrix product, so its weights are read once instead of N times (the encoder
+        is memory-bound at batch size 1). ``active`` (B, N) freezes a trajectory's state on
+        steps past its end. Equal to N calls of :meth:`forward`.
+        """
+        b, n, _ = x.shape
+        final = []
+        for cell in self.cells:
+            projected = cell.project_input(x)  # (B, N, 4H)
+            h = c = x.new_zeros(b, self.hidden_size)
+            outputs = []
+            for step in range(n):
+                h_new, c_new = cell.step_projected(projected[:, step], (h, c))
+                if active is None:
+                    h, c = h_new, c_new
+                else:
+                    keep = active[:, step].unsqueeze(1)
+                    h, c = torch.where(keep, h_new, h), torch.where(keep, c_new, c)
+                outputs.append(h)
+            final.append((h, c))
+            x = torch.stack(outputs, dim=1)
+        return tuple(final)
 
     def forward(self, x: torch.Tensor, state: LSTMState) -> tuple[torch.Tensor, LSTMState]:
         """``x`` (B, input_size) → top-layer output (B, H) and the new state."""

@@ -182,18 +182,11 @@ class ChunkedSeq2Seq(nn.Module):
         if n * c != k:  # pad to whole chunks by repeating the last sample
             x = torch.cat([x, x[:, -1:].expand(b, n * c - k, x.shape[2])], dim=1)
         proj = self.encoder_in((x / self.encoder_scale).reshape(b, n, -1))
-        state = self.encoder.zero_state(b, proj)
-        chunks_per_traj = None if lengths is None else torch.ceil(lengths.to(proj.dtype) / c)
-        for kappa in range(n):
-            _, new_state = self.encoder(proj[:, kappa], state)
-            if chunks_per_traj is None:
-                state = new_state
-            else:  # freeze trajectories that have ended, so z ignores batch padding
-                active = (kappa < chunks_per_traj).unsqueeze(1)
-                state = tuple(
-                    (torch.where(active, hn, ho), torch.where(active, cn, co))
-                    for (hn, cn), (ho, co) in zip(new_state, state, strict=True)
-                )
+        active = None
+        if lengths is not None:  # freeze trajectories that have ended, so z ignores batch padding
+            chunks_per_traj = torch.ceil(lengths.to(proj.dtype) / c)
+            active = torch.arange(n, device=proj.device).unsqueeze(0) < chunks_per_traj.unsqueeze(1)
+        state = self.encoder.run_sequence(proj, active)
         return torch.cat([cell for _, cell in state], dim=1)
 
     def initial_state(self, z: torch.Tensor) -> LSTMState:
