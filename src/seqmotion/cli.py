@@ -150,6 +150,15 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from seqmotion.training.export import export_pretrained
+
+    metrics = json.loads(Path(args.metrics).read_text()) if args.metrics else None
+    target = export_pretrained(Path(args.run), args.name, metrics, args.notes or "")
+    print(f"shipped {args.run} as {args.name!r} in {target} (with MODEL_CARD.md)")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from seqmotion.reproduce.demo import run
 
@@ -202,6 +211,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke test of the pipeline)")
     p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("export", help="ship a finished run inside the package, with a model card")
+    p.add_argument("run", help="training run directory")
+    p.add_argument("--name", required=True, help="pretrained name (pancake, sliding, sliding-B, sliding-C)")
+    p.add_argument("--metrics", help="JSON file of measured metrics for the card")
+    p.add_argument("--notes", help="free text for the card")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("demo", help="deform motions with the shipped model and show what it does")
     p.add_argument("--out", default="seqmotion-demo", help="where figures go")

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import csv
 import os
+import platform
+import sys
 import time
 from pathlib import Path
 
@@ -67,6 +69,19 @@ def _same_run(saved: dict, current: TrainConfig) -> None:
         raise CheckpointError(f"cannot resume: the run was trained with a different configuration ({diff})")
 
 
+def machine_description() -> str:
+    """CPU model, core count, torch threads and versions: what a timing needs to be read against."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    gpu = f", GPU {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else ""
+    return (f"{cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} torch threads{gpu}; "
+            f"Python {platform.python_version()}, torch {torch.__version__}")
+
+
 def model_config(config: TrainConfig, extra: dict | None = None) -> dict:
     """The ``config.json`` of a trained model: task, architecture and how it was trained."""
     return {"task": config.task, "model": config.model, "training": config.to_dict(), **(extra or {})}
@@ -108,6 +123,8 @@ def train(
     every = config.checkpoint_every or bpe
 
     step, elapsed = 0, 0.0
+    provenance = {"command": " ".join(["seqmotion", *sys.argv[1:]]) if sys.argv[0].endswith("seqmotion")
+                  else " ".join(sys.argv), "machine": machine_description(), "world_size": world}
     latest = ckpt.latest_checkpoint(run_dir) if resume and run_dir.exists() else None
     if latest is not None:
         saved_config, tensors, opt_state, trainer_state = ckpt.read_training_checkpoint(latest)
@@ -115,6 +132,7 @@ def train(
         ckpt.load_state_dict_strict(model, tensors, str(latest))
         optimizer.load_state_dict(opt_state)
         step, elapsed = int(trainer_state["step"]), float(trainer_state["elapsed_seconds"])
+        provenance = {**trainer_state.get("provenance", {}), "resumed_with": provenance}
 
     log = _MetricsLog(run_dir / METRICS, keep_before=step) if rank == 0 else None
     bar = tqdm(total=total, initial=step, disable=not progress or rank != 0, desc=f"train {config.task}", unit="batch")
@@ -159,8 +177,8 @@ def train(
         if step % every == 0 or step == end:
             if rank == 0:
                 elapsed = time.perf_counter() - started
-                state = {"step": step, "epoch": epoch, "elapsed_seconds": elapsed}
-                extra = {"step": step, "elapsed_seconds": elapsed, "last_terms": terms}
+                state = {"step": step, "epoch": epoch, "elapsed_seconds": elapsed, "provenance": provenance}
+                extra = {"step": step, "elapsed_seconds": elapsed, "last_terms": terms, "provenance": provenance}
                 cfg = model_config(config, extra)
                 ckpt.write_training_checkpoint(
                     run_dir, f"step-{step:08d}", model.state_dict(), optimizer.state_dict(), cfg, state,
