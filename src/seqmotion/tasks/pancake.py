@@ -10,7 +10,8 @@ The loss of one trajectory of length K, generated states x̂ and inputs û::
     L1[k] = -log N(D x[k] | D x̂[k], D S_x[k] Dᵀ + floor I)      (shape kept)
     L2[k] = F_c(θ̂[k], û[k])                                     (pancake kept on)
 
-with α1 = 1 (10 on the last 10 samples), α2 = 10, D = [[1,0,0],[0,1,0],[0,0,0.1]] on the
+with α1 = 1 (10 on the last 10 samples), α2 = 1000 (the dissertation: 10; see
+``DEFAULT_OPTIONS``), D = [[1,0,0],[0,1,0],[0,0,0.1]] on the
 positions (metres vs radians) and the variance floor of :mod:`seqmotion.training.losses`.
 """
 
@@ -73,7 +74,11 @@ DEFAULT_OPTIONS = {
     "alpha_shape": 1.0,  # α1
     "alpha_shape_end": 10.0,  # α1 on the last `end_samples` samples
     "end_samples": 10,
-    "alpha_constraint": 10.0,  # α2
+    # α2. The dissertation uses 10; with our likelihood (variance floor 1e-8, per-sample σ) that
+    # balance leaves the constraint weak: measured on 200 held-out position-type inputs, the
+    # α2 = 10 model kept 29 % of its outputs fully inside the cone, and 200 fine-tuning steps at
+    # α2 = 100 / 300 / 1000 reached 74 / 90 / 95 %. A large hinge weight acts as an exact penalty.
+    "alpha_constraint": 1000.0,
     "variance_floor": DEFAULT_VARIANCE_FLOOR,
     "mu": MU,
     "cone_margin": 0.0,  # train against atan(μ) - margin [rad]; 0 = the dissertation's loss
