@@ -11,18 +11,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import shutil
 import tempfile
 import time
 
 import numpy as np
-import torch
+import torch  # noqa: F401
 
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    return f"{cpu}, {torch.get_num_threads()} torch threads, torch {torch.__version__}"
+from seqmotion.training.trainer import machine_description
 
 
 def bench_deform(model: str | None) -> None:
@@ -40,7 +36,7 @@ def bench_deform(model: str | None) -> None:
         times.append(time.perf_counter() - start)
     print(json.dumps({"what": "deform one K=500", "median_ms": 1000 * float(np.median(times)),
                       "p90_ms": 1000 * float(np.percentile(times, 90)), "samples_per_s": 500 / float(np.median(times)),
-                      "machine": machine()}))
+                      "machine": machine_description()}))
     for batch in (16, 128, 512):
         x = inputs.position_type(batch, np.random.default_rng(1), length=500).states
         deformer.deform(x)
@@ -70,7 +66,7 @@ def bench_train(config_name: str, steps: int) -> None:
     print(json.dumps({"what": f"train pancake {config_name}", "steps": steps, "seconds_per_step": per_step,
                       "seconds_per_epoch": per_step * config.batches_per_epoch,
                       "projected_hours_full_run": per_step * config.batches_per_epoch * config.epochs / 3600,
-                      "batch": config.batch_size, "machine": machine()}))
+                      "batch": config.batch_size, "machine": machine_description()}))
 
 
 def main() -> None:
