@@ -1,6 +1,6 @@
 """Trajectory generators and datasets, apart from any model."""
 
-from . import pancake, trajectories
+from . import pancake, sliding, trajectories
 from .trajectories import TrajectoryBatch
 
-__all__ = ["TrajectoryBatch", "pancake", "trajectories"]
+__all__ = ["TrajectoryBatch", "pancake", "sliding", "trajectories"]
