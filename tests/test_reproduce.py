@@ -1,0 +1,58 @@
+"""The chapter reproductions run end to end (quick mode, tiny models) and write what they promise."""
+
+import json
+
+import pytest
+
+from seqmotion import tasks
+from seqmotion.reproduce import ch2, ch3, ch4
+from seqmotion.training.trainer import train
+
+
+@pytest.fixture(scope="module")
+def pancake_run(tmp_path_factory):
+    run = tmp_path_factory.mktemp("pancake")
+    train(tasks.get("pancake").train_config("tiny"), run, progress=False)
+    return run
+
+
+def test_ch2_quick(pancake_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(ch2, "robot", lambda deformer, out: {"robot": "not run in tests"})
+    results = ch2.run(tmp_path, model=str(pancake_run), quick=True)
+    for name in ("fig2_5_deformation.png", "fig2_6_psi.png", "fig2_7_deformation_amount.png", "table2_heldout.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    held = results["heldout"]
+    assert held["n"] == 50 and 0.0 <= held["output"]["feasible_share"] <= 1.0
+    assert held["input"]["shape_rmse_D"] == 0.0  # the inputs are the reference
+    assert json.loads((tmp_path / "results.json").read_text())["heldout"]["n"] == 50
+
+
+def test_ch4_quick(pancake_run, tmp_path, monkeypatch):
+    monkeypatch.setattr(ch4, "robot", lambda states, out: {"robot": "not run in tests"})
+    monkeypatch.setattr(ch4, "timing", lambda deformer: {"case": {"one_trajectory_s": 0.0, "batch_of_27_s": 0.0}})
+    summary = ch4.run(tmp_path, model=str(pancake_run), quick=True)
+    assert set(summary["cases"]) == set(ch4.CASES)
+    for case in summary["cases"].values():
+        assert len(case["mean_j1_by_update"]) == 21
+    assert summary["peer_skipped"] == "quick mode"
+    for name in ("fig4_2_objective.png", "fig4_6_end_rmse.png", "fig4_8_j2_velocity.png", "fig4_9_j2_psi.png",
+                 "fig4_3_theta_-pi.png", "table4_end_rmse.md", "j2_trajectory.npz"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert set(summary["j2"]) == {"update_0", "update_10", "update_20"}
+
+
+def test_ch3_quick(tmp_path, monkeypatch):
+    runs = tmp_path / "runs"
+    task = tasks.get("sliding")
+    for variant in "ABC":
+        config = task.apply_variant(task.train_config("tiny"), variant)
+        train(config, runs / variant, progress=False)
+    monkeypatch.setattr(ch3, "LENGTH", 150)
+    monkeypatch.setattr(ch3, "robot", lambda models, command, out: {"robot": "not run in tests"})
+    study = ch3.run(tmp_path / "out", model=str(runs), quick=True)
+    assert set(study["models"]) == {"A", "B", "C"}
+    for res in study["models"].values():
+        assert len(res["rmse_mm"]) == len(ch3.FRICTION_GRID) and res["worst_over_best"] >= 1.0
+    assert study["still_pan_rmse_mm"] > 0
+    for name in ("fig3_7_paths.png", "fig3_10_friction.png", "table3_friction.md", "table3_range.md"):
+        assert (tmp_path / "out" / name).stat().st_size > 0
