@@ -11,12 +11,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
-import tempfile
 import time
 
 import numpy as np
 import torch  # noqa: F401
+from common import time_training
 
 from seqmotion.training.trainer import machine_description
 
@@ -51,22 +50,8 @@ def bench_deform(model: str | None) -> None:
 
 def bench_train(config_name: str, steps: int) -> None:
     from seqmotion import tasks
-    from seqmotion.training.trainer import train
 
-    config = tasks.get("pancake").train_config(config_name)
-    config.checkpoint_every = 10**9  # time the optimisation, not the disk
-    out = tempfile.mkdtemp(prefix="bench-train-")
-    try:
-        start = time.perf_counter()
-        train(config, out, progress=False, stop_at_step=steps)
-        seconds = time.perf_counter() - start
-    finally:
-        shutil.rmtree(out, ignore_errors=True)
-    per_step = seconds / steps
-    print(json.dumps({"what": f"train pancake {config_name}", "steps": steps, "seconds_per_step": per_step,
-                      "seconds_per_epoch": per_step * config.batches_per_epoch,
-                      "projected_hours_full_run": per_step * config.batches_per_epoch * config.epochs / 3600,
-                      "batch": config.batch_size, "machine": machine_description()}))
+    time_training(tasks.get("pancake").train_config(config_name), steps)
 
 
 def main() -> None:

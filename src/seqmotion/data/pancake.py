@@ -18,7 +18,7 @@ import torch
 
 from ..physics.integrator import DT, integrate
 from ..physics.pancake import GRAVITY
-from .trajectories import TrajectoryBatch, draw_lengths, normalized_time, path_states, quadratic_through
+from .trajectories import TrajectoryBatch, combine, draw_lengths, normalized_time, path_states, quadratic_through
 
 DEFAULT_LENGTH = (100, 500)
 """K is drawn uniformly in this range (samples at 1 ms)."""
@@ -131,16 +131,13 @@ def mixture(
         raise ValueError(f"accel_type_prob must be in [0, 1], got {accel_type_prob}")
     pick_accel = rng.random(n) < accel_type_prob
     lengths = draw_lengths(rng, n, length)
-    states = np.zeros((n, int(lengths.max()), 6))
+    parts = []
     for use_accel in (True, False):
         idx = np.flatnonzero(pick_accel == use_accel)
         if idx.size == 0:
             continue
         if use_accel:
-            part = acceleration_type(idx.size, rng, phi_max=phi_max, length=lengths[idx], dt=dt)
+            parts.append((idx, acceleration_type(idx.size, rng, phi_max=phi_max, length=lengths[idx], dt=dt)))
         else:
-            part = position_type(idx.size, rng, length=lengths[idx], dt=dt)
-        k = part.states.shape[1]
-        states[idx, :k] = part.states
-        states[idx, k:] = part.states[:, -1:]
-    return TrajectoryBatch(states=states, lengths=lengths)
+            parts.append((idx, position_type(idx.size, rng, length=lengths[idx], dt=dt)))
+    return combine(lengths, parts)

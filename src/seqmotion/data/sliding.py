@@ -22,7 +22,15 @@ import torch
 
 from ..physics import sliding as contact
 from ..physics.integrator import DT, integrate
-from .trajectories import TrajectoryBatch, draw_lengths, normalized_time, repeat_last, s_curve, uniform_bspline
+from .trajectories import (
+    TrajectoryBatch,
+    combine,
+    draw_lengths,
+    normalized_time,
+    repeat_last,
+    s_curve,
+    uniform_bspline,
+)
 
 DEFAULT_LENGTH = (500, 1500)
 SHAKE_SPACING_MS = (40, 120)
@@ -106,20 +114,17 @@ def mixture(
         raise ValueError(f"bspline_prob must be in [0, 1], got {bspline_prob}")
     pick_bspline = rng.random(n) < bspline_prob
     lengths = draw_lengths(rng, n, length)
-    k_max = int(lengths.max())
-    states, pan = np.zeros((n, k_max, 4)), np.zeros((n, k_max, 4))
+    parts = []
     for use_bspline in (True, False):
         idx = np.flatnonzero(pick_bspline == use_bspline)
-        if idx.size == 0:
-            continue
-        make = bspline_type if use_bspline else physics_type
-        part = make(idx.size, rng, length=lengths[idx], dt=dt)
-        k = part.states.shape[1]
-        states[idx, :k], states[idx, k:] = part.states, part.states[:, -1:]
-        if not use_bspline:
-            pan_part = part.extras["pan_states"]
-            pan[idx, :k], pan[idx, k:] = pan_part, pan_part[:, -1:]
-    return TrajectoryBatch(states=states, lengths=lengths, extras={"pan_states": pan, "has_pan": ~pick_bspline})
+        if idx.size:
+            make = bspline_type if use_bspline else physics_type
+            parts.append((idx, make(idx.size, rng, length=lengths[idx], dt=dt)))
+    batch = combine(lengths, parts, extras=("pan_states",))
+    if batch.extras is None:  # only B-spline commands: no pan behind any of them
+        batch.extras = {"pan_states": np.zeros_like(batch.states)}
+    batch.extras["has_pan"] = ~pick_bspline
+    return batch
 
 
 def circle(radius: float = 0.05, length: int = 1200, dt: float = DT) -> np.ndarray:

@@ -79,6 +79,36 @@ def repeat_last(values: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     return np.take_along_axis(values, idx.reshape(idx.shape + (1,) * (values.ndim - 2)), axis=1)
 
 
+def combine(lengths: np.ndarray, parts: list[tuple[np.ndarray, TrajectoryBatch]], extras: tuple[str, ...] = ()):
+    """Assemble trajectories generated in groups (e.g. two families of a mixture) into one batch.
+
+    Args:
+        lengths: ``(B,)`` lengths of the whole batch.
+        parts: ``(indices, batch)`` pairs that together cover ``0..B-1``.
+        extras: names of per-sample extras to carry over (zeros where a part has none).
+
+    Returns:
+        A :class:`TrajectoryBatch` padded to ``max(lengths)`` by repeating last samples.
+    """
+    k_max = int(lengths.max())
+
+    def padded(values: np.ndarray) -> np.ndarray:
+        return np.concatenate([values, np.repeat(values[:, -1:], k_max - values.shape[1], axis=1)], axis=1)
+
+    states: np.ndarray | None = None
+    carried: dict[str, np.ndarray] = {}
+    for idx, part in parts:
+        part_states = padded(part.states)
+        if states is None:
+            states = np.zeros((len(lengths),) + part_states.shape[1:])
+        states[idx] = part_states
+        for name in extras:
+            if part.extras is not None and name in part.extras:
+                value = padded(part.extras[name])
+                carried.setdefault(name, np.zeros((len(lengths),) + value.shape[1:]))[idx] = value
+    return TrajectoryBatch(states=states, lengths=lengths, extras=carried or None)
+
+
 def unpad(batch: TrajectoryBatch) -> list[np.ndarray]:
     """The trajectories of a batch as a list of ``(K_b, state_dim)`` arrays."""
     return [batch.states[b, : batch.lengths[b]] for b in range(len(batch))]

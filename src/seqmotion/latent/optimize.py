@@ -69,11 +69,17 @@ def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.o
     raise ValueError(f"optimizer must be 'sgd' or 'adam', got {name!r}")
 
 
-def _check(model: object, steps: int, lr: float) -> None:
+def _prepare(
+    model: object, states: object, objective: object, steps: int, lr: float
+) -> tuple[Any, torch.Tensor, torch.Tensor, int, bool]:
+    """Validate the arguments; return ``(objective, inputs (B, K, S), x0 (B, S'), K, was_single)``."""
     if not isinstance(model, TrainedModel):
         raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
     if steps < 0 or not lr > 0:
         raise ValueError(f"need steps >= 0 and lr > 0, got steps={steps}, lr={lr}")
+    batch, single = as_trajectories(states, model.input_dim, "states")
+    x = torch.from_numpy(batch)
+    return as_objective(objective), x, model.start_state(x), x.shape[1], single
 
 
 def _descend(
@@ -131,21 +137,17 @@ def optimize_latent(
         optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2) or ``"adam"``.
         physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding).
     """
-    _check(model, steps, lr)
-    objective = as_objective(objective)
-    batch, single = as_trajectories(states, model.input_dim, "states")
-    x = torch.from_numpy(batch)
-    x0, length = model.start_state(x), x.shape[1]
+    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
     with torch.no_grad():
         if isinstance(init, str) and init == "encoder":
             z0 = model.encode_torch(x)
         elif isinstance(init, str) and init == "random":
             gen = torch.Generator().manual_seed(seed)
-            z0 = torch.randn(len(batch), model.model.latent_dim, generator=gen)
+            z0 = torch.randn(len(x), model.model.latent_dim, generator=gen)
         elif not isinstance(init, str):  # continue from given latents
             z0 = torch.as_tensor(np.atleast_2d(np.asarray(init, dtype=np.float32)))
-            if z0.shape != (len(batch), model.model.latent_dim) or not torch.isfinite(z0).all():
-                raise ValueError(f"init latent must be finite with shape ({len(batch)}, {model.model.latent_dim})")
+            if z0.shape != (len(x), model.model.latent_dim) or not torch.isfinite(z0).all():
+                raise ValueError(f"init latent must be finite with shape ({len(x)}, {model.model.latent_dim})")
         else:
             raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
     with _frozen(model.model):
@@ -169,11 +171,7 @@ def optimize_trajectory(
     Starts from the motion the decoder generates for ``states``; ``lr`` is η (1000 in the
     dissertation). Arguments as :func:`optimize_latent`.
     """
-    _check(model, steps, lr)
-    objective = as_objective(objective)
-    batch, single = as_trajectories(states, model.input_dim, "states")
-    x = torch.from_numpy(batch)
-    x0, length = model.start_state(x), x.shape[1]
+    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
     with torch.no_grad():
         _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, **physics)
     with _frozen(model.model):

@@ -8,7 +8,7 @@ checkpoints and CLI work for it with no edits elsewhere.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -107,6 +107,12 @@ class Task(ABC):
 
     def build_model(self, config: TrainConfig) -> ChunkedSeq2Seq:
         return ChunkedSeq2Seq(Seq2SeqConfig.from_dict(config.model))
+
+
+def first_of(result: Any) -> Any:
+    """The same result dataclass with every array field indexed by ``[0]`` (drop a batch axis of 1)."""
+    values = {f.name: getattr(result, f.name) for f in fields(result)}
+    return type(result)(**{k: v if v is None else v[0] for k, v in values.items()})
 
 
 class TrainedModel:

@@ -31,7 +31,7 @@ from ..physics.integrator import DT, DoubleIntegratorDynamics
 from ..physics.pancake import ACCEL_DIM, MU, STATE_DIM, violation_angle, violation_torch
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import DEFAULT_VARIANCE_FLOOR, gaussian_nll_1d, gaussian_nll_2d
-from .base import Task, TrainConfig, TrainedModel
+from .base import Task, TrainConfig, TrainedModel, first_of
 
 THETA_WEIGHT = 0.1
 """D's scaling of the attitude against positions (eq. 2.25): 1 rad counts like 0.1 m."""
@@ -255,7 +255,7 @@ class Deformer(TrainedModel):
             x = torch.from_numpy(batch)
             z = self.encode_torch(x)
             result = self._decode(z, x[:, 0], batch.shape[1])
-        return _strip(result) if single else result
+        return first_of(result) if single else result
 
     def decode(self, latent: object, x0: object, length: int) -> DeformResult:
         """Decode given latents ``(L·H,)``/``(B, L·H)`` from start states ``(6,)``/``(B, 6)``."""
@@ -268,7 +268,7 @@ class Deformer(TrainedModel):
             raise ValueError(f"need latent (B, {self.model.latent_dim}) and x0 (B, 6); got {z.shape}, {x0.shape}")
         with torch.inference_mode():
             result = self._decode(torch.from_numpy(z), torch.from_numpy(x0), length)
-        return _strip(result) if single else result
+        return first_of(result) if single else result
 
     def _decode(self, z: torch.Tensor, x0: torch.Tensor, length: int) -> DeformResult:
         states, accel = self.decode_torch(z, x0.double(), length)
@@ -334,7 +334,3 @@ class OnlineGenerator:
         self._steps += 1
         out = mean.double().numpy()
         return out[0] if self._single else out
-
-
-def _strip(result: DeformResult) -> DeformResult:
-    return DeformResult(*(getattr(result, f)[0] for f in ("states", "accel", "violation", "psi", "latent")))

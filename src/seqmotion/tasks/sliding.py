@@ -36,7 +36,7 @@ from ..physics import sliding as contact
 from ..physics.integrator import DT
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import gaussian_nll_2d
-from .base import Task, TrainConfig, TrainedModel
+from .base import Task, TrainConfig, TrainedModel, first_of
 
 PAN_LIMIT = 0.2  # p_lim [m]
 VARIANTS = {
@@ -246,6 +246,4 @@ class SlidingPlanner(TrainedModel):
             states, accel = self.decode_torch(z, self.start_state(x), k, mu=mu, mu_dyn=mu_dyn)
         states = check_finite_result(states.numpy(), "planning")
         plan = SlidingPlan(accel.numpy(), states[..., :4], states[..., 4:], z.numpy())
-        if single:
-            return SlidingPlan(*(getattr(plan, f)[0] for f in ("pan_accel", "pan_states", "rel_states", "latent")))
-        return plan
+        return first_of(plan) if single else plan
