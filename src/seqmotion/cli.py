@@ -10,6 +10,7 @@ import argparse
 import importlib
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -104,7 +105,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     variant = f"-{args.variant}" if args.variant else ""
     out = Path(args.out or f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
     train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps)
-    print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
+    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, say it once
+        print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
     return 0
 
 

@@ -123,8 +123,12 @@ def train(
     every = config.checkpoint_every or bpe
 
     step, elapsed = 0, 0.0
-    provenance = {"command": " ".join(["seqmotion", *sys.argv[1:]]) if sys.argv[0].endswith("seqmotion")
-                  else " ".join(sys.argv), "machine": machine_description(), "world_size": world}
+    program = sys.argv[0]
+    if program.endswith("seqmotion"):
+        program = "seqmotion"
+    elif program.endswith(os.path.join("seqmotion", "cli.py")):
+        program = "python -m seqmotion.cli" if world == 1 else f"torchrun --nproc_per_node={world} -m seqmotion.cli"
+    provenance = {"command": " ".join([program, *sys.argv[1:]]), "machine": machine_description(), "world_size": world}
     latest = ckpt.latest_checkpoint(run_dir) if resume and run_dir.exists() else None
     if latest is not None:
         saved_config, tensors, opt_state, trainer_state = ckpt.read_training_checkpoint(latest)
