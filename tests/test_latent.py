@@ -80,6 +80,17 @@ def test_each_case_reduces_the_end_pose_objective(deformer, case):
     assert float(final) == pytest.approx(res.history[-1], rel=1e-9)
 
 
+def test_auto_step_size_decreases_monotonically(deformer):
+    starts = np.stack([gen.straight(t, 100) for t in ([0.1, 0.0, 2.0], [-0.05, 0.05, -1.0])])
+    res = sm.optimize_latent(deformer, starts, EndPose([[0.1, 0.0, 2.0], [-0.05, 0.05, -1.0]]), steps=8)
+    totals = res.history.sum(1)
+    assert np.all(np.diff(totals) <= 1e-12) and totals[-1] < totals[0]
+    res3 = sm.optimize_trajectory(deformer, starts[0], EndPose([0.1, 0.0, 2.0]), steps=5)
+    assert np.all(np.diff(res3.history) <= 1e-12)
+    with pytest.raises(ValueError, match="needs a numeric lr"):
+        sm.optimize_latent(deformer, starts[0], EndPose([0.1, 0.0, 2.0]), optimizer="adam")
+
+
 def test_plain_gradient_descent_is_eq_4_2(deformer):
     start = gen.straight((0.0, 0.1, -1.0), 80)
     objective = EndPose((0.0, 0.1, -1.0))

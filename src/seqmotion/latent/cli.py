@@ -23,7 +23,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--length", type=int, default=500, help="K of the default input (samples at 1 ms)")
     p.add_argument("--case", type=int, choices=[1, 2, 3], default=1, help="1 encoder z, 2 random z, 3 accelerations")
     p.add_argument("--steps", type=int, help="updates (default 100 for J1, 20 for J2)")
-    p.add_argument("--lr", type=float, help="step size η (default: the dissertation's for the case/objective)")
+    p.add_argument("--lr", type=float, help="fixed step size η (default: chosen by a line search at every update)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--output", required=True, help=".npz or .csv for the adjusted trajectory")
     p.add_argument("--plot", help="PNG with the trajectory, ψ and the objective's progress")
@@ -41,11 +41,11 @@ def run(args: argparse.Namespace) -> int:
     if args.preset == "j2":
         objective = Ranges()
         default_input = inputs.straight((0.0, 0.0, -3 * math.pi / 4), args.length, timing="linear")
-        steps, lr = args.steps or 20, args.lr or 100.0
+        steps, lr = args.steps or 20, args.lr or "auto"
     else:
         objective = EndPose(args.target)
         default_input = inputs.straight(args.target, args.length)
-        steps, lr = args.steps or 100, args.lr or (1000.0 if args.case == 3 else 200.0)
+        steps, lr = args.steps or 100, args.lr or "auto"
     states = read_trajectory(args.input) if args.input else default_input
     if args.case == 3:
         res = optimize_trajectory(model, states, objective, steps=steps, lr=lr)

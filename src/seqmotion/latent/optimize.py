@@ -38,7 +38,8 @@ class OptimizationResult:
         latent: ``(L·H,)`` the optimised z (None for case 3).
         history: ``(steps + 1,)`` the objective before each update and after the last
             (``(steps + 1, B)`` for a batch; a scalar objective gives ``(steps + 1,)``).
-        seconds_per_update: mean wall time of one update (forward, backward, step).
+        seconds_per_update: mean wall time of one update (backward, step, forward; with
+            ``lr="auto"`` also the line search's extra forward passes).
     """
 
     states: np.ndarray
@@ -70,13 +71,13 @@ def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.o
 
 
 def _prepare(
-    model: object, states: object, objective: object, steps: int, lr: float
+    model: object, states: object, objective: object, steps: int, lr: float | str
 ) -> tuple[Any, torch.Tensor, torch.Tensor, int, bool]:
     """Validate the arguments; return ``(objective, inputs (B, K, S), x0 (B, S'), K, was_single)``."""
     if not isinstance(model, TrainedModel):
         raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
-    if steps < 0 or not lr > 0:
-        raise ValueError(f"need steps >= 0 and lr > 0, got steps={steps}, lr={lr}")
+    if steps < 0 or not (lr == "auto" or (isinstance(lr, (int, float)) and lr > 0)):
+        raise ValueError(f"need steps >= 0 and lr > 0 or 'auto', got steps={steps}, lr={lr!r}")
     batch, single = as_trajectories(states, model.input_dim, "states")
     x = torch.from_numpy(batch)
     return as_objective(objective), x, model.start_state(x), x.shape[1], single
@@ -87,28 +88,73 @@ def _descend(
     evaluate: Any,
     objective: Any,
     steps: int,
-    lr: float,
+    lr: float | str,
     optimizer: str,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray, float]:
-    """Minimise ``objective(*evaluate(variable))`` over ``variable``; return the final motion and history."""
+    """Minimise ``objective(*evaluate(variable))`` over ``variable``; return the final motion and history.
+
+    ``lr="auto"``: gradient descent with Armijo backtracking (see :func:`_armijo_step`). A
+    fixed η is meaningful only in units of a particular latent space; this needs none.
+    """
     variable = variable.detach().clone().requires_grad_(True)
-    opt = _make_optimizer(optimizer, [variable], lr)
-    history = []
-    seconds = 0.0
-    for step in range(steps + 1):
-        start = time.perf_counter()
-        states, accel = evaluate(variable)
+    states, accel = evaluate(variable)
+    value = objective(states, accel)
+    history = [value.detach().double().numpy().copy()]
+    if optimizer not in ("sgd", "adam"):
+        raise ValueError(f"optimizer must be 'sgd' or 'adam', got {optimizer!r}")
+    if lr == "auto" and optimizer == "adam":
+        raise ValueError("optimizer='adam' needs a numeric lr (lr='auto' is gradient descent with a line search)")
+    opt = None if lr == "auto" else _make_optimizer(optimizer, [variable], float(lr))
+    eta: torch.Tensor | None = None
+    start = time.perf_counter()
+    for step in range(steps):
+        (grad,) = torch.autograd.grad(value.sum(), variable)
+        if not torch.isfinite(grad).all():
+            raise ValueError(f"the objective's gradient became NaN/inf at update {step}; try a smaller lr")
+        if opt is not None:  # a fixed step size (eq. 4.2 with the given η), or Adam
+            variable.grad = grad
+            opt.step()
+            next_variable = variable
+        else:
+            variable, value, states, accel, eta = _armijo_step(variable, value, grad, eta, evaluate, objective)
+            history.append(value.detach().double().numpy().copy())
+            continue
+        states, accel = evaluate(next_variable)
         value = objective(states, accel)
         history.append(value.detach().double().numpy().copy())
-        if step == steps:
+    seconds = (time.perf_counter() - start) / max(steps, 1)
+    return variable.detach(), states.detach(), accel.detach(), np.stack(history), seconds
+
+
+def _armijo_step(
+    variable: torch.Tensor, value: torch.Tensor, grad: torch.Tensor, eta: torch.Tensor | None, evaluate: Any,
+    objective: Any,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One gradient step per trajectory with its own step size, chosen by Armijo backtracking.
+
+    Trajectories are independent problems, so each gets its own η: start from twice its last
+    accepted η (the first time, from a step of half the variable's norm) and halve it until
+    ``J_b(v_b − η_b g_b) ≤ J_b(v_b) − 1e-4 η_b |g_b|²``. A scalar objective (one value for the
+    whole batch) gets one shared η. Returns the new variable, its objective, states, inputs and η.
+    """
+    b = grad.shape[0]
+    shape = (b,) + (1,) * (grad.dim() - 1)
+    per_trajectory = value.ndim == 1
+    grad_sq = (grad.reshape(b, -1) ** 2).sum(1)
+    norm = variable.detach().reshape(b, -1).norm(dim=1)
+    if not per_trajectory:
+        grad_sq, norm = grad_sq.sum().expand(b), norm.norm().expand(b)
+    step = 0.5 * norm.clamp_min(1.0) / grad_sq.sqrt().clamp_min(1e-30) if eta is None else 2 * eta
+    current = value.detach().expand(b)
+    for _ in range(60):
+        candidate = (variable.detach() - step.view(shape) * grad).requires_grad_(True)
+        states, accel = evaluate(candidate)
+        new_value = objective(states, accel)
+        ok = (new_value.detach().expand(b) <= current - 1e-4 * step * grad_sq) | (step < 1e-12)
+        if bool(ok.all()):
             break
-        opt.zero_grad(set_to_none=True)
-        value.sum().backward()  # independent trajectories: d(Σ J_b)/d z_b = d J_b / d z_b
-        if not torch.isfinite(variable.grad).all():
-            raise ValueError(f"the objective's gradient became NaN/inf at update {step}; try a smaller lr")
-        opt.step()
-        seconds += time.perf_counter() - start
-    return variable.detach(), states.detach(), accel.detach(), np.stack(history), seconds / max(steps, 1)
+        step = torch.where(ok, step, step / 2)  # accepted trajectories keep their step (same value again)
+    return candidate, new_value, states, accel, step
 
 
 def optimize_latent(
@@ -116,7 +162,7 @@ def optimize_latent(
     states: object,
     objective: object,
     steps: int = 100,
-    lr: float = 200.0,
+    lr: float | str = "auto",
     init: str | np.ndarray = "encoder",
     optimizer: str = "sgd",
     seed: int = 0,
@@ -131,7 +177,8 @@ def optimize_latent(
         objective: an :class:`~seqmotion.latent.objectives.Objective` or a callable
             ``f(states, accel) -> tensor``.
         steps: number of updates.
-        lr: step size η (200 in the dissertation for cases 1 and 2).
+        lr: step size η, or ``"auto"`` (default): Armijo backtracking at every update. The
+            dissertation's η = 200 (cases 1, 2) is tied to its latent scale; on ours it diverges.
         init: ``"encoder"`` (case 1), ``"random"`` (case 2: z ~ N(0, I), seeded by ``seed``), or
             latents to continue from (``(L·H,)`` / ``(B, L·H)``, e.g. a previous result's ``latent``).
         optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2) or ``"adam"``.
@@ -162,14 +209,14 @@ def optimize_trajectory(
     states: object,
     objective: object,
     steps: int = 100,
-    lr: float = 1000.0,
+    lr: float | str = "auto",
     optimizer: str = "sgd",
     **physics: Any,
 ) -> OptimizationResult:
     """Case 3: optimise the decoder's output accelerations directly (states by integration).
 
     Starts from the motion the decoder generates for ``states``; ``lr`` is η (1000 in the
-    dissertation). Arguments as :func:`optimize_latent`.
+    dissertation) or ``"auto"``. Arguments as :func:`optimize_latent`.
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
     with torch.no_grad():

@@ -32,11 +32,13 @@ from .ch2 import load_deformer
 
 TARGETS = np.array([(y, z, t) for y in (-0.1, 0.0, 0.1) for z in (-0.1, 0.0, 0.1) for t in (-math.pi, 0.0, math.pi)])
 LENGTH = 500
-CASES = {  # name: (how, step size η) as in §4.3.2
+CASES = {  # name: (how, the dissertation's step size η, §4.3.2)
     "case 1 (encoder z)": ("encoder", 200.0),
     "case 2 (random z)": ("random", 200.0),
     "case 3 (accelerations)": ("trajectory", 1000.0),
 }
+# Our runs use lr="auto" (Armijo backtracking per trajectory): a fixed η only means something
+# in one latent space's units. The dissertation's fixed η are run too and reported beside.
 
 
 def starts(targets: np.ndarray = TARGETS) -> np.ndarray:
@@ -44,7 +46,9 @@ def starts(targets: np.ndarray = TARGETS) -> np.ndarray:
     return np.stack([inputs.straight(t, LENGTH) for t in targets])
 
 
-def run_case(deformer: Deformer, how: str, lr: float, steps: int, targets: np.ndarray = TARGETS, seed: int = 0):
+def run_case(
+    deformer: Deformer, how: str, lr: float | str, steps: int, targets: np.ndarray = TARGETS, seed: int = 0
+):
     x = starts(targets)
     objective = EndPose(targets)
     if how == "trajectory":
@@ -65,7 +69,7 @@ def _band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, half
 
 
-def figures_cases(results: dict, out: Path) -> None:
+def figures_cases(results: dict, out: Path, fixed: dict | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -75,11 +79,14 @@ def figures_cases(results: dict, out: Path) -> None:
     for name, res in results.items():
         mean, half = _band(res.history)
         steps = np.arange(len(mean))
-        ax.plot(steps, mean, label=name)
-        ax.fill_between(steps, np.maximum(mean - half, 1e-12), mean + half, alpha=0.2)
+        line = ax.plot(steps, mean, label=f"{name}, η by line search")[0]
+        ax.fill_between(steps, np.maximum(mean - half, 1e-12), mean + half, alpha=0.2, color=line.get_color())
+        if fixed is not None and name in fixed:
+            ax.plot(steps, np.clip(fixed[name].history.mean(1), 1e-12, None), "--", color=line.get_color(), lw=1,
+                    label=f"{name}, the dissertation's η = {CASES[name][1]:g}")
     ax.axhline(1e-3, color="gray", ls=":", lw=1)
     ax.set(yscale="log", xlabel="update", ylabel="J1 (mean of 27 targets)", title="Fig. 4.2: progress of the objective")
-    ax.legend()
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "fig4_2_objective.png", dpi=130)
     plt.close(fig)
@@ -137,11 +144,12 @@ def j2_study(deformer: Deformer, out: Path) -> dict:
 
     x = inputs.straight((0.0, 0.0, -3 * math.pi / 4), LENGTH, timing="linear")
     objective = Ranges()
-    snapshots = {0: optimize_latent(deformer, x, objective, steps=0, lr=100.0)}
-    latent = snapshots[0].latent
+    snapshots = {0: optimize_latent(deformer, x, objective, steps=0)}
+    full = optimize_latent(deformer, x, objective, steps=20)  # η by line search
     for upto in (10, 20):
-        snapshots[upto] = optimize_latent(deformer, x, objective, steps=10, lr=100.0, init=latent)
-        latent = snapshots[upto].latent
+        # the state after `upto` updates: rerun (the line search's η sequence is deterministic)
+        snapshots[upto] = full if upto == 20 else optimize_latent(deformer, x, objective, steps=upto)
+    fixed = optimize_latent(deformer, x, objective, steps=20, lr=100.0)  # the dissertation's η
     fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     fig2, ax2 = plt.subplots(figsize=(7, 3.5))
     t = np.arange(LENGTH)
@@ -174,7 +182,7 @@ def j2_study(deformer: Deformer, out: Path) -> dict:
             "end": r.states[-1, :3].tolist(),
         }
         for u, r in snapshots.items()
-    } | {"final_states": final.states}
+    } | {"final_states": final.states, "dissertation_eta_100_final_J2": float(fixed.history[-1])}
 
 
 def _fc(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
@@ -184,12 +192,19 @@ def _fc(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
 
 
 def timing(deformer: Deformer) -> dict:
-    """Seconds per update for one K = 500 trajectory and for all 27 in one batch, per case."""
+    """Seconds per update for one K = 500 trajectory and for all 27 in one batch, per case.
+
+    Both for a fixed step (one forward and one backward pass: the dissertation's update) and
+    for the line search (which adds forward passes when it backtracks).
+    """
     out = {}
-    for name, (how, lr) in CASES.items():
-        one = run_case(deformer, how, lr, 10, TARGETS[:1])
-        batch = run_case(deformer, how, lr, 10)
-        out[name] = {"one_trajectory_s": one.seconds_per_update, "batch_of_27_s": batch.seconds_per_update}
+    for name, (how, eta) in CASES.items():
+        row = {}
+        for label, lr in (("fixed_step", eta), ("line_search", "auto")):
+            one = run_case(deformer, how, lr, 10, TARGETS[:1])
+            batch = run_case(deformer, how, lr, 10)
+            row[label] = {"one_trajectory_s": one.seconds_per_update, "batch_of_27_s": batch.seconds_per_update}
+        out[name] = row
     return out
 
 
@@ -200,13 +215,13 @@ def peer(deformer: Deformer, targets: np.ndarray, threshold: float = 1e-3) -> li
     rows = []
     for target in targets:
         start = time.perf_counter()
-        res = run_case(deformer, "encoder", 200.0, 100, target[None])
+        res = run_case(deformer, "encoder", "auto", 100, target[None])
         total = time.perf_counter() - start
         reached = np.flatnonzero(res.history < threshold)
         latent_time = None
         if reached.size:  # time a fresh run that stops at the first update below the threshold
             start = time.perf_counter()
-            run_case(deformer, "encoder", 200.0, int(reached[0]), target[None])
+            run_case(deformer, "encoder", "auto", int(reached[0]), target[None])
             latent_time = time.perf_counter() - start
         ipopt = solve_end_pose(tuple(target), threshold=threshold)
         rows.append({
@@ -257,37 +272,47 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     out.mkdir(parents=True, exist_ok=True)
     deformer = load_deformer(model)
     steps = 20 if quick else 100
-    results = {name: run_case(deformer, how, lr, steps, seed=seed) for name, (how, lr) in CASES.items()}
-    figures_cases(results, out)
+    results = {name: run_case(deformer, how, "auto", steps, seed=seed) for name, (how, _) in CASES.items()}
+    fixed, diverged = {}, {}
+    for name, (how, eta) in CASES.items():
+        try:
+            fixed[name] = run_case(deformer, how, eta, steps, seed=seed)
+        except ValueError as exc:  # the fixed step blew the objective up to NaN/inf
+            diverged[name] = str(exc)
+    figures_cases(results, out, fixed)
 
-    summary: dict = {"cases": {}}
-    lines = ["| case | mean J1 at update 5 | mean J1 at the end | end-position RMSE [mm] | end-attitude RMSE [deg] "
-             "| outputs with max F_c ≤ 0.01 rad |", "|---|---|---|---|---|---|"]
-    for name, res in results.items():
-        pos, att = end_errors(res.states)
-        fc = _fc(res.states, res.accel).max(axis=1)
-        row = {
-            "mean_j1_by_update": res.history.mean(1).tolist(),
-            "end_position_rmse_mm": float(math.sqrt((pos**2).mean())),
-            "end_attitude_rmse_deg": float(math.sqrt((att**2).mean())),
-            "feasible_share": float((fc <= FEASIBLE_TOLERANCE).mean()),
-            "max_fc": float(fc.max()),
-        }
-        summary["cases"][name] = row
-        lines.append(
-            f"| {name} | {res.history[min(5, steps)].mean():.2e} | {res.history[-1].mean():.2e} "
-            f"| {row['end_position_rmse_mm']:.3f} | {row['end_attitude_rmse_deg']:.3f} "
-            f"| {100 * row['feasible_share']:.0f} % |"
-        )
+    summary: dict = {"cases": {}, "cases_dissertation_eta": {}, "dissertation_eta_diverged": diverged}
+    lines = ["| case | step size | mean J1 at update 5 | mean J1 at the end | end-position RMSE [mm] "
+             "| end-attitude RMSE [deg] | outputs with max F_c ≤ 0.01 rad |", "|---|---|---|---|---|---|---|"]
+    for key, runs in (("cases", results), ("cases_dissertation_eta", fixed)):
+        for name, res in runs.items():
+            pos, att = end_errors(res.states)
+            fc = _fc(res.states, res.accel).max(axis=1)
+            row = {
+                "mean_j1_by_update": res.history.mean(1).tolist(),
+                "end_position_rmse_mm": float(math.sqrt((pos**2).mean())),
+                "end_attitude_rmse_deg": float(math.sqrt((att**2).mean())),
+                "feasible_share": float((fc <= FEASIBLE_TOLERANCE).mean()),
+                "max_fc": float(fc.max()),
+            }
+            summary[key][name] = row
+            eta = "line search" if key == "cases" else f"η = {CASES[name][1]:g}"
+            lines.append(
+                f"| {name} | {eta} | {res.history[min(5, steps)].mean():.2e} | {res.history[-1].mean():.2e} "
+                f"| {row['end_position_rmse_mm']:.3f} | {row['end_attitude_rmse_deg']:.3f} "
+                f"| {100 * row['feasible_share']:.0f} % |"
+            )
     (out / "table4_end_rmse.md").write_text("\n".join(lines) + "\n")
 
     j2 = j2_study(deformer, out)
     final_states = j2.pop("final_states")
     summary["j2"] = j2
     summary["timing"] = timing(deformer)
-    timing_lines = ["| case | s/update, one K = 500 trajectory | s/update, 27 targets in one batch |", "|---|---|---|"]
-    for name, t in summary["timing"].items():
-        timing_lines.append(f"| {name} | {t['one_trajectory_s']:.4f} | {t['batch_of_27_s']:.4f} |")
+    timing_lines = ["| case | step | s/update, one K = 500 trajectory | s/update, 27 targets in one batch |",
+                    "|---|---|---|---|"]
+    for name, rows in summary["timing"].items():
+        for label, t in rows.items():
+            timing_lines.append(f"| {name} | {label} | {t['one_trajectory_s']:.4f} | {t['batch_of_27_s']:.4f} |")
     (out / "table4_timing.md").write_text("\n".join(timing_lines) + "\n")
 
     if quick:  # IPOPT needs minutes per hard target: the quick smoke test leaves it out
