@@ -117,3 +117,20 @@ def test_generators_are_seeded_and_start_at_rest():
     # physics-type commands are what the pan shaking does to the object
     pan, rel = contact.rollout(a.extras["pan_accel"][0, : a.lengths[0] - 1])
     np.testing.assert_allclose(rel, a.states[0, : a.lengths[0]], atol=1e-12)
+
+
+def test_friction_randomisation_draws_valid_pairs_and_reaches_the_physics():
+    cfg = TASK.train_config("tiny")
+    cfg.options["friction_range"] = [[0.7, 1.3], [0.3, 0.7]]
+    batch = TASK.sample(64, np.random.default_rng(0), {"loss_prime_prob": 0.0, "bspline_prob": 0.0}, cfg)
+    mu, mud = batch.extras["mu"], batch.extras["mu_dyn"]
+    assert np.all((mu >= 0.7) & (mu <= 1.3) & (mud >= 0.3) & (mud < mu)) and mu.std() > 0.1
+    # physics-type commands were rolled out with each trajectory's own friction
+    b = int(np.argmin(mu))
+    k = batch.lengths[b]
+    pan_accel = np.diff(batch.extras["pan_states"][b, :k, 2:], axis=0) / 1e-3
+    _, rel = contact.rollout(pan_accel, mu=mu[b], mu_dyn=mud[b])
+    np.testing.assert_allclose(rel, batch.states[b, :k], atol=1e-9)
+    default = TASK.sample(8, np.random.default_rng(0), {"loss_prime_prob": 0.0, "bspline_prob": 0.0},
+                          TASK.train_config("tiny"))
+    assert np.all(default.extras["mu"] == 1.0) and np.all(default.extras["mu_dyn"] == 0.5)

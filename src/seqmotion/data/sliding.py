@@ -3,14 +3,12 @@
 A command is the object's state relative to the pan, ``x_d = [x, y, vx, vy]`` (K, 4), from
 rest at 0. Two families, seeded and vectorised:
 
-* **physics type** — random pan shaking rolled out through the contact model; the pan
-  trajectory that produced the command is kept (``extras["pan_states"]``) for the supervised
-  loss L'. Half of them are *ratchet* shaking: a sawtooth pan velocity along a slowly turning
-  direction, with a short slip phase whose acceleration exceeds μg (the object slides) and a
-  long stick phase below it (the object rides along), zero-mean so the pan stays near home —
-  the way shaking moves an object, for L' to teach. The other half are smooth random shaking:
-  the pan's position is a cubic B-spline through random control points 40–120 ms apart and
-  5–30 mm in amplitude, so its acceleration sometimes exceeds μg.
+* **physics type** — random pan shaking rolled out through the contact model. The pan's
+  position is a uniform cubic B-spline through random control points 40–120 ms apart with a
+  random amplitude of 5–30 mm, so its acceleration often exceeds μg and the object slides;
+  the pan trajectory that produced the command is kept (``extras["pan_states"]``) for the
+  supervised loss L'. (A ratchet-like, zero-mean sawtooth shaking was tried instead: L' then
+  learned its mean, a nearly still pan, and training never left the gradient-vanishing zone.)
 * **B-spline type** — the object's relative acceleration ``u_d`` is a uniform cubic B-spline
   through random control points 100–300 ms apart, integrated to ``x_d`` and scaled so the
   object travels at most 10–80 mm from its start: arbitrary paths with no pan behind them.
@@ -38,10 +36,6 @@ from .trajectories import (
 DEFAULT_LENGTH = (500, 1500)
 SHAKE_SPACING_MS = (40, 120)
 SHAKE_AMPLITUDE = (0.005, 0.03)  # m
-RATCHET_PERIOD_MS = (40, 120)
-RATCHET_SLIP_ACCEL = (1.2, 2.5)  # × μ g during the slip phase
-RATCHET_STICK_ACCEL = (0.3, 0.8)  # × μ g during the stick phase
-TURN_SPACING_MS = (150, 400)  # how fast the ratchet's direction and strength change
 COMMAND_SPACING_MS = (100, 300)
 COMMAND_REACH = (0.01, 0.08)  # m: the farthest the object gets from its start
 
@@ -65,56 +59,21 @@ def _smooth_shaking(rng: np.random.Generator, lengths: np.ndarray, dt: float) ->
     return d2 / (per_segment[:, None, None] * dt) ** 2
 
 
-def _ratchet_shaking(rng: np.random.Generator, lengths: np.ndarray, mu: float, dt: float) -> np.ndarray:
-    """Sawtooth-velocity pan shaking that ratchets the object along a turning direction: ``(n, K_max-1, 2)``.
-
-    The pan velocity is ``e(t) S(t) d(t)``: a zero-mean sawtooth S rising slowly (stick phase,
-    |u_p| below μg) and dropping fast (slip phase, |u_p| above μg), switched on and off by a
-    smooth gate e ∈ [0, 1] that starts at 0, along a smoothly turning unit direction d. Accelerations
-    are its exact discrete derivative, so the pan's velocity (and position) stay bounded.
-    """
-    n, k_max = len(lengths), int(lengths.max())
-    mu_g = mu * contact.GRAVITY
-    period = rng.uniform(*RATCHET_PERIOD_MS, size=(n, 1)) * 1e-3
-    slip = rng.uniform(*RATCHET_SLIP_ACCEL, size=(n, 1)) * mu_g
-    stick = rng.uniform(*RATCHET_STICK_ACCEL, size=(n, 1)) * mu_g
-    slip_fraction = stick / (slip + stick)  # zero-mean acceleration over a period
-    amplitude = slip * slip_fraction * period  # velocity drop across the slip phase
-    t = np.minimum(np.arange(k_max)[None, :], lengths[:, None] - 1) * dt
-    phase = np.mod(t / period + rng.uniform(size=(n, 1)), 1.0)
-    rise = phase >= slip_fraction
-    sawtooth = np.where(rise, (phase - slip_fraction) / (1 - slip_fraction), 1 - phase / slip_fraction) - 0.5
-    per_segment, u, n_control = _knots(rng, lengths, TURN_SPACING_MS, dt)
-    u = np.concatenate([u, u[:, -1:]], axis=1)  # one value per state sample
-    angle_control = rng.uniform(-np.pi, np.pi, size=(n, 1, 1)) + rng.normal(scale=0.8, size=(n, n_control, 1))
-    # mostly on, sometimes paused: scaling the sawtooth down would push its slip phase below μg
-    strength_control = (rng.random(size=(n, n_control, 1)) < 0.8).astype(np.float64)
-    strength_control[:, :2] = 0.0  # start at rest
-    angle, _, _ = uniform_bspline(angle_control, u)
-    strength, _, _ = uniform_bspline(strength_control, u)
-    direction = np.concatenate([np.cos(angle), np.sin(angle)], axis=-1)
-    velocity = np.clip(strength, 0.0, 1.0) * (amplitude[..., None] * sawtooth[..., None]) * direction
-    velocity -= velocity[:, :1]  # exactly at rest at the start
-    return np.diff(velocity, axis=1) / dt
-
-
 def physics_type(
     n: int,
     rng: np.random.Generator,
     *,
     length: int | tuple[int, int] | np.ndarray = DEFAULT_LENGTH,
-    mu: float = contact.MU,
-    mu_dyn: float = contact.MU_DYN,
+    mu: float | np.ndarray = contact.MU,
+    mu_dyn: float | np.ndarray = contact.MU_DYN,
     dt: float = DT,
 ) -> TrajectoryBatch:
-    """Commands produced by random pan shaking (returns the pan's states too, in ``extras``)."""
+    """Commands produced by random pan shaking (returns the pan's states too, in ``extras``).
+
+    ``mu``, ``mu_dyn``: the friction the shaking is rolled out with, scalars or ``(n,)``.
+    """
     lengths = draw_lengths(rng, n, length)
-    ratchet = rng.random(n) < 0.5
-    pan_accel = np.zeros((n, int(lengths.max()) - 1, 2))
-    for idx, make in ((np.flatnonzero(ratchet), _ratchet_shaking), (np.flatnonzero(~ratchet), None)):
-        if idx.size:
-            part = _ratchet_shaking(rng, lengths[idx], mu, dt) if make else _smooth_shaking(rng, lengths[idx], dt)
-            pan_accel[idx, : part.shape[1]] = part
+    pan_accel = _smooth_shaking(rng, lengths, dt)
     valid = np.arange(pan_accel.shape[1])[None, :] < (lengths[:, None] - 1)
     pan_accel = np.where(valid[..., None], pan_accel, 0.0)
     pan_states, rel_states = contact.rollout(pan_accel, mu, mu_dyn, dt)
@@ -153,23 +112,31 @@ def mixture(
     *,
     bspline_prob: float,
     length: int | tuple[int, int] = DEFAULT_LENGTH,
+    mu: float | np.ndarray = contact.MU,
+    mu_dyn: float | np.ndarray = contact.MU_DYN,
     dt: float = DT,
 ) -> TrajectoryBatch:
     """B-spline type with probability ``bspline_prob``, else physics type (the ch. 3 curriculum's mixture).
 
     ``extras["pan_states"]`` holds the pan trajectory where one exists (zeros otherwise) and
-    ``extras["has_pan"]`` (n,) says where.
+    ``extras["has_pan"]`` (n,) says where. ``mu``, ``mu_dyn`` (scalars or ``(n,)``) are the
+    friction the physics-type commands are rolled out with.
     """
     if not 0.0 <= bspline_prob <= 1.0:
         raise ValueError(f"bspline_prob must be in [0, 1], got {bspline_prob}")
     pick_bspline = rng.random(n) < bspline_prob
     lengths = draw_lengths(rng, n, length)
+    mu_all, mud_all = np.broadcast_to(mu, (n,)), np.broadcast_to(mu_dyn, (n,))
     parts = []
     for use_bspline in (True, False):
         idx = np.flatnonzero(pick_bspline == use_bspline)
-        if idx.size:
-            make = bspline_type if use_bspline else physics_type
-            parts.append((idx, make(idx.size, rng, length=lengths[idx], dt=dt)))
+        if idx.size == 0:
+            continue
+        if use_bspline:
+            parts.append((idx, bspline_type(idx.size, rng, length=lengths[idx], dt=dt)))
+        else:
+            parts.append((idx, physics_type(idx.size, rng, length=lengths[idx], mu=mu_all[idx], mu_dyn=mud_all[idx],
+                                            dt=dt)))
     batch = combine(lengths, parts, extras=("pan_states",))
     if batch.extras is None:  # only B-spline commands: no pan behind any of them
         batch.extras = {"pan_states": np.zeros_like(batch.states)}

@@ -199,19 +199,21 @@ def contact_chunk(
 
 
 def rollout(
-    pan_accel: object, mu: float = MU, mu_dyn: float = MU_DYN, dt: float = DT
+    pan_accel: object, mu: float | np.ndarray = MU, mu_dyn: float | np.ndarray = MU_DYN, dt: float = DT
 ) -> tuple[np.ndarray, np.ndarray]:
     """Roll pan accelerations out through the contact model (SPEC §7).
 
     Args:
         pan_accel: ``(K-1, 2)`` or ``(B, K-1, 2)`` pan accelerations [m/s²].
-        mu, mu_dyn: static and dynamic friction coefficients (``0 ≤ μ' ≤ μ``).
+        mu, mu_dyn: static and dynamic friction coefficients (``0 ≤ μ' ≤ μ``), scalars or one
+            per trajectory ``(B,)``.
 
     Returns:
         ``(pan_states, rel_states)``, each ``(K, 4)`` (or batched), starting at rest at 0:
         the pan ``[x, y, vx, vy]`` and the object relative to it.
     """
-    if not (mu > 0 and 0 <= mu_dyn <= mu):
+    mu_arr, mud_arr = np.asarray(mu, dtype=np.float64), np.asarray(mu_dyn, dtype=np.float64)
+    if not (np.all(mu_arr > 0) and np.all(mud_arr >= 0) and np.all(mud_arr <= mu_arr)):
         raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu={mu}, mu_dyn={mu_dyn}")
     if not dt > 0:
         raise ValueError(f"dt must be positive, got {dt}")
@@ -220,7 +222,7 @@ def rollout(
     zero = torch.zeros(u.shape[0], STATE_DIM, dtype=torch.float64)
     pan = integrate(zero, u, dt)
     with torch.no_grad():
-        rel, _, _ = contact_chunk(zero, u, mu, mu_dyn, dt)
+        rel, _, _ = contact_chunk(zero, u, torch.as_tensor(mu_arr), torch.as_tensor(mud_arr), dt)
     rel = torch.cat([zero.unsqueeze(1), rel], dim=1)
     pan_np, rel_np = pan.numpy(), rel.numpy()
     return (pan_np[0], rel_np[0]) if single else (pan_np, rel_np)

@@ -87,6 +87,9 @@ DEFAULT_OPTIONS = {
     "variance_floor": 1e-6,
     "mu": contact.MU,
     "mu_dyn": contact.MU_DYN,
+    # Beyond the dissertation (off by default): draw each training trajectory's friction from
+    # [[μ_lo, μ_hi], [μ'_lo, μ'_hi]] (with μ' < μ) instead of training at (mu, mu_dyn) only.
+    "friction_range": None,
 }
 
 
@@ -136,10 +139,18 @@ class SlidingTask(Task):
     def sample(
         self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
     ) -> TrajectoryBatch:
-        batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=tuple(config.options["length"]))
+        opt = {**DEFAULT_OPTIONS, **config.options}
+        if opt["friction_range"] is None:
+            mu, mu_dyn = np.full(n, opt["mu"]), np.full(n, opt["mu_dyn"])
+        else:
+            (mu_lo, mu_hi), (mud_lo, mud_hi) = opt["friction_range"]
+            mu = rng.uniform(mu_lo, mu_hi, size=n)
+            mu_dyn = rng.uniform(mud_lo, np.minimum(mud_hi, mu), size=n)  # μ' < μ
+        batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=tuple(opt["length"]),
+                                 mu=mu, mu_dyn=mu_dyn)
         # which trajectories are scored with L' (only those with a pan trajectory behind them)
         use_prime = (rng.random(n) < params["loss_prime_prob"]) & batch.extras["has_pan"]
-        batch.extras["loss_prime"] = use_prime
+        batch.extras.update(loss_prime=use_prime, mu=mu, mu_dyn=mu_dyn)
         return batch
 
     def loss(
@@ -158,7 +169,8 @@ class SlidingTask(Task):
         b, k_max, _ = command.shape
 
         z = model.encode(command, lengths)
-        dynamics = contact.SlidingDynamics(opt["mu"], opt["mu_dyn"], DT, detach_contact=prime)
+        friction = (torch.from_numpy(batch.extras["mu"]), torch.from_numpy(batch.extras["mu_dyn"]))
+        dynamics = contact.SlidingDynamics(*friction, DT, detach_contact=prime)
         x0 = torch.zeros(b, 8)
         out = rollout(model, z, x0, dynamics, model.num_chunks(k_max))
         pan = out.states[:, 1:k_max, :4]  # states 1..K_max-1
