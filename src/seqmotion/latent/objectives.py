@@ -28,10 +28,20 @@ ObjectiveFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
 class Objective:
-    """Base class: callable on ``(states, accel)``, composable with ``+`` and ``*``."""
+    """Base class: callable on ``(states, accel)``, composable with ``+`` and ``*``.
+
+    Objectives of least-squares form ``J = |r|² + p`` may also expose ``residuals`` (B, m) and
+    ``penalty`` (B,); the Levenberg–Marquardt optimiser (``optimizer="lm"``) needs them.
+    """
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        raise ValueError(f"{self!r} has no least-squares residuals; use optimizer='sgd' or 'adam'")
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        raise ValueError(f"{self!r} has no least-squares residuals; use optimizer='sgd' or 'adam'")
 
     def __add__(self, other: object) -> Objective:
         return Sum([self, as_objective(other)])
@@ -56,6 +66,12 @@ class Sum(Objective):
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return sum(part(states, accel) for part in self.parts)  # type: ignore[return-value]
 
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return torch.cat([part.residuals(states, accel) for part in self.parts], dim=-1)
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return sum(part.penalty(states, accel) for part in self.parts)  # type: ignore[return-value]
+
     def __repr__(self) -> str:
         return " + ".join(map(repr, self.parts))
 
@@ -66,6 +82,14 @@ class Scaled(Objective):
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return self.weight * self.inner(states, accel)
+
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        if self.weight < 0:
+            raise ValueError("a negatively weighted objective has no least-squares form")
+        return self.weight**0.5 * self.inner.residuals(states, accel)
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return self.weight * self.inner.penalty(states, accel)
 
     def __repr__(self) -> str:
         return f"{self.weight:g} * {self.inner!r}"
@@ -124,7 +148,13 @@ class EndPose(Objective):
         return d * (states[:, -1, :3] - target)
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
-        return (self.end_error(states) ** 2).sum(-1) + self.alpha * dynamic_penalty(states, accel, self.mu)
+        return (self.end_error(states) ** 2).sum(-1) + self.penalty(states, accel)
+
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return self.end_error(states)
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return self.alpha * dynamic_penalty(states, accel, self.mu)
 
     def __repr__(self) -> str:
         return f"EndPose(target={self.target.tolist()}, alpha={self.alpha:g})"

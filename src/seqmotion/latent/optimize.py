@@ -100,14 +100,18 @@ def _descend(
     states, accel = evaluate(variable)
     value = objective(states, accel)
     history = [value.detach().double().numpy().copy()]
-    if optimizer not in ("sgd", "adam"):
-        raise ValueError(f"optimizer must be 'sgd' or 'adam', got {optimizer!r}")
+    if optimizer not in ("sgd", "adam", "lm"):
+        raise ValueError(f"optimizer must be 'sgd', 'adam' or 'lm', got {optimizer!r}")
     if lr == "auto" and optimizer == "adam":
         raise ValueError("optimizer='adam' needs a numeric lr (lr='auto' is gradient descent with a line search)")
-    opt = None if lr == "auto" else _make_optimizer(optimizer, [variable], float(lr))
-    eta: torch.Tensor | None = None
+    opt = None if lr == "auto" or optimizer == "lm" else _make_optimizer(optimizer, [variable], float(lr))
+    eta: torch.Tensor | None = None  # step sizes of the line search, or damping of Levenberg–Marquardt
     start = time.perf_counter()
     for step in range(steps):
+        if optimizer == "lm":
+            variable, value, states, accel, eta = _lm_step(variable, value, states, accel, eta, evaluate, objective)
+            history.append(value.detach().double().numpy().copy())
+            continue
         (grad,) = torch.autograd.grad(value.sum(), variable)
         if not torch.isfinite(grad).all():
             raise ValueError(f"the objective's gradient became NaN/inf at update {step}; try a smaller lr")
@@ -157,6 +161,48 @@ def _armijo_step(
     return candidate, new_value, states, accel, step
 
 
+def _lm_step(
+    variable: torch.Tensor, value: torch.Tensor, states: torch.Tensor, accel: torch.Tensor,
+    damping: torch.Tensor | None, evaluate: Any, objective: Any,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One Levenberg–Marquardt step per trajectory for ``J = |r|² + p`` (least-squares objectives).
+
+    With the residual Jacobian ``G = ∂r/∂v`` (one backward pass per residual component) and the
+    penalty's gradient ``g``: ``Δ = −(GᵀG + λI)⁻¹ (Gᵀr + g/2)``, solved through the m × m system
+    of the Woodbury identity. Each trajectory has its own damping λ: a step that does not lower
+    its J is retried with 4λ; an accepted one makes the next λ/3.
+    """
+    b = variable.shape[0]
+    residuals = objective.residuals(states, accel)  # (B, m)
+    penalty = objective.penalty(states, accel)  # (B,)
+    rows = []
+    for i in range(residuals.shape[1]):
+        (g_i,) = torch.autograd.grad(residuals[:, i].sum(), variable, retain_graph=True)
+        rows.append(g_i.reshape(b, -1).double())
+    jac = torch.stack(rows, dim=1)  # (B, m, n), the linear algebra in float64
+    if penalty.requires_grad:
+        (g_pen,) = torch.autograd.grad(penalty.sum(), variable)
+        g_pen = g_pen.reshape(b, -1).double()
+    else:
+        g_pen = torch.zeros_like(jac[:, 0])
+    rhs = (jac.transpose(1, 2) @ residuals.detach().double().unsqueeze(-1)).squeeze(-1) + 0.5 * g_pen  # (B, n)
+    gram = jac @ jac.transpose(1, 2)  # (B, m, m)
+    eye = torch.eye(gram.shape[-1], dtype=gram.dtype)
+    lam = 1e-3 * gram.diagonal(dim1=1, dim2=2).mean(-1).clamp_min(1e-12) if damping is None else damping
+    current = value.detach().double()
+    for _ in range(40):
+        inner = torch.linalg.solve(gram + lam.view(-1, 1, 1) * eye, (jac @ rhs.unsqueeze(-1)))  # (B, m, 1)
+        delta = -(rhs - (jac.transpose(1, 2) @ inner).squeeze(-1)) / lam.view(-1, 1)
+        candidate = (variable.detach() + delta.view_as(variable).to(variable.dtype)).requires_grad_(True)
+        states, accel = evaluate(candidate)
+        new_value = objective(states, accel)
+        ok = (new_value.detach().double() <= current) | (lam > 1e12)
+        if bool(ok.all()):
+            break
+        lam = torch.where(ok, lam, 4 * lam)  # accepted trajectories keep their λ (same step again)
+    return candidate, new_value, states, accel, lam / 3
+
+
 def optimize_latent(
     model: TrainedModel,
     states: object,
@@ -181,7 +227,8 @@ def optimize_latent(
             dissertation's η = 200 (cases 1, 2) is tied to its latent scale; on ours it diverges.
         init: ``"encoder"`` (case 1), ``"random"`` (case 2: z ~ N(0, I), seeded by ``seed``), or
             latents to continue from (``(L·H,)`` / ``(B, L·H)``, e.g. a previous result's ``latent``).
-        optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2) or ``"adam"``.
+        optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2), ``"adam"``, or ``"lm"``
+            (Levenberg–Marquardt, for least-squares objectives such as ``EndPose``; ``lr`` unused).
         physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding).
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
