@@ -14,11 +14,12 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
 import torch
 from common import time_training
 
 from seqmotion import tasks
-from seqmotion.reproduce.ch3 import speed
+from seqmotion.reproduce.ch3 import eval_commands, speed
 from seqmotion.tasks.sliding import SlidingPlanner
 from seqmotion.training.trainer import machine_description
 
@@ -30,13 +31,22 @@ def bench_generate(model: str | None) -> None:
 
     task = tasks.get("sliding")
     torch.manual_seed(0)
-    planners = {"paper-size (2x1024 + 500)": SlidingPlanner(task.build_model(task.train_config("paper")), {})}
+    paper = SlidingPlanner(task.build_model(task.train_config("paper")), {})
+    planners = {"paper-size (2x1024 + 500)": paper, "paper-size, int8 weights": paper.quantized()}
     try:
         planners["shipped/given"] = sm.load(model) if model else sm.load_pretrained("sliding")
     except ValueError as exc:
         print(json.dumps({"skipped": f"no trained model: {exc}"}))
+    if "shipped/given" in planners:  # how far int8 weights move a trained model's plan
+        planners["shipped/given, int8 (all layers)"] = planners["shipped/given"].quantized(min_features=16)
+    float_of = {"paper-size, int8 weights": "paper-size (2x1024 + 500)",
+                "shipped/given, int8 (all layers)": "shipped/given"}
+    command = eval_commands(1, 123)[0]
     for name, planner in planners.items():
         result = speed(planner)  # the same measurement `seqmotion reproduce ch3` reports
+        if name in float_of:  # the plan's object path with int8 weights against the float model's
+            moved = planner.plan(command).rel_states[:, :2] - planners[float_of[name]].plan(command).rel_states[:, :2]
+            result["object_path_change_vs_float_max_mm"] = 1000 * float(np.abs(moved).max())
         print(json.dumps({"model": name, **result, "dissertation_samples_per_s": 622,
                           "ratio_to_dissertation": result["single_samples_per_s"] / 622,
                           "machine": machine_description()}))

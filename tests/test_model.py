@@ -99,3 +99,22 @@ def test_gradients_reach_latent_through_physics():
     out = rollout(model, z, x[:, 0], DoubleIntegratorDynamics(3), 4, need_cov=False)
     out.states[:, -1, :3].sum().backward()
     assert z.grad is not None and np.isfinite(z.grad.numpy()).all() and z.grad.abs().sum() > 0
+
+
+def test_int8_weights_stay_close_to_float():
+    from seqmotion.models.quantize import Int8Linear, quantize_int8
+
+    torch.manual_seed(0)
+    for in_features in (512, 500):  # packed kernel (multiple of 16) and the dequantised fallback
+        layer = torch.nn.Linear(in_features, 300)
+        x = torch.randn(7, in_features)
+        with torch.no_grad():
+            y, yq = layer(x), Int8Linear(layer)(x)
+        assert yq.shape == y.shape and torch.isfinite(yq).all()
+        assert float((yq - y).norm() / y.norm()) < 0.02
+    model = torch.nn.Sequential(torch.nn.Linear(256, 256), torch.nn.Tanh(), torch.nn.Linear(256, 8))
+    q = quantize_int8(model)
+    assert isinstance(q[0], Int8Linear) and isinstance(q[2], torch.nn.Linear)  # narrow layers stay float
+    assert isinstance(model[0], torch.nn.Linear)  # the original is untouched
+    with pytest.raises(ValueError, match="min_features"):
+        quantize_int8(model, 0)

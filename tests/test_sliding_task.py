@@ -83,6 +83,14 @@ def test_plan_shapes_and_physics(planner):
     np.testing.assert_allclose(batch.pan_accel[1], plan.pan_accel, rtol=1e-5, atol=1e-5)
 
 
+def test_int8_planner_plans_close_to_float(planner, tmp_path):
+    command = commands.circle(0.03, 150)
+    fast = planner.quantized(min_features=16)  # every layer of the tiny model
+    assert fast.plan(command).pan_accel == pytest.approx(planner.plan(command).pan_accel, abs=0.05)
+    with pytest.raises(ValueError, match="inference only"):
+        fast.save_pretrained(tmp_path)
+
+
 def test_plan_rejects_bad_input(planner):
     with pytest.raises(ValueError, match="columns"):
         planner.plan(np.zeros((100, 6)))

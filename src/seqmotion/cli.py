@@ -133,6 +133,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from seqmotion.data import sliding as commands
 
     planner = _model_arg(args.model, "sliding")
+    if args.int8:
+        planner = planner.quantized()
     command = commands.circle(args.circle, args.length) if args.circle else read_trajectory(args.command)
     plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
     write_arrays(args.output, {"pan_states": plan.pan_states, "rel_states": plan.rel_states,
@@ -203,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--length", type=int, default=1200, help="K of the --circle command")
     p.add_argument("--mu", type=float, default=1.0, help="static friction of the 2-D physics")
     p.add_argument("--mu-dyn", type=float, default=0.5, help="dynamic friction of the 2-D physics")
+    p.add_argument("--int8", action="store_true", help="int8 weights for the big layers (faster on CPU, wide models)")
     p.add_argument("--output", required=True, help=".npz or .csv")
     p.set_defaults(func=cmd_plan)
 
