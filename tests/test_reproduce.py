@@ -30,11 +30,14 @@ def test_ch2_quick(pancake_run, tmp_path, monkeypatch):
 def test_ch4_quick(pancake_run, tmp_path, monkeypatch):
     monkeypatch.setattr(ch4, "robot", lambda states, out: {"robot": "not run in tests"})
     zero = {"one_trajectory_s": 0.0, "batch_of_27_s": 0.0}
-    monkeypatch.setattr(ch4, "timing", lambda deformer: {"case": {"fixed_step": zero, "line_search": zero}})
+    monkeypatch.setattr(ch4, "timing", lambda deformer: {"case": {"lm": zero, "line search": zero}})
     summary = ch4.run(tmp_path, model=str(pancake_run), quick=True)
-    assert set(summary["cases"]) == set(ch4.CASES)
-    for case in summary["cases"].values():
-        assert len(case["mean_j1_by_update"]) == 21
+    assert set(summary["methods"]) == set(ch4.METHODS)
+    for method in ("lm", "line search"):  # these never increase the objective, so they cannot diverge
+        assert set(summary["methods"][method]) == set(ch4.CASES)
+        for case in summary["methods"][method].values():
+            assert len(case["mean_j1_by_update"]) == 21
+            assert case["mean_j1_by_update"][-1] <= case["mean_j1_by_update"][0]
     assert summary["peer_skipped"] == "quick mode"
     for name in ("fig4_2_objective.png", "fig4_6_end_rmse.png", "fig4_8_j2_velocity.png", "fig4_9_j2_psi.png",
                  "fig4_3_theta_-pi.png", "table4_end_rmse.md", "j2_trajectory.npz"):

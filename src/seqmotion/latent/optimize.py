@@ -90,6 +90,7 @@ def _descend(
     steps: int,
     lr: float | str,
     optimizer: str,
+    relax: tuple[float, int] = (1.0, 0),
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray, float]:
     """Minimise ``objective(*evaluate(variable))`` over ``variable``; return the final motion and history.
 
@@ -109,7 +110,10 @@ def _descend(
     start = time.perf_counter()
     for step in range(steps):
         if optimizer == "lm":
-            variable, value, states, accel, eta = _lm_step(variable, value, states, accel, eta, evaluate, objective)
+            # continuation: the penalty's weight grows geometrically from relax[0] to 1 over relax[1] updates
+            weight, ramp = relax
+            w = 1.0 if step >= ramp else weight ** (1.0 - step / ramp)
+            variable, value, states, accel, eta = _lm_step(variable, states, accel, eta, evaluate, objective, w)
             history.append(value.detach().double().numpy().copy())
             continue
         (grad,) = torch.autograd.grad(value.sum(), variable)
@@ -162,19 +166,20 @@ def _armijo_step(
 
 
 def _lm_step(
-    variable: torch.Tensor, value: torch.Tensor, states: torch.Tensor, accel: torch.Tensor,
-    damping: torch.Tensor | None, evaluate: Any, objective: Any,
+    variable: torch.Tensor, states: torch.Tensor, accel: torch.Tensor, damping: torch.Tensor | None,
+    evaluate: Any, objective: Any, penalty_weight: float = 1.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One Levenberg–Marquardt step per trajectory for ``J = |r|² + p`` (least-squares objectives).
+    """One Levenberg–Marquardt step per trajectory for ``J_w = |r|² + w·p`` (least-squares objectives).
 
     With the residual Jacobian ``G = ∂r/∂v`` (one backward pass per residual component) and the
-    penalty's gradient ``g``: ``Δ = −(GᵀG + λI)⁻¹ (Gᵀr + g/2)``, solved through the m × m system
+    penalty's gradient ``g``: ``Δ = −(GᵀG + λI)⁻¹ (Gᵀr + w·g/2)``, solved through the m × m system
     of the Woodbury identity. Each trajectory has its own damping λ: a step that does not lower
-    its J is retried with 4λ; an accepted one makes the next λ/3.
+    its ``J_w`` is retried with 4λ; an accepted one makes the next λ/3. Returns the true
+    objective (``w = 1``) of the new motion.
     """
     b = variable.shape[0]
     residuals = objective.residuals(states, accel)  # (B, m)
-    penalty = objective.penalty(states, accel)  # (B,)
+    penalty = penalty_weight * objective.penalty(states, accel)  # (B,)
     rows = []
     for i in range(residuals.shape[1]):
         (g_i,) = torch.autograd.grad(residuals[:, i].sum(), variable, retain_graph=True)
@@ -189,18 +194,30 @@ def _lm_step(
     gram = jac @ jac.transpose(1, 2)  # (B, m, m)
     eye = torch.eye(gram.shape[-1], dtype=gram.dtype)
     lam = 1e-3 * gram.diagonal(dim1=1, dim2=2).mean(-1).clamp_min(1e-12) if damping is None else damping
-    current = value.detach().double()
+    current = ((residuals.detach() ** 2).sum(-1) + penalty.detach()).double()
     for _ in range(40):
         inner = torch.linalg.solve(gram + lam.view(-1, 1, 1) * eye, (jac @ rhs.unsqueeze(-1)))  # (B, m, 1)
         delta = -(rhs - (jac.transpose(1, 2) @ inner).squeeze(-1)) / lam.view(-1, 1)
         candidate = (variable.detach() + delta.view_as(variable).to(variable.dtype)).requires_grad_(True)
         states, accel = evaluate(candidate)
-        new_value = objective(states, accel)
-        ok = (new_value.detach().double() <= current) | (lam > 1e12)
+        new_r, new_p = objective.residuals(states, accel), objective.penalty(states, accel)
+        new_value = (new_r.detach() ** 2).sum(-1) + penalty_weight * new_p.detach()
+        ok = (new_value.double() <= current) | (lam > 1e12)
         if bool(ok.all()):
             break
         lam = torch.where(ok, lam, 4 * lam)  # accepted trajectories keep their λ (same step again)
-    return candidate, new_value, states, accel, lam / 3
+    return candidate, (new_r**2).sum(-1) + new_p, states, accel, lam / 3
+
+
+def _continuation(continuation: tuple[float, int] | None, optimizer: str) -> tuple[float, int]:
+    if continuation is None:
+        return (1.0, 0)
+    if optimizer != "lm":
+        raise ValueError("continuation is a Levenberg–Marquardt option (optimizer='lm')")
+    weight, ramp = continuation
+    if not (0 < float(weight) <= 1) or int(ramp) < 0:
+        raise ValueError(f"continuation must be (initial penalty weight in (0, 1], updates ≥ 0), got {continuation!r}")
+    return float(weight), int(ramp)
 
 
 def optimize_latent(
@@ -212,6 +229,7 @@ def optimize_latent(
     init: str | np.ndarray = "encoder",
     optimizer: str = "sgd",
     seed: int = 0,
+    continuation: tuple[float, int] | None = None,
     **physics: Any,
 ) -> OptimizationResult:
     """Cases 1 and 2: optimise the latent z of ``states`` for ``objective``.
@@ -229,6 +247,11 @@ def optimize_latent(
             latents to continue from (``(L·H,)`` / ``(B, L·H)``, e.g. a previous result's ``latent``).
         optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2), ``"adam"``, or ``"lm"``
             (Levenberg–Marquardt, for least-squares objectives such as ``EndPose``; ``lr`` unused).
+        continuation: ``(w0, n)`` for ``optimizer="lm"``: the objective's penalty (e.g. the
+            friction cone's) is weighted ``w0`` at the first update, growing geometrically to 1 at
+            update ``n`` and after. The end pose moves first, the penalty then pulls the motion
+            back inside the constraint: this passes the penalty's ridges that stall plain descent.
+            ``history`` always holds the true objective.
         physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding).
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
@@ -246,7 +269,8 @@ def optimize_latent(
             raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
     with _frozen(model.model):
         z, out_states, out_accel, history, seconds = _descend(
-            z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer
+            z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer,
+            _continuation(continuation, optimizer),
         )
     return _result(out_states, out_accel, z, history, seconds, single)
 
@@ -258,6 +282,7 @@ def optimize_trajectory(
     steps: int = 100,
     lr: float | str = "auto",
     optimizer: str = "sgd",
+    continuation: tuple[float, int] | None = None,
     **physics: Any,
 ) -> OptimizationResult:
     """Case 3: optimise the decoder's output accelerations directly (states by integration).
@@ -270,7 +295,8 @@ def optimize_trajectory(
         _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, **physics)
     with _frozen(model.model):
         accel, out_states, out_accel, history, seconds = _descend(
-            accel0, lambda u: (model.integrate_torch(x0, u, **physics), u), objective, steps, lr, optimizer
+            accel0, lambda u: (model.integrate_torch(x0, u, **physics), u), objective, steps, lr, optimizer,
+            _continuation(continuation, optimizer),
         )
     return _result(out_states, out_accel, None, history, seconds, single)
 

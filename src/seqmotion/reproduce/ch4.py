@@ -3,8 +3,9 @@
 ``seqmotion reproduce ch4 [--model RUN] [--out DIR] [--quick]`` writes:
 
 * ``fig4_2_objective.png`` — mean J1 per update with 95 % bands for cases 1, 2, 3 over the 27
-  targets (y, z ∈ {−0.1, 0, 0.1} m, θ ∈ {−π, 0, π}; S-curve inputs, K = 500; η = 200, 200,
-  1000; 100 plain gradient-descent updates);
+  targets (y, z ∈ {−0.1, 0, 0.1} m, θ ∈ {−π, 0, π}; S-curve inputs, K = 500; 100 updates) by
+  Levenberg–Marquardt with penalty continuation, beside plain gradient descent (eq. 4.2) with a
+  line search and with the dissertation's η = 200, 200, 1000 (see :data:`METHODS`);
 * ``fig4_3_theta_-pi.png``, ``fig4_4_theta_0.png``, ``fig4_5_theta_pi.png`` — case-1 results:
   time–position, y–z paths with targets, ψ against the cone;
 * ``fig4_6_end_rmse.png`` and ``table4_end_rmse.md`` — end-position and end-attitude RMSE per case;
@@ -37,8 +38,13 @@ CASES = {  # name: (how, the dissertation's step size η, §4.3.2)
     "case 2 (random z)": ("random", 200.0),
     "case 3 (accelerations)": ("trajectory", 1000.0),
 }
-# Our runs use lr="auto" (Armijo backtracking per trajectory): a fixed η only means something
-# in one latent space's units. The dissertation's fixed η are run too and reported beside.
+# How each case is optimised. "lm" (ours, the figures' solid lines): Levenberg–Marquardt on the
+# end-pose residuals with the friction-cone penalty continued from weight 1e-3 to 1 over the first
+# 4 updates. "line search": the dissertation's plain gradient descent (eq. 4.2) with η found by
+# Armijo backtracking per trajectory. "dissertation η": eq. 4.2 with the fixed η above, which only
+# means something in the dissertation's latent units (on ours it can diverge).
+METHODS = ("lm", "line search", "dissertation η")
+CONTINUATION = (1e-3, 4)
 
 
 def starts(targets: np.ndarray = TARGETS) -> np.ndarray:
@@ -47,13 +53,23 @@ def starts(targets: np.ndarray = TARGETS) -> np.ndarray:
 
 
 def run_case(
-    deformer: Deformer, how: str, lr: float | str, steps: int, targets: np.ndarray = TARGETS, seed: int = 0
+    deformer: Deformer, case: str, method: str, steps: int, targets: np.ndarray = TARGETS, seed: int = 0
 ):
+    """Run one of :data:`CASES` with one of :data:`METHODS` on ``targets``."""
+    how, eta = CASES[case]
     x = starts(targets)
     objective = EndPose(targets)
+    if method == "lm":
+        kwargs: dict = {"optimizer": "lm", "continuation": CONTINUATION}
+    elif method == "line search":
+        kwargs = {"lr": "auto"}
+    elif method == "dissertation η":
+        kwargs = {"lr": eta}
+    else:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if how == "trajectory":
-        return optimize_trajectory(deformer, x, objective, steps=steps, lr=lr)
-    return optimize_latent(deformer, x, objective, steps=steps, lr=lr, init=how, seed=seed)
+        return optimize_trajectory(deformer, x, objective, steps=steps, **kwargs)
+    return optimize_latent(deformer, x, objective, steps=steps, init=how, seed=seed, **kwargs)
 
 
 def end_errors(states: np.ndarray, targets: np.ndarray = TARGETS) -> tuple[np.ndarray, np.ndarray]:
@@ -69,21 +85,26 @@ def _band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, half
 
 
-def figures_cases(results: dict, out: Path, fixed: dict | None = None) -> None:
+def figures_cases(runs: dict[str, dict], out: Path) -> None:
+    """Figs. 4.2–4.6 from ``runs[method][case]``: the first method is drawn with bands and paths."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    results = runs[next(iter(runs))]
     fig, ax = plt.subplots(figsize=(7, 4))
     for name, res in results.items():
         mean, half = _band(res.history)
         steps = np.arange(len(mean))
-        line = ax.plot(steps, mean, label=f"{name}, η by line search")[0]
-        ax.fill_between(steps, np.maximum(mean - half, 1e-12), mean + half, alpha=0.2, color=line.get_color())
-        if fixed is not None and name in fixed:
-            ax.plot(steps, np.clip(fixed[name].history.mean(1), 1e-12, None), "--", color=line.get_color(), lw=1,
-                    label=f"{name}, the dissertation's η = {CASES[name][1]:g}")
+        line = ax.plot(steps, np.clip(mean, 1e-16, None), label=f"{name}, Levenberg–Marquardt")[0]
+        ax.fill_between(steps, np.maximum(mean - half, 1e-16), mean + half, alpha=0.2, color=line.get_color())
+        for method, style in (("line search", ":"), ("dissertation η", "--")):
+            if name in runs.get(method, {}):
+                label = "gradient descent, η by line search" if method == "line search" else \
+                    f"the dissertation's η = {CASES[name][1]:g}"
+                ax.plot(steps, np.clip(runs[method][name].history.mean(1), 1e-16, None), style,
+                        color=line.get_color(), lw=1, label=f"{name}, {label}")
     ax.axhline(1e-3, color="gray", ls=":", lw=1)
     ax.set(yscale="log", xlabel="update", ylabel="J1 (mean of 27 targets)", title="Fig. 4.2: progress of the objective")
     ax.legend(fontsize=7)
@@ -192,18 +213,19 @@ def _fc(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
 
 
 def timing(deformer: Deformer) -> dict:
-    """Seconds per update for one K = 500 trajectory and for all 27 in one batch, per case.
+    """Seconds per update for one K = 500 trajectory and for all 27 in one batch, per case and method.
 
-    Both for a fixed step (one forward and one backward pass: the dissertation's update) and
-    for the line search (which adds forward passes when it backtracks).
+    A fixed step is one forward and one backward pass (the dissertation's update); the line
+    search adds forward passes when it backtracks; Levenberg–Marquardt takes one backward pass
+    per residual (3) and a forward pass per damping trial.
     """
     out = {}
-    for name, (how, eta) in CASES.items():
+    for name in CASES:
         row = {}
-        for label, lr in (("fixed_step", eta), ("line_search", "auto")):
-            one = run_case(deformer, how, lr, 10, TARGETS[:1])
-            batch = run_case(deformer, how, lr, 10)
-            row[label] = {"one_trajectory_s": one.seconds_per_update, "batch_of_27_s": batch.seconds_per_update}
+        for method in METHODS:
+            one = run_case(deformer, name, method, 10, TARGETS[:1])
+            batch = run_case(deformer, name, method, 10)
+            row[method] = {"one_trajectory_s": one.seconds_per_update, "batch_of_27_s": batch.seconds_per_update}
         out[name] = row
     return out
 
@@ -215,13 +237,13 @@ def peer(deformer: Deformer, targets: np.ndarray, threshold: float = 1e-3) -> li
     rows = []
     for target in targets:
         start = time.perf_counter()
-        res = run_case(deformer, "encoder", "auto", 100, target[None])
+        res = run_case(deformer, "case 1 (encoder z)", "lm", 100, target[None])
         total = time.perf_counter() - start
         reached = np.flatnonzero(res.history < threshold)
         latent_time = None
         if reached.size:  # time a fresh run that stops at the first update below the threshold
             start = time.perf_counter()
-            run_case(deformer, "encoder", "auto", int(reached[0]), target[None])
+            run_case(deformer, "case 1 (encoder z)", "lm", int(reached[0]), target[None])
             latent_time = time.perf_counter() - start
         ipopt = solve_end_pose(tuple(target), threshold=threshold)
         rows.append({
@@ -272,20 +294,22 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     out.mkdir(parents=True, exist_ok=True)
     deformer = load_deformer(model)
     steps = 20 if quick else 100
-    results = {name: run_case(deformer, how, "auto", steps, seed=seed) for name, (how, _) in CASES.items()}
-    fixed, diverged = {}, {}
-    for name, (how, eta) in CASES.items():
-        try:
-            fixed[name] = run_case(deformer, how, eta, steps, seed=seed)
-        except ValueError as exc:  # the fixed step blew the objective up to NaN/inf
-            diverged[name] = str(exc)
-    figures_cases(results, out, fixed)
+    runs: dict[str, dict] = {method: {} for method in METHODS}
+    diverged = {}
+    for method in METHODS:
+        for name in CASES:
+            try:
+                runs[method][name] = run_case(deformer, name, method, steps, seed=seed)
+            except ValueError as exc:  # a fixed step blew the objective up to NaN/inf
+                diverged[f"{name}, {method}"] = str(exc)
+    figures_cases(runs, out)
 
-    summary: dict = {"cases": {}, "cases_dissertation_eta": {}, "dissertation_eta_diverged": diverged}
-    lines = ["| case | step size | mean J1 at update 5 | mean J1 at the end | end-position RMSE [mm] "
+    summary: dict = {"methods": {}, "diverged": diverged, "continuation": CONTINUATION}
+    lines = ["| case | method | mean J1 at update 5 | mean J1 at the end | end-position RMSE [mm] "
              "| end-attitude RMSE [deg] | outputs with max F_c ≤ 0.01 rad |", "|---|---|---|---|---|---|---|"]
-    for key, runs in (("cases", results), ("cases_dissertation_eta", fixed)):
-        for name, res in runs.items():
+    for method, results in runs.items():
+        summary["methods"][method] = {}
+        for name, res in results.items():
             pos, att = end_errors(res.states)
             fc = _fc(res.states, res.accel).max(axis=1)
             row = {
@@ -295,10 +319,10 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
                 "feasible_share": float((fc <= FEASIBLE_TOLERANCE).mean()),
                 "max_fc": float(fc.max()),
             }
-            summary[key][name] = row
-            eta = "line search" if key == "cases" else f"η = {CASES[name][1]:g}"
+            summary["methods"][method][name] = row
+            label = f"η = {CASES[name][1]:g}" if method == "dissertation η" else method
             lines.append(
-                f"| {name} | {eta} | {res.history[min(5, steps)].mean():.2e} | {res.history[-1].mean():.2e} "
+                f"| {name} | {label} | {res.history[min(5, steps)].mean():.2e} | {res.history[-1].mean():.2e} "
                 f"| {row['end_position_rmse_mm']:.3f} | {row['end_attitude_rmse_deg']:.3f} "
                 f"| {100 * row['feasible_share']:.0f} % |"
             )
@@ -308,7 +332,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     final_states = j2.pop("final_states")
     summary["j2"] = j2
     summary["timing"] = timing(deformer)
-    timing_lines = ["| case | step | s/update, one K = 500 trajectory | s/update, 27 targets in one batch |",
+    timing_lines = ["| case | method | s/update, one K = 500 trajectory | s/update, 27 targets in one batch |",
                     "|---|---|---|---|"]
     for name, rows in summary["timing"].items():
         for label, t in rows.items():
