@@ -115,6 +115,14 @@ def test_levenberg_marquardt_never_increases_and_beats_gradient_descent(deformer
     assert lm.history[-1].sum() < gd.history[-1].sum()
     with pytest.raises(ValueError, match="least-squares"):
         sm.optimize_latent(deformer, starts[0], lambda states, accel: states[:, -1, 0] ** 2, steps=1, optimizer="lm")
+    with pytest.raises(ValueError, match="continuation"):
+        sm.optimize_latent(deformer, starts[0], EndPose(targets[0]), steps=1, continuation=(1e-3, 4))
+    with pytest.raises(ValueError, match="continuation"):
+        sm.optimize_latent(deformer, starts[0], EndPose(targets[0]), steps=1, optimizer="lm", continuation=(0.0, 4))
+    relaxed = sm.optimize_latent(deformer, starts, EndPose(targets), steps=4, optimizer="lm", continuation=(1e-3, 2))
+    # the history is the true objective: recompute it for the returned motion
+    final = EndPose(targets)(torch.from_numpy(relaxed.states), torch.from_numpy(relaxed.accel))
+    np.testing.assert_allclose(relaxed.history[-1], final.numpy(), rtol=1e-5)
 
 
 def test_plain_gradient_descent_is_eq_4_2(deformer):
