@@ -24,6 +24,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--case", type=int, choices=[1, 2, 3], default=1, help="1 encoder z, 2 random z, 3 accelerations")
     p.add_argument("--steps", type=int, help="updates (default 100 for J1, 20 for J2)")
     p.add_argument("--lr", type=float, help="fixed step size η (default: chosen by a line search at every update)")
+    p.add_argument("--optimizer", choices=["sgd", "lm"],
+                   help="sgd: plain gradient descent (eq. 4.2); lm: Levenberg–Marquardt with penalty continuation "
+                        "(default for --target; J2 has no least-squares form, so sgd)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--output", required=True, help=".npz or .csv for the adjusted trajectory")
     p.add_argument("--plot", help="PNG with the trajectory, ψ and the objective's progress")
@@ -47,11 +50,13 @@ def run(args: argparse.Namespace) -> int:
         default_input = inputs.straight(args.target, args.length)
         steps, lr = args.steps or 100, args.lr or "auto"
     states = read_trajectory(args.input) if args.input else default_input
+    optimizer = args.optimizer or ("sgd" if args.preset == "j2" or args.lr else "lm")
+    method: dict = {"lr": lr} if optimizer == "sgd" else {"optimizer": "lm", "continuation": (1e-3, 4)}
     if args.case == 3:
-        res = optimize_trajectory(model, states, objective, steps=steps, lr=lr)
+        res = optimize_trajectory(model, states, objective, steps=steps, **method)
     else:
-        res = optimize_latent(model, states, objective, steps=steps, lr=lr,
-                              init="encoder" if args.case == 1 else "random", seed=args.seed)
+        res = optimize_latent(model, states, objective, steps=steps, init="encoder" if args.case == 1 else "random",
+                              seed=args.seed, **method)
     fc = physics.violation(res.states[:-1], res.accel)
     columns = {"states": res.states, "accel": res.accel, "violation": fc, "history": res.history}
     if res.latent is not None:
