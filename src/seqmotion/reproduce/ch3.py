@@ -1,14 +1,15 @@
 """Chapter 3, reproduced: models A, B, C on the 2-D physics, across unseen friction, and on the arm.
 
 ``seqmotion reproduce ch3 [--model DIR] [--out DIR] [--quick]`` uses the shipped models
-``sliding`` (A), ``sliding-B`` and ``sliding-C`` (or, with ``--model DIR``, the run directories
-``DIR/A``, ``DIR/B``, ``DIR/C``) and writes:
+``sliding`` (A, the full budget), ``sliding-A-equal``, ``sliding-B`` and ``sliding-C`` (A, B, C
+trained on one equal, smaller budget: the comparison of §3.5.2) — or, with ``--model DIR``, the
+run directories ``DIR/A``, ``DIR/B``, ``DIR/C`` (and ``DIR/A-equal`` if present) — and writes:
 
 * ``fig3_7_paths.png`` — object and pan paths of A, B, C for one command (K = 1200);
 * ``fig3_10_friction.png`` and ``table3_friction.md`` — reproduction RMSE of A, B, C over a
   grid of friction pairs none of them saw (μ ∈ {0.7, 0.9, 1.1, 1.3}, μ' ∈ {0.3, 0.4, 0.6, 0.7},
   μ' < μ; 10 B-spline commands each), beside the RMSE of leaving the object where it is;
-* ``table3_range.md`` — the pan's range of motion per model;
+* ``table3_range.md`` — the pan's range of motion and the training budget per model;
 * ``table3_speed.md`` — generation speed (samples/s) of the shipped model;
 * with MuJoCo: ``fig3_8_robot.png``, ``fig3_9_snapshots_{A,B,C}.png`` — the Fig. 3.7 command
   executed by the simulated arm.
@@ -31,12 +32,20 @@ MODELS = ("A", "B", "C")
 
 
 def load_models(model: str | None) -> dict[str, SlidingPlanner]:
+    """The shipped A, B, C (plus ``A-equal``: A on B's and C's budget), or ``DIR/{A,B,C[,A-equal]}``."""
     import seqmotion as sm
 
     if model is None:
-        return {"A": sm.load_pretrained("sliding"), "B": sm.load_pretrained("sliding-B"),
-                "C": sm.load_pretrained("sliding-C")}
-    return {name: sm.load(Path(model) / name, expected_task="sliding") for name in MODELS}
+        return {"A": sm.load_pretrained("sliding"), "A-equal": sm.load_pretrained("sliding-A-equal"),
+                "B": sm.load_pretrained("sliding-B"), "C": sm.load_pretrained("sliding-C")}
+    names = [*MODELS[:1], *(["A-equal"] if (Path(model) / "A-equal").is_dir() else []), *MODELS[1:]]
+    return {name: sm.load(Path(model) / name, expected_task="sliding") for name in names}
+
+
+def budget(planner: SlidingPlanner) -> int:
+    """Training trajectories a model saw: epochs × mini-batches per epoch × batch size."""
+    cfg = planner.config["training"]
+    return int(cfg["curriculum"]["epochs"]) * int(cfg["batches_per_epoch"]) * int(cfg["batch_size"])
 
 
 def eval_commands(n: int, seed: int) -> np.ndarray:
@@ -64,6 +73,7 @@ def friction_study(models: dict[str, SlidingPlanner], n: int, seed: int) -> dict
             "mean_rmse_mm": float(cells_arr.mean()),
             "worst_over_best": float(cells_arr.max() / max(cells_arr.min(), 1e-9)),
             "pan_max_m": pan_max,
+            "budget": budget(planner),
         }
     return out
 
@@ -78,10 +88,10 @@ def _tables(study: dict, out: Path) -> None:
         lines.append(f"| {label} | | " + " | ".join(f"{study['models'][n][key]:.2f}" for n in names) + " |")
     lines += ["", f"Leaving the object where it starts (a still pan) gives {study['still_pan_rmse_mm']:.2f} mm."]
     (out / "table3_friction.md").write_text("\n".join(lines) + "\n")
-    lines = ["| model | max pan excursion [m] | inside p_lim = 0.2 m? |", "|---|---|---|"]
+    lines = ["| model | training trajectories | max pan excursion [m] | inside p_lim = 0.2 m? |", "|---|---|---|---|"]
     for n in names:
         m = study["models"][n]["pan_max_m"]
-        lines.append(f"| {n} | {m:.3f} | {'yes' if m <= PAN_LIMIT else 'no'} |")
+        lines.append(f"| {n} | {study['models'][n]['budget']:,} | {m:.3f} | {'yes' if m <= PAN_LIMIT else 'no'} |")
     (out / "table3_range.md").write_text("\n".join(lines) + "\n")
 
 
@@ -155,7 +165,7 @@ def robot(models: dict[str, SlidingPlanner], command: np.ndarray, out: Path) -> 
             results[name] = {"not_executable": str(exc)}
             continue
         results[name] = {"rmse_mm": 1000 * res.rmse, "pan_excursion_m": res.pan_excursion, "fell_off": res.fell_off}
-        if name == "A":
+        if name == next(iter(models)):
             sim.plot_sliding(res, out / "fig3_8_robot.png")
     return results
 
@@ -167,7 +177,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     study = friction_study(models, 3 if quick else 10, seed)
     _tables(study, out)
     command = figures(models, study, out, seed)
-    study["speed_shipped_model"] = speed(models["A"])
+    study["speed_shipped_model"] = speed(models[next(iter(models))])
     s = study["speed_shipped_model"]
     (out / "table3_speed.md").write_text(
         "| model | single trajectory, K = 1200 [samples/s] | batch of 64 [samples/s] |\n|---|---|---|\n"
