@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from seqmotion import tasks
@@ -60,3 +61,22 @@ def test_ch3_quick(tmp_path, monkeypatch):
     assert study["still_pan_rmse_mm"] > 0
     for name in ("fig3_7_paths.png", "fig3_10_friction.png", "table3_friction.md", "table3_range.md"):
         assert (tmp_path / "out" / name).stat().st_size > 0
+
+
+def test_ch4_peer_rows(pancake_run, monkeypatch):
+    """The peer table runs LM per target and times IPOPT beside it (IPOPT itself replaced here)."""
+    from seqmotion.latent import transcription
+
+    def fake_ipopt(target, threshold):
+        return transcription.TranscriptionResult(
+            states=np.zeros((500, 6)), accel=np.zeros((499, 3)), j1=0.5, max_fc=0.0, history=np.zeros((1, 2)),
+            seconds_to_threshold=None, solve_seconds=1.0, build_seconds=0.1, status="Maximum_Iterations_Exceeded")
+
+    monkeypatch.setattr(transcription, "solve_end_pose", fake_ipopt)
+    deformer = ch4.load_deformer(str(pancake_run))
+    rows = ch4.peer(deformer, ch4.TARGETS[:2])
+    assert len(rows) == 2
+    for row in rows:
+        assert np.isfinite(row["latent_final_j1"]) and row["ipopt_final_j1"] == 0.5
+        assert row["latent_seconds_to_threshold"] is None or row["latent_seconds_to_threshold"] > 0
+    assert "never" in ch4._peer_table(rows)

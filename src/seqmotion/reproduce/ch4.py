@@ -242,7 +242,8 @@ def peer(deformer: Deformer, targets: np.ndarray, threshold: float = 1e-3) -> li
         start = time.perf_counter()
         res = run_case(deformer, "case 1 (encoder z)", "lm", 100, target[None])
         total = time.perf_counter() - start
-        reached = np.flatnonzero(res.history < threshold)
+        history = res.history[:, 0]  # (updates + 1,) of this one target
+        reached = np.flatnonzero(history < threshold)
         latent_time = None
         if reached.size:  # time a fresh run that stops at the first update below the threshold
             start = time.perf_counter()
@@ -252,7 +253,7 @@ def peer(deformer: Deformer, targets: np.ndarray, threshold: float = 1e-3) -> li
         rows.append({
             "target": target.tolist(),
             "latent_seconds_to_threshold": latent_time,
-            "latent_final_j1": float(res.history[-1]),
+            "latent_final_j1": float(history[-1]),
             "latent_max_fc": float(_fc(res.states, res.accel).max()),
             "latent_total_seconds_100_updates": total,
             "ipopt_seconds_to_threshold": ipopt.seconds_to_threshold,
