@@ -50,7 +50,7 @@ def bench_pancake(model: str | None, n: int) -> None:
 def bench_j2(model: str | None) -> None:
     deformer = sm.load(model) if model else sm.load_pretrained("pancake")
     x = inputs.straight((0.0, 0.0, -3 * math.pi / 4), 500, timing="linear")
-    res = sm.optimize_latent(deformer, x, sm.objectives.Ranges(), steps=20, lr=100.0)
+    res = sm.optimize_latent(deformer, x, sm.objectives.Ranges(), steps=20)  # as `seqmotion reproduce ch4`
     result = sim.run_pancake(res.states, gains="ch4")
     print(json.dumps({"j2_final": float(res.history[-1]), "end_pose": res.states[-1, :3].tolist(),
                       **result.summary(), "machine": machine_description()}, default=float))
