@@ -558,6 +558,14 @@ class PushingScene(ArmSim):
         adr = self._block_qpos
         return self.data.qpos[adr : adr + 7].copy()
 
+    def set_state(self, q: np.ndarray, block_pose: np.ndarray) -> None:
+        """Pose the arm at ``q`` ``(3,)`` [rad] and the block at ``block_pose`` ``(7,)``, at rest (for replaying
+        a recorded run, e.g. to render it); does not step the physics."""
+        adr = self._block_qpos
+        self.data.qpos[adr : adr + 7] = block_pose
+        self.data.qvel[:] = 0.0
+        self.set_joint_state(q)
+
     def success(self) -> bool:
         """True once the block's centre lies on the other side of the robot's centre line."""
         return bool(self.position.sign * self.data.qpos[self._block_qpos + 1] < 0.0)
