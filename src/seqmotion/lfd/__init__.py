@@ -1,14 +1,17 @@
-"""Learning from demonstration, chapter 5: the pushing task, bilateral teleoperation, datasets.
-
-Phase 1 (this package so far):
+"""Learning from demonstration, chapter 5: pushing a block from one webcam image.
 
 * :mod:`seqmotion.sim.pushing` — the MuJoCo scene (Touch-like arm, table, block, webcam).
 * :mod:`seqmotion.lfd.teleop` — 4-channel bilateral control at 1 ms, the teleoperation loop
   and the slave-only loop with a command source in the master's place (Fig. 5.7).
 * :mod:`seqmotion.lfd.operator` — the scripted human operator.
 * :mod:`seqmotion.lfd.dataset` — the HDF5 datasets (:func:`collect`, :func:`load_dataset`).
+* :mod:`seqmotion.lfd.models` — the SeqAE, the CNN and the combined :class:`PushingPolicy`.
+* :mod:`seqmotion.lfd.train` — training (``train.train`` from a dataset directory;
+  :func:`train_seqae`, :func:`train_cnn`, :func:`train_end_to_end`).
+* :mod:`seqmotion.lfd.evaluation` — closed-loop success rates (:func:`evaluate`).
+* :mod:`seqmotion.lfd.export` — shipping a policy with its model card (:func:`export_policy`).
 
-Names are loaded lazily so that ``import seqmotion.lfd`` does not import MuJoCo or h5py.
+Names are loaded lazily so that ``import seqmotion.lfd`` does not import MuJoCo, h5py or torch.
 """
 
 from __future__ import annotations
@@ -33,7 +36,30 @@ _EXPORTS = {
     "MOTION_COLUMNS": "teleop",
     "ScriptedOperator": "operator",
     "OperatorParams": "operator",
+    "SeqAE": "models",
+    "SeqAEConfig": "models",
+    "CNNConfig": "models",
+    "ImageEncoder": "models",
+    "PushingPolicy": "models",
+    "PolicyConfig": "models",
+    "PRESETS": "models",
+    "motion_loss": "models",
+    "save_policy": "models",
+    "load_policy": "models",
+    "train_seqae": "train",
+    "train_cnn": "train",
+    "train_end_to_end": "train",
+    "SeqAETraining": "train",
+    "CNNTraining": "train",
+    "evaluate": "evaluation",
+    "Evaluation": "evaluation",
+    "TrialOutcome": "evaluation",
+    "export_policy": "export",
 }
+
+_SUBMODULES = ("cli", "dataset", "evaluation", "export", "models", "operator", "teleop", "train")
+# No exported name equals a submodule's name: importing ``seqmotion.lfd.X`` sets the package's
+# attribute X to the module, which would shadow a function of the same name.
 
 __all__ = sorted(_EXPORTS)
 
@@ -41,4 +67,6 @@ __all__ = sorted(_EXPORTS)
 def __getattr__(name: str) -> object:
     if name in _EXPORTS:
         return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,13 +1,19 @@
-"""``seqmotion lfd ...``: collect and inspect the chapter-5 demonstration datasets.
+"""``seqmotion lfd ...``: the chapter-5 pipeline from the command line.
 
 ``add_parser(subparsers)`` registers the ``lfd`` command on the main parser; its
-subcommands are ``collect`` (record the datasets) and ``info`` (summarise a file). Heavy
-modules (MuJoCo, h5py) are imported only when a subcommand runs.
+subcommands are ``collect`` (record the datasets), ``info`` (summarise a file), ``train``
+(SeqAE, CNNs and the end-to-end baseline), ``evaluate`` (closed-loop success rate) and
+``export`` (ship a policy with its model card). Heavy
+modules (MuJoCo, h5py, torch) are imported only when a subcommand runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
 
 _SET_NAMES = ("motions", "pairs_default", "pairs_position1", "pairs_position2")
 
@@ -28,6 +34,67 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
     p = sub.add_parser("info", help="summarise a dataset file")
     p.add_argument("path", help="an .h5 file written by 'seqmotion lfd collect'")
+
+    p = sub.add_parser("train", help="train the SeqAE + CNN policy (and/or the end-to-end baseline)")
+    p.add_argument("--data", required=True, help="dataset directory written by 'seqmotion lfd collect'")
+    p.add_argument("--out", required=True, help="output directory; one <method>_<camera>/ model per policy")
+    p.add_argument(
+        "--preset",
+        help="model size: original (7x64) | larger (10x128) | smaller (3x32) | "
+        "tiny (1x16, for tests); default: seqmotion.lfd.train.DEFAULT_PRESET (smaller)",
+    )
+    p.add_argument("--methods", nargs="+", default=["proposed"], choices=["proposed", "end_to_end"])
+    p.add_argument(
+        "--cameras",
+        nargs="+",
+        default=["default"],
+        choices=["default", "position1", "position2"],
+        help="image-motion sets to train CNNs (or end-to-end models) on",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--seqae-epochs", type=int, help="SeqAE epochs (default per preset: smaller 2000, original 800, larger 200)"
+    )
+    p.add_argument("--e2e-epochs", type=int, help="end-to-end epochs (default 2000, as in the dissertation)")
+    p.add_argument("--cnn-epochs", type=int, help="CNN epochs (default 100, as in the dissertation)")
+    p.add_argument("--state-noise", type=float, help="decoder input noise [normalised units] (default 0.3)")
+    p.add_argument("--latent-noise", type=float, help="noise added to z in training (default 0.1)")
+    p.add_argument("--latent-penalty", type=float, help="weight of the 1/2 |z|^2 bottleneck term (default 0)")
+    p.add_argument("--seqae-from", help="reuse the SeqAE of this proposed-policy directory (retrain the CNN only)")
+    p.add_argument("--keep-failed", action="store_true", help="train on failed demonstrations too")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch threads (default 1: small LSTMs run fastest "
+        "on one core, and results are reproducible per thread count)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+    p = sub.add_parser("evaluate", help="closed-loop success rate: trials at each block position")
+    p.add_argument(
+        "model", nargs="?", default="pushing", help="a policy directory, or 'pushing' for the shipped one (default)"
+    )
+    p.add_argument("--camera", help="webcam pose (default: the one the policy was trained on)")
+    p.add_argument("--positions", nargs="+", type=int, help="block position indices 0..5 (default all)")
+    p.add_argument("--trials", type=int, default=5, help="trials per position (default 5: 30 in all)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", help="write the full result (every trial) to this JSON file")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+    p = sub.add_parser(
+        "export", help="ship a trained policy inside the package (seqmotion/pretrained/NAME) with a model card"
+    )
+    p.add_argument("policy", help="a <method>_<camera>/ directory written by 'seqmotion lfd train'")
+    p.add_argument("--name", default="pushing", help="pretrained name (default pushing)")
+    p.add_argument(
+        "--evaluations",
+        nargs="*",
+        default=[],
+        help="JSON files of 'seqmotion lfd evaluate --json' to quote on the card",
+    )
+    p.add_argument("--notes", default="", help="free text for the card")
     parser.set_defaults(func=run)
     return parser
 
@@ -39,13 +106,20 @@ def run(args: argparse.Namespace) -> int:
 
         per_position = {name: args.per_position for name in args.sets} if args.per_position is not None else None
         reports = collect(
-            args.out, args.sets, seed=args.seed, duration=args.duration, per_position=per_position,
-            progress=not args.quiet, overwrite=args.overwrite,
+            args.out,
+            args.sets,
+            seed=args.seed,
+            duration=args.duration,
+            per_position=per_position,
+            progress=not args.quiet,
+            overwrite=args.overwrite,
         )
         for r in reports.values():
             per_pos = " ".join(f"{s}/{a}" for s, a in zip(r.successes, r.attempts, strict=True))
-            print(f"{r.name}: {r.episodes} episodes -> {r.path}  success {r.success_rate:.0%} ({per_pos})  "
-                  f"{r.seconds:.0f} s")
+            print(
+                f"{r.name}: {r.episodes} episodes -> {r.path}  success {r.success_rate:.0%} ({per_pos})  "
+                f"{r.seconds:.0f} s"
+            )
         return 0
     if args.lfd_command == "info":
         from ..sim.pushing import POSITIONS
@@ -53,11 +127,105 @@ def run(args: argparse.Namespace) -> int:
 
         data = load_dataset(args.path)
         a = data.attrs
-        print(f"{data.path}: set {a['set_name']!r}, {len(data)} episodes of {a['samples']} samples "
-              f"(dt {a['dt']} s), camera {a['camera'] or 'none'}, seed {a['seed']}")
+        print(
+            f"{data.path}: set {a['set_name']!r}, {len(data)} episodes of {a['samples']} samples "
+            f"(dt {a['dt']} s), camera {a['camera'] or 'none'}, seed {a['seed']}"
+        )
         for pos in POSITIONS:
             mask = data.episodes["position_index"] == pos.index
             ok = int(data.episodes["success"][mask].sum())
             print(f"  {pos.name:13s} {ok}/{int(mask.sum())} successful")
         return 0
+    if args.lfd_command == "train":
+        return _train(args)
+    if args.lfd_command == "evaluate":
+        return _evaluate(args)
+    if args.lfd_command == "export":
+        from .export import export_policy
+
+        target = export_policy(args.policy, args.name, args.evaluations, args.notes)
+        print(f"shipped {args.policy} as {args.name!r} in {target} (with MODEL_CARD.md)")
+        return 0
     raise ValueError(f"unknown lfd subcommand {args.lfd_command!r}")  # argparse prevents this
+
+
+def _set_threads(threads: int) -> None:
+    import torch
+
+    if threads < 1:
+        raise ValueError(f"--threads must be at least 1, got {threads}")
+    torch.set_num_threads(threads)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from . import train as training
+
+    _set_threads(args.threads)
+    preset_name = args.preset
+    if preset_name is None and args.seqae_from is not None:  # the reused SeqAE fixes the size
+        from .models import load_policy
+
+        preset_name = load_policy(args.seqae_from).config.preset
+    preset_name = preset_name or training.DEFAULT_PRESET
+    seqae, e2e, cnn = training.default_settings(preset_name)
+    for settings in (seqae, e2e):
+        if args.state_noise is not None:
+            settings.state_noise = args.state_noise
+        if args.latent_noise is not None:
+            settings.latent_noise = args.latent_noise
+        if args.latent_penalty is not None:
+            settings.latent_penalty = args.latent_penalty
+    if args.seqae_epochs is not None:
+        seqae.epochs = args.seqae_epochs
+    if args.e2e_epochs is not None:
+        e2e.epochs = args.e2e_epochs
+    if args.cnn_epochs is not None:
+        cnn.epochs = args.cnn_epochs
+    for settings in (seqae, e2e, cnn):
+        settings.__post_init__()  # re-validate the overridden values
+    command = "seqmotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["lfd"] else None
+    report = training.train(
+        args.data,
+        args.out,
+        preset_name,
+        tuple(args.methods),
+        tuple(args.cameras),
+        args.seed,
+        seqae,
+        e2e,
+        cnn,
+        args.seqae_from,
+        progress=not args.quiet,
+        command=command,
+        successful_only=not args.keep_failed,
+    )
+    for name, path in report.policies.items():
+        print(f"{name}: {path}")
+    print("wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in report.seconds.items()))
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    import seqmotion as sm
+
+    from .evaluation import evaluate
+
+    _set_threads(args.threads)
+    policy = sm.load_pretrained("pushing") if args.model == "pushing" else sm.load(args.model, expected_task="pushing")
+    result = evaluate(
+        policy,
+        camera=args.camera,
+        positions=args.positions,
+        trials=args.trials,
+        seed=args.seed,
+        progress=not args.quiet,
+    )
+    cells = "  ".join(f"{name} {ok}/{n}" for name, (ok, n) in result.per_position.items())
+    print(
+        f"success {result.successes}/{result.n_trials} = {result.success_rate:.1%} (camera {result.camera}, "
+        f"seed {result.seed}, {result.seconds:.0f} s)\n  {cells}"
+    )
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result.as_dict(), indent=1) + "\n")
+    return 0

@@ -1,0 +1,219 @@
+"""Closed-loop evaluation of a pushing policy (dissertation 5.3.5: 5 trials at each of 6 positions).
+
+Every trial is a fresh episode: the block is placed at one of the six positions with a new
+random placement error (±4 mm, ±3°) and lighting/colour jitter, the webcam takes one image,
+the policy's CNN turns it into ẑ and the decoder drives the slave under the bilateral
+controller for 4 s (:func:`seqmotion.lfd.teleop.run_autonomous`). Success = the block's
+centre ends on the other side of the robot's centre line.
+
+Trial seeds come from ``SeedSequence(seed, spawn_key=(EVAL_STREAM, position, trial))``; the
+datasets use stream ids 1–4 (``seqmotion.lfd.dataset.SETS``), so no evaluation episode
+repeats a training episode, whatever the seeds.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+EVAL_STREAM = 1000
+"""Seed-stream id of evaluation trials (the datasets use 1–4)."""
+
+
+@dataclass
+class TrialOutcome:
+    """One evaluation episode.
+
+    Attributes:
+        position_index: block position 0..5; ``position``: its name (e.g. ``"left_8cm"``).
+        trial: index of the trial at this position.
+        seed_key: ``(seed, EVAL_STREAM, position_index, trial)`` — regenerates the episode.
+        success: the block's centre crossed the centre line (and is across at the end).
+        crossed_time: first time it crossed [s] (NaN if never).
+        final_block_y: block centre's final y [m] (+ = robot's left).
+        latent: the CNN's ẑ for this trial's image ``(latent,)``.
+        run: the :class:`~seqmotion.lfd.teleop.AutonomousRun` (only with ``keep_runs``).
+        image: the webcam image (only with ``keep_runs``).
+    """
+
+    position_index: int
+    position: str
+    trial: int
+    seed_key: tuple[int, int, int, int]
+    success: bool
+    crossed_time: float
+    final_block_y: float
+    latent: np.ndarray
+    run: Any = None
+    image: np.ndarray | None = None
+
+    def as_dict(self) -> dict:
+        return {
+            "position_index": self.position_index,
+            "position": self.position,
+            "trial": self.trial,
+            "seed_key": list(self.seed_key),
+            "success": self.success,
+            "crossed_time": None if math.isnan(self.crossed_time) else self.crossed_time,
+            "final_block_y": self.final_block_y,
+            "latent": self.latent.tolist(),
+        }
+
+
+@dataclass
+class Evaluation:
+    """Result of :func:`evaluate`.
+
+    Attributes:
+        success_rate: successes / trials over all positions.
+        successes, n_trials: counts.
+        per_position: ``{position name: (successes, trials)}``.
+        outcomes: every :class:`TrialOutcome`, in order.
+        camera: the webcam pose the images came from.
+        seconds: wall time [s].
+        policy_kind, policy_preset: the evaluated policy's ``kind`` and size preset.
+    """
+
+    success_rate: float
+    successes: int
+    n_trials: int
+    per_position: dict[str, tuple[int, int]]
+    outcomes: list[TrialOutcome] = field(default_factory=list)
+    camera: str = "default"
+    seed: int = 0
+    seconds: float = 0.0
+    policy_kind: str = ""
+    policy_preset: str = ""
+
+    def as_dict(self) -> dict:
+        return {
+            "policy_kind": self.policy_kind,
+            "policy_preset": self.policy_preset,
+            "success_rate": self.success_rate,
+            "successes": self.successes,
+            "n_trials": self.n_trials,
+            "per_position": {k: list(v) for k, v in self.per_position.items()},
+            "camera": self.camera,
+            "seed": self.seed,
+            "seconds": self.seconds,
+            "outcomes": [o.as_dict() for o in self.outcomes],
+        }
+
+
+def trial_rng(seed: int, position_index: int, trial: int) -> np.random.Generator:
+    """The random generator of one evaluation trial (block placement, lighting)."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(EVAL_STREAM, position_index, trial)))
+
+
+def evaluate(
+    policy: Any,
+    camera: str | None = None,
+    positions: Sequence[int] | None = None,
+    trials: int = 5,
+    seed: int = 0,
+    duration: float = 4.0,
+    progress: bool = False,
+    keep_runs: bool = False,
+    scene: Any = None,
+) -> Evaluation:
+    """Run ``trials`` closed-loop episodes at each block position and count the successes.
+
+    Args:
+        policy: a :class:`~seqmotion.lfd.models.PushingPolicy` (e.g. ``sm.load_pretrained("pushing")``).
+        camera: webcam pose for the images (default: the one the policy's CNN was trained on).
+        positions: block position indices 0..5 (default all six, see ``seqmotion.sim.pushing.POSITIONS``).
+        trials: trials **per position** (default 5: 30 in all, as in the dissertation).
+        seed: evaluation seed; trial seeds never coincide with the datasets' (see module doc).
+        duration: episode length [s].
+        progress: print a progress line to stderr.
+        keep_runs: keep each trial's run and image in its outcome (memory: ~0.5 MB per trial).
+        scene: a :class:`~seqmotion.sim.pushing.PushingScene` to reuse (one is made and closed otherwise).
+
+    Returns:
+        An :class:`Evaluation`.
+
+    Raises:
+        ValueError: an unknown camera, a bad position index, ``trials < 1``, a negative seed.
+    """
+    from ..sim import pushing
+    from .models import PushingPolicy
+
+    if not isinstance(policy, PushingPolicy):
+        raise ValueError(
+            f"policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')), got {type(policy).__name__}"
+        )
+    camera = policy.config.camera if camera is None else camera
+    if camera not in pushing.CAMERAS:
+        raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")
+    positions = list(range(len(pushing.POSITIONS))) if positions is None else list(positions)
+    if not positions:
+        raise ValueError("positions is empty; give block position indices 0..5")
+    chosen = [pushing.block_position(i) for i in positions]  # ValueError names a bad index
+    if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or trials < 1:
+        raise ValueError(f"trials (per position) must be a positive integer, got {trials!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
+        raise ValueError(f"duration must be a positive number of seconds, got {duration!r}")
+
+    own_scene = scene is None
+    scene = pushing.PushingScene() if own_scene else scene
+    outcomes: list[TrialOutcome] = []
+    start = time.perf_counter()
+    total = len(chosen) * trials
+    try:
+        for trial in range(trials):  # interleave positions so a partial run is balanced
+            for position in chosen:
+                rng = trial_rng(int(seed), position.index, trial)
+                variation = pushing.SceneVariation.sample(rng)
+                run, image, z = policy.run(scene, position, variation, camera, duration)
+                outcomes.append(
+                    TrialOutcome(
+                        position.index,
+                        position.name,
+                        trial,
+                        (int(seed), EVAL_STREAM, position.index, trial),
+                        bool(run.success),
+                        float(run.crossed_time),
+                        float(run.block_pose[-1, 1]),
+                        z,
+                        run if keep_runs else None,
+                        image if keep_runs else None,
+                    )
+                )
+                if progress:
+                    ok = sum(o.success for o in outcomes)
+                    print(
+                        f"\r[evaluate {camera}] {len(outcomes)}/{total} trials, {ok} successful, "
+                        f"{time.perf_counter() - start:.0f} s",
+                        end="" if len(outcomes) < total else "\n",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+    finally:
+        if own_scene:
+            scene.close()
+    outcomes.sort(key=lambda o: (o.position_index, o.trial))
+    per_position = {}
+    for position in chosen:
+        mine = [o for o in outcomes if o.position_index == position.index]
+        per_position[position.name] = (sum(o.success for o in mine), len(mine))
+    successes = sum(o.success for o in outcomes)
+    return Evaluation(
+        successes / len(outcomes),
+        successes,
+        len(outcomes),
+        per_position,
+        outcomes,
+        camera,
+        int(seed),
+        time.perf_counter() - start,
+        policy.config.kind,
+        policy.config.preset,
+    )

@@ -1,0 +1,507 @@
+"""Chapter-5 networks: the sequence autoencoder (SeqAE), the image CNN and the combined policy.
+
+Data conventions (dissertation 5.2.1 and 5.3.4). A motion is sampled every Δt_NN = 20 ms;
+sample k holds 18 columns (:data:`seqmotion.lfd.teleop.MOTION_COLUMNS`): master θ, θ̇, τ,
+then slave θ, θ̇, τ, each over the 3 joints [rad, rad/s, N m].
+
+* **Encoder** — a stacked LSTM reads the whole motion ``(B, K, 18)``; a linear layer maps the
+  last layer's final hidden state to the latent ``z`` ``(B, 8)``.
+* **Decoder** — a stacked LSTM that, at step k, reads ``z`` and the slave's measured state
+  ``s[k]`` (θ, θ̇, τ: 9) and emits the master command for the next step ``m̂[k+1]`` (θ, θ̇, τ:
+  9). In closed loop it is called every 20 ms by :func:`seqmotion.lfd.teleop.run_autonomous`
+  and its recurrent state carries the history; in training it is teacher-forced on the
+  recorded slave states (as in the dissertation).
+* **CNN** — five stride-2 convolutions, each followed by ReLU and BatchNorm (that order, as
+  the dissertation states), then a linear layer: a 64 × 64 RGB image → ``ẑ`` ``(B, 8)``.
+* **Policy** — the CNN in the encoder's place in front of the decoder (Fig. 5.2). The same
+  class holds the end-to-end baseline (same layers, trained directly on image–motion pairs).
+
+All networks work on *normalised* columns (per-column mean and standard deviation of the
+SeqAE's training motions, stored with the weights as buffers), which keeps the LSTM inputs
+O(1) whatever the units; the loss is still eq. 5.1 on the raw values (see :func:`motion_loss`).
+
+Presets (layers × LSTM units, same for encoder and decoder): ``original`` 7 × 64 (the
+dissertation gives 7 layers but no width; 64 sits between its ``smaller`` and ``larger``),
+``larger`` 10 × 128, ``smaller`` 3 × 32 (and ``tiny`` 1 × 16 for tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+MOTION_DIM = 18
+"""Columns per motion sample: master θ, θ̇, τ and slave θ, θ̇, τ (3 joints each)."""
+STATE_DIM = 9
+"""Slave state the decoder reads (θ, θ̇, τ) and master command it writes (θ, θ̇, τ)."""
+MASTER = slice(0, 9)
+SLAVE = slice(9, 18)
+VARIABLES = ("theta", "dtheta", "tau")
+
+
+@dataclass(frozen=True)
+class SeqAEConfig:
+    """Shape of the SeqAE (encoder and decoder share layers and width).
+
+    Attributes:
+        layers: stacked LSTM layers in the encoder and in the decoder.
+        hidden: LSTM units per layer.
+        latent: dimension of z (8 in the dissertation).
+        normalize_latent: end the encoder with a BatchNorm without scale and shift, so that z
+            has zero mean and unit variance over the data (a fixed signal level for the latent
+            noise of training; not in the dissertation).
+    """
+
+    layers: int = 7
+    hidden: int = 64
+    latent: int = 8
+    normalize_latent: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.normalize_latent, bool):
+            raise ValueError(f"SeqAEConfig.normalize_latent must be a bool, got {self.normalize_latent!r}")
+        for name in ("layers", "hidden", "latent"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"SeqAEConfig.{name} must be a positive integer, got {value!r}")
+
+
+PRESETS: dict[str, SeqAEConfig] = {
+    "original": SeqAEConfig(7, 64),
+    "larger": SeqAEConfig(10, 128),
+    "smaller": SeqAEConfig(3, 32),
+    "tiny": SeqAEConfig(1, 16),
+}
+"""The dissertation's three model sizes (Table 5.2; ``original``'s width is our choice) and ``tiny``
+(1 × 16, for tests and smoke runs)."""
+
+
+def preset(name: str) -> SeqAEConfig:
+    """The named :data:`PRESETS` entry; ``ValueError`` for an unknown name."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown model preset {name!r}; choose one of {sorted(PRESETS)}")
+    return PRESETS[name]
+
+
+@dataclass(frozen=True)
+class CNNConfig:
+    """Shape of the image CNN.
+
+    Attributes:
+        channels: output channels of the five convolutions (4 × 4 kernels, stride 2, so a
+            64 × 64 image ends as ``channels[-1]`` maps of 2 × 2).
+        latent: output dimension (the SeqAE's z).
+        image_size: input height and width [px].
+    """
+
+    channels: tuple[int, ...] = (16, 32, 32, 64, 64)
+    latent: int = 8
+    image_size: int = 64
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "channels", tuple(int(c) for c in self.channels))
+        if len(self.channels) != 5 or min(self.channels) < 1:
+            raise ValueError(f"CNNConfig.channels must be five positive integers, got {self.channels!r}")
+        if self.image_size != 64:
+            raise ValueError(f"the CNN takes 64 x 64 images, got image_size={self.image_size!r}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Normalisation and loss
+# ----------------------------------------------------------------------------------------------
+class MotionScaler(nn.Module):
+    """Per-column statistics of the training motions, stored as buffers (they travel with the weights).
+
+    Buffers:
+        mean, std: ``(18,)`` per-column mean and standard deviation (std floored at 1e-6).
+        variance: ``(9,)`` eq. 5.1's σ² for each master column: the variance of its variable
+            (θ, θ̇ or τ) pooled over the three joints and all samples.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(MOTION_DIM))
+        self.register_buffer("std", torch.ones(MOTION_DIM))
+        self.register_buffer("variance", torch.ones(STATE_DIM))
+
+    @torch.no_grad()
+    def fit(self, motions: np.ndarray | torch.Tensor) -> MotionScaler:
+        """Set the statistics from motions ``(N, K, 18)`` (raw units)."""
+        flat = torch.as_tensor(np.asarray(motions), dtype=torch.float64).reshape(-1, MOTION_DIM)
+        self.mean.copy_(flat.mean(0))
+        self.std.copy_(flat.std(0).clamp_min(1e-6))
+        master = flat[:, MASTER]
+        for v in range(3):  # θ, θ̇, τ: one σ² per variable (eq. 5.1), shared by its 3 joints
+            cols = slice(3 * v, 3 * v + 3)
+            self.variance[cols] = master[:, cols].var().clamp_min(1e-12)
+        return self
+
+    def normalize(self, x: torch.Tensor, cols: slice = slice(None)) -> torch.Tensor:
+        return (x - self.mean[cols]) / self.std[cols]
+
+    def denormalize(self, x: torch.Tensor, cols: slice = slice(None)) -> torch.Tensor:
+        return x * self.std[cols] + self.mean[cols]
+
+
+def motion_loss(command: torch.Tensor, target: torch.Tensor, variance: torch.Tensor) -> torch.Tensor:
+    """Eq. 5.1, averaged: ``mean_{b,k} Σ_c (m̂_c − m_c)² / σ²_{v(c)}`` over the 9 command columns.
+
+    Args:
+        command: predicted master commands ``(B, K, 9)`` [raw units].
+        target: recorded master states ``(B, K, 9)``.
+        variance: ``(9,)`` σ² of each column's variable (see :class:`MotionScaler`).
+
+    Returns:
+        A scalar. Eq. 5.1 sums over the K samples; dividing by B·K only rescales it, so
+        the learning rate does not depend on the sequence length or batch size.
+    """
+    if command.shape != target.shape or command.shape[-1] != STATE_DIM:
+        raise ValueError(
+            f"motion_loss needs (..., {STATE_DIM}) tensors of equal shape, got "
+            f"{tuple(command.shape)} and {tuple(target.shape)}"
+        )
+    return ((command - target) ** 2 / variance).sum(-1).mean()
+
+
+# ----------------------------------------------------------------------------------------------
+# Networks
+# ----------------------------------------------------------------------------------------------
+class MotionEncoder(nn.Module):
+    """LSTM over normalised motions ``(B, K, 18)`` → z ``(B, latent)`` (final hidden state → linear)."""
+
+    def __init__(self, config: SeqAEConfig) -> None:
+        super().__init__()
+        self.lstm = nn.LSTM(MOTION_DIM, config.hidden, config.layers, batch_first=True)
+        self.out = nn.Linear(config.hidden, config.latent)
+        self.norm = nn.BatchNorm1d(config.latent, affine=False) if config.normalize_latent else None
+
+    def forward(self, motion_n: torch.Tensor) -> torch.Tensor:
+        _, (h, _) = self.lstm(motion_n)
+        z = self.out(h[-1])
+        return self.norm(z) if self.norm is not None else z
+
+
+class CommandDecoder(nn.Module):
+    """LSTM that reads ``[z, s[k]]`` and emits the normalised next master command ``m̂[k+1]``."""
+
+    def __init__(self, config: SeqAEConfig) -> None:
+        super().__init__()
+        self.lstm = nn.LSTM(config.latent + STATE_DIM, config.hidden, config.layers, batch_first=True)
+        self.out = nn.Linear(config.hidden, STATE_DIM)
+
+    def forward(
+        self, z: torch.Tensor, slave_n: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None = None
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        """``z (B, latent)``, ``slave_n (B, K, 9)`` → commands ``(B, K, 9)`` and the LSTM state.
+
+        Called with the whole recorded sequence in training (one fused LSTM call) and with
+        ``K = 1`` plus the carried state in closed loop.
+        """
+        inputs = torch.cat([z.unsqueeze(1).expand(-1, slave_n.shape[1], -1), slave_n], dim=-1)
+        y, state = self.lstm(inputs, state)
+        return self.out(y), state
+
+
+class ImageEncoder(nn.Module):
+    """The CNN: 5 × (conv 4×4 stride 2 → ReLU → BatchNorm) → linear; uint8 images → ẑ.
+
+    Images enter as ``(B, 64, 64, 3)`` uint8 (or floats in [0, 255]); they are scaled to
+    [−0.5, 0.5] here so callers never normalise by hand.
+    """
+
+    def __init__(self, config: CNNConfig) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        c_in = 3
+        for c_out in config.channels:
+            layers += [nn.Conv2d(c_in, c_out, 4, stride=2, padding=1), nn.ReLU(), nn.BatchNorm2d(c_out)]
+            c_in = c_out
+        self.features = nn.Sequential(*layers)
+        side = config.image_size // 2 ** len(config.channels)
+        self.out = nn.Linear(c_in * side * side, config.latent)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = images.to(torch.float32).permute(0, 3, 1, 2) / 255.0 - 0.5
+        return self.out(self.features(x).flatten(1))
+
+
+def check_images(images: Any) -> np.ndarray:
+    """``(64, 64, 3)`` or ``(B, 64, 64, 3)`` image(s) → ``(B, 64, 64, 3)`` array; ``ValueError`` otherwise."""
+    arr = np.asarray(images)
+    if arr.ndim == 3:
+        arr = arr[None]
+    if arr.ndim != 4 or arr.shape[1:] != (64, 64, 3):
+        raise ValueError(f"images must be (64, 64, 3) or (B, 64, 64, 3) RGB arrays, got shape {np.shape(images)}")
+    if arr.dtype != np.uint8:
+        if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)):
+            raise ValueError("images must be uint8 or finite numbers in [0, 255]")
+        if arr.min() < 0 or arr.max() > 255:
+            raise ValueError(f"image values must lie in [0, 255], got [{arr.min()}, {arr.max()}]")
+    return arr
+
+
+def check_motions(motions: Any, name: str = "motions") -> np.ndarray:
+    """``(K, 18)`` or ``(B, K, 18)`` finite motion(s), K ≥ 2 → ``(B, K, 18)`` float64."""
+    arr = np.asarray(motions, dtype=np.float64) if not isinstance(motions, np.ndarray) else motions
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[-1] != MOTION_DIM:
+        raise ValueError(f"{name} must be (K, {MOTION_DIM}) or (B, K, {MOTION_DIM}), got shape {np.shape(motions)}")
+    if arr.shape[1] < 2:
+        raise ValueError(f"{name} need at least K = 2 samples, got {arr.shape[1]}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contain NaN or inf")
+    return arr.astype(np.float64, copy=False)
+
+
+class SeqAE(nn.Module):
+    """Sequence autoencoder of demonstrations (dissertation Fig. 5.2, eq. 5.1).
+
+    ``forward(motion)`` is the teacher-forced training pass: encode the whole motion, then
+    decode the slave states ``s[0..K-2]`` into commands that should equal ``m[1..K-1]``.
+    """
+
+    def __init__(self, config: SeqAEConfig = PRESETS["original"]) -> None:
+        super().__init__()
+        self.config = config
+        self.scaler = MotionScaler()
+        self.encoder = MotionEncoder(config)
+        self.decoder = CommandDecoder(config)
+
+    def encode(self, motion: torch.Tensor) -> torch.Tensor:
+        """Raw motions ``(B, K, 18)`` → z ``(B, latent)``."""
+        return self.encoder(self.scaler.normalize(motion))
+
+    def decode(
+        self,
+        z: torch.Tensor,
+        slave: torch.Tensor,
+        state: tuple[torch.Tensor, torch.Tensor] | None = None,
+        slave_noise: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        """Raw slave states ``(B, K, 9)`` → raw master commands ``(B, K, 9)`` (one step ahead) and the LSTM state.
+
+        ``slave_noise`` (``(B, K, 9)``, in normalised units) is added to the decoder's input
+        only: training-time noise injection (see :mod:`seqmotion.lfd.train`).
+        """
+        slave_n = self.scaler.normalize(slave, SLAVE)
+        if slave_noise is not None:
+            slave_n = slave_n + slave_noise
+        out, state = self.decoder(z, slave_n, state)
+        return self.scaler.denormalize(out, MASTER), state
+
+    def forward(self, motion: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Teacher-forced reconstruction: ``(B, K, 18)`` → (commands ``(B, K-1, 9)`` for m[1:], z)."""
+        z = self.encode(motion)
+        command, _ = self.decode(z, motion[:, :-1, SLAVE])
+        return command, z
+
+
+# ----------------------------------------------------------------------------------------------
+# The combined policy
+# ----------------------------------------------------------------------------------------------
+KINDS = ("proposed", "end_to_end")
+"""``proposed``: SeqAE on motions, then CNN → z; ``end_to_end``: CNN + decoder trained on pairs."""
+
+
+@dataclass
+class PolicyConfig:
+    """Everything needed to rebuild a :class:`PushingPolicy` (stored in ``config.json``).
+
+    Attributes:
+        kind: ``"proposed"`` or ``"end_to_end"``.
+        preset: SeqAE size name (informational; ``seqae`` is authoritative).
+        seqae: :class:`SeqAEConfig` as a dict.
+        cnn: :class:`CNNConfig` as a dict.
+        camera: webcam pose the CNN was trained on (a key of ``seqmotion.sim.pushing.CAMERAS``).
+        command_interval: Δt_NN [s] (the decoder's period).
+        training: how it was trained (data, seeds, epochs, wall time...), for the record.
+    """
+
+    kind: str = "proposed"
+    preset: str = "original"
+    seqae: dict = field(default_factory=lambda: asdict(PRESETS["original"]))
+    cnn: dict = field(default_factory=lambda: asdict(CNNConfig()))
+    camera: str = "default"
+    command_interval: float = 0.02
+    training: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"unknown policy kind {self.kind!r}; choose one of {KINDS}")
+
+
+class PushingPolicy(nn.Module):
+    """Image → z → closed-loop command source: the combined model of Fig. 5.2 (or the E2E baseline).
+
+    Typical use::
+
+        policy = sm.load_pretrained("pushing")
+        z = policy.latent(image)                       # (8,) from a 64 × 64 × 3 uint8 image
+        source = policy.source(z)                      # a fresh decoder state for one episode
+        run = run_autonomous(scene, source, position)  # 1 ms bilateral control, decoder every 20 ms
+
+    or simply ``policy.run(scene, position, variation)`` (takes the image, then runs).
+
+    Modules: ``scaler`` (motion statistics), ``encoder`` (the SeqAE's motion encoder; kept
+    for ``kind == "proposed"``, absent in the end-to-end baseline), ``decoder``, ``cnn``.
+    """
+
+    def __init__(self, config: PolicyConfig, seqae: SeqAE | None = None, cnn: ImageEncoder | None = None) -> None:
+        super().__init__()
+        self.config = config
+        seq_cfg = SeqAEConfig(**config.seqae)
+        seqae = seqae if seqae is not None else SeqAE(seq_cfg)
+        if seqae.config != seq_cfg:
+            raise ValueError(f"the SeqAE's shape {seqae.config} differs from the config's {seq_cfg}")
+        self.scaler = seqae.scaler
+        self.decoder = seqae.decoder
+        self.encoder = seqae.encoder if config.kind == "proposed" else None
+        self.cnn = cnn if cnn is not None else ImageEncoder(CNNConfig(**config.cnn))
+        self.eval()
+
+    @property
+    def seqae_config(self) -> SeqAEConfig:
+        return SeqAEConfig(**self.config.seqae)
+
+    def seqae(self) -> SeqAE:
+        """A :class:`SeqAE` view sharing this policy's scaler, encoder and decoder (``proposed`` only)."""
+        if self.encoder is None:
+            raise ValueError("an end-to-end policy has no motion encoder (it never saw motions without images)")
+        model = SeqAE(self.seqae_config)
+        model.scaler, model.encoder, model.decoder = self.scaler, self.encoder, self.decoder
+        return model
+
+    # -- inference -----------------------------------------------------------------------------
+    @torch.no_grad()
+    def latent(self, images: Any) -> np.ndarray:
+        """ẑ of ``(64, 64, 3)`` → ``(latent,)`` or ``(B, 64, 64, 3)`` → ``(B, latent)`` images (uint8 RGB)."""
+        arr = check_images(images)
+        z = self.cnn.eval()(torch.as_tensor(arr)).double().numpy()
+        return z[0] if np.ndim(images) == 3 else z
+
+    @torch.no_grad()
+    def encode(self, motions: Any) -> np.ndarray:
+        """z of recorded motions ``(K, 18)`` → ``(latent,)`` or ``(B, K, 18)`` → ``(B, latent)`` (20 ms samples)."""
+        if self.encoder is None:
+            raise ValueError("an end-to-end policy has no motion encoder (it never saw motions without images)")
+        arr = check_motions(motions)
+        z = self.encoder(self.scaler.normalize(torch.as_tensor(arr, dtype=torch.float32))).double().numpy()
+        return z[0] if np.ndim(motions) == 2 else z
+
+    def source(self, z: Any) -> DecoderSource:
+        """A command source for :func:`~seqmotion.lfd.teleop.run_autonomous` decoding latent ``z`` ``(latent,)``."""
+        return DecoderSource(self, z)
+
+    def run(
+        self,
+        scene: Any,
+        position: Any,
+        variation: Any = None,
+        camera: str | None = None,
+        duration: float = 4.0,
+    ) -> tuple[Any, np.ndarray, np.ndarray]:
+        """One closed-loop episode: reset the scene, take the image, ẑ = CNN(image), decode at 20 ms.
+
+        Args:
+            scene: a :class:`seqmotion.sim.pushing.PushingScene`.
+            position: a :class:`~seqmotion.sim.pushing.BlockPosition`.
+            variation: a :class:`~seqmotion.sim.pushing.SceneVariation` (none if omitted).
+            camera: webcam pose (default: the one the CNN was trained on).
+            duration: episode length [s].
+
+        Returns:
+            ``(AutonomousRun, image (64, 64, 3) uint8, z (latent,))``.
+        """
+        from ..sim.pushing import SceneVariation
+        from .teleop import run_autonomous
+
+        variation = variation or SceneVariation()
+        scene.reset(position, variation)
+        image = scene.render(camera or self.config.camera)
+        z = self.latent(image)
+        run = run_autonomous(
+            scene, self.source(z), position, duration, variation, self.config.command_interval, reset=False
+        )
+        return run, image, z
+
+
+class DecoderSource:
+    """The decoder as a master stand-in: ``source(t, slave_state) → ArmState`` with its LSTM state.
+
+    One instance per episode. It must be called at t = 0, Δt_NN, 2 Δt_NN, … (as
+    :func:`~seqmotion.lfd.teleop.run_autonomous` does); a skipped or repeated call would
+    desynchronise the recurrent state from the time steps it was trained on, so it is refused.
+    """
+
+    def __init__(self, policy: PushingPolicy, z: Any) -> None:
+        z_arr = np.asarray(z, dtype=np.float64)
+        latent = policy.seqae_config.latent
+        if z_arr.shape != (latent,) or not np.all(np.isfinite(z_arr)):
+            raise ValueError(f"z must be {latent} finite numbers, got shape {z_arr.shape}")
+        self.policy = policy
+        self.z = torch.as_tensor(z_arr, dtype=torch.float32)[None]
+        self.interval = policy.config.command_interval
+        self.state: tuple[torch.Tensor, torch.Tensor] | None = None
+        self.calls = 0
+
+    @torch.no_grad()
+    def __call__(self, t: float, slave_state: Any) -> Any:
+        from .teleop import ArmState
+
+        expected = self.calls * self.interval
+        if abs(t - expected) > 1e-6:
+            raise ValueError(
+                f"decoder called at t = {t:.4f} s, expected {expected:.4f} s (one call per "
+                f"{self.interval * 1000:g} ms from t = 0; use a fresh source per episode)"
+            )
+        self.calls += 1
+        s = torch.as_tensor(slave_state.as_vector(), dtype=torch.float32)[None, None]
+        p = self.policy
+        slave_n = p.scaler.normalize(s, SLAVE)
+        out, self.state = p.decoder(self.z, slave_n, self.state)
+        m = p.scaler.denormalize(out, MASTER)[0, 0].double().numpy()
+        return ArmState(m[0:3], m[3:6], m[6:9])
+
+
+# ----------------------------------------------------------------------------------------------
+# Checkpoints
+# ----------------------------------------------------------------------------------------------
+TASK_NAME = "pushing"
+
+
+def save_policy(policy: PushingPolicy, directory: Any) -> None:
+    """Write ``model.safetensors`` (prefixes ``scaler.``, ``encoder.``, ``decoder.``, ``cnn.``) and ``config.json``.
+
+    The config carries ``"task": "pushing"`` and the whole :class:`PolicyConfig`, so
+    ``sm.load(directory)`` rebuilds exactly this policy.
+    """
+    from ..training.checkpoint import write_model
+
+    config = {"task": TASK_NAME, "model": "PushingPolicy", "policy": asdict(policy.config)}
+    write_model(directory, policy.state_dict(), config)
+
+
+def load_policy(directory: Any) -> PushingPolicy:
+    """Read a directory written by :func:`save_policy`.
+
+    Raises:
+        seqmotion.CheckpointError: missing or corrupt files, another task's model, a config
+            that does not describe a policy, or weights that do not fit it.
+    """
+    from ..errors import CheckpointError
+    from ..training.checkpoint import load_state_dict_strict, read_model
+
+    config, tensors = read_model(directory, expected_task=TASK_NAME)
+    try:
+        policy_config = PolicyConfig(**config["policy"])
+        policy_config.cnn["channels"] = tuple(policy_config.cnn["channels"])
+        policy = PushingPolicy(policy_config)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CheckpointError(f"{directory}/config.json does not describe a pushing policy: {exc}") from None
+    load_state_dict_strict(policy, tensors, str(directory))
+    return policy.eval()

@@ -1,0 +1,222 @@
+"""Chapter-5 networks: shapes, the eq.-5.1 loss, checkpoints, a CNN that learns, the decoder in the loop."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from seqmotion import CheckpointError
+from seqmotion.lfd import models
+from seqmotion.lfd.models import (
+    CNNConfig,
+    ImageEncoder,
+    PolicyConfig,
+    PushingPolicy,
+    SeqAE,
+    SeqAEConfig,
+    load_policy,
+    motion_loss,
+    save_policy,
+)
+
+TINY = SeqAEConfig(layers=2, hidden=8)
+
+
+def _motions(n: int = 4, k: int = 12, seed: int = 0) -> np.ndarray:
+    """Random motions (N, K, 18) with the scales of the real data (rad, rad/s, N m)."""
+    rng = np.random.default_rng(seed)
+    scale = np.tile(np.repeat([0.3, 0.8, 0.03], 3), 2)
+    return rng.normal(size=(n, k, 18)) * scale + np.tile([0.0, 0.75, -0.06] + [0.0] * 6, 2)
+
+
+def _policy(kind: str = "proposed", config: SeqAEConfig = TINY) -> PushingPolicy:
+    torch.manual_seed(0)
+    seqae = SeqAE(config)
+    seqae.scaler.fit(_motions())
+    cnn = {"channels": (4, 4, 8, 8, 8), "latent": 8, "image_size": 64}
+    cfg = PolicyConfig(kind, "tiny", dataclasses.asdict(config), cnn)
+    return PushingPolicy(cfg, seqae, ImageEncoder(CNNConfig(channels=(4, 4, 8, 8, 8))))
+
+
+def test_shapes():
+    model = SeqAE(TINY)
+    x = torch.as_tensor(_motions(3, 10), dtype=torch.float32)
+    command, z = model(x)
+    assert command.shape == (3, 9, 9) and z.shape == (3, 8)
+    out, (h, c) = model.decode(z, x[:, :4, 9:])
+    assert out.shape == (3, 4, 9) and h.shape == (2, 3, 8) and c.shape == (2, 3, 8)
+    cnn = ImageEncoder(CNNConfig())
+    assert cnn(torch.zeros(5, 64, 64, 3, dtype=torch.uint8)).shape == (5, 8)
+    policy = _policy()
+    image = np.random.default_rng(1).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    assert policy.latent(image).shape == (8,) and policy.latent(np.stack([image] * 2)).shape == (2, 8)
+    assert policy.encode(_motions(1, 10)[0]).shape == (8,) and policy.encode(_motions(2, 10)).shape == (2, 8)
+    assert {k.split(".")[0] for k in policy.state_dict()} == {"scaler", "encoder", "decoder", "cnn"}
+    assert "encoder" not in {k.split(".")[0] for k in _policy("end_to_end").state_dict()}
+
+
+def test_step_by_step_decoding_equals_the_sequence():
+    """Closed-loop decoding (one step at a time, carried state) is the teacher-forced pass."""
+    model = SeqAE(TINY).eval()
+    model.scaler.fit(_motions())
+    x = torch.as_tensor(_motions(1, 8), dtype=torch.float32)
+    with torch.no_grad():
+        z = model.encode(x)
+        whole, _ = model.decode(z, x[:, :, 9:])
+        state, steps = None, []
+        for k in range(8):
+            out, state = model.decode(z, x[:, k : k + 1, 9:], state)
+            steps.append(out)
+    torch.testing.assert_close(torch.cat(steps, 1), whole)
+
+
+def test_scaler_and_variance_scaled_loss():
+    motions = _motions(5, 20)
+    scaler = models.MotionScaler().fit(motions)
+    flat = motions.reshape(-1, 18)
+    np.testing.assert_allclose(scaler.mean.numpy(), flat.mean(0), rtol=1e-5, atol=1e-6)
+    # eq. 5.1: one σ² per variable (θ, θ̇, τ of the master), pooled over the three joints
+    for v in range(3):
+        expected = flat[:, 3 * v : 3 * v + 3].var(ddof=1)
+        np.testing.assert_allclose(scaler.variance.numpy()[3 * v : 3 * v + 3], expected, rtol=1e-5)
+
+    variance = torch.tensor([4.0] * 3 + [1.0] * 3 + [0.01] * 3)
+    target = torch.zeros(2, 3, 9)
+    command = target.clone()
+    command[0, 0, 0] = 2.0  # θ error 2 rad:  4 / 4 = 1
+    command[1, 2, 4] = 1.0  # θ̇ error 1 rad/s: 1 / 1 = 1
+    command[1, 1, 8] = 0.1  # τ error 0.1 N m: 0.01 / 0.01 = 1
+    assert motion_loss(command, target, variance).item() == pytest.approx(3.0 / 6.0)  # mean over B·K = 6
+    with pytest.raises(ValueError, match="equal shape"):
+        motion_loss(command[:, :, :8], target[:, :, :8], variance)
+
+
+def test_save_load_round_trip(tmp_path):
+    policy = _policy()
+    policy.config.training = {"note": "round trip"}
+    save_policy(policy, tmp_path / "p")
+    config = json.loads((tmp_path / "p" / "config.json").read_text())
+    assert config["task"] == "pushing" and config["policy"]["kind"] == "proposed"
+    assert {k: config["policy"]["seqae"][k] for k in ("layers", "hidden", "latent")} == {
+        "layers": 2,
+        "hidden": 8,
+        "latent": 8,
+    }
+    loaded = load_policy(tmp_path / "p")
+    assert loaded.config.training == {"note": "round trip"}
+    for key, value in policy.state_dict().items():
+        torch.testing.assert_close(loaded.state_dict()[key], value)
+    image = np.random.default_rng(2).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(loaded.latent(image), policy.latent(image))
+    import seqmotion as sm
+
+    assert isinstance(sm.load(tmp_path / "p"), PushingPolicy)
+    save_policy(_policy("end_to_end"), tmp_path / "e")
+    assert load_policy(tmp_path / "e").encoder is None
+
+
+def test_corrupt_or_mismatched_checkpoints(tmp_path):
+    save_policy(_policy(), tmp_path / "p")
+    weights = tmp_path / "p" / "model.safetensors"
+    blob = bytearray(weights.read_bytes())
+    blob[-5] ^= 0xFF
+    weights.write_bytes(bytes(blob))
+    with pytest.raises(CheckpointError, match="hash mismatch"):
+        load_policy(tmp_path / "p")
+    weights.unlink()
+    with pytest.raises(CheckpointError, match="no model.safetensors"):
+        load_policy(tmp_path / "p")
+
+    save_policy(_policy(), tmp_path / "q")
+    cfg_path = tmp_path / "q" / "config.json"
+    config = json.loads(cfg_path.read_text())
+    config["policy"]["seqae"]["hidden"] = 9  # weights no longer fit
+    cfg_path.write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match="do not fit"):
+        load_policy(tmp_path / "q")
+    config["policy"]["kind"] = "telepathy"
+    cfg_path.write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match="does not describe a pushing policy"):
+        load_policy(tmp_path / "q")
+    config["task"] = "pancake"
+    cfg_path.write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match="not 'pushing'"):
+        load_policy(tmp_path / "q")
+    cfg_path.write_text("{not json")
+    with pytest.raises(CheckpointError, match="not valid JSON"):
+        load_policy(tmp_path / "q")
+    assert issubclass(CheckpointError, ValueError)
+
+
+def test_cnn_learns_a_tiny_image_to_latent_mapping():
+    """Six images of a bright square at six places → six distinct latents, fitted by train_cnn."""
+    from seqmotion.lfd.train import CNNTraining, train_cnn
+
+    images = np.full((6, 64, 64, 3), 60, dtype=np.uint8)
+    for i in range(6):
+        images[i, 24:40, 4 + 9 * i : 14 + 9 * i] = (230, 160, 90)
+    targets = np.random.default_rng(0).normal(size=(6, 8))
+    cnn, history = train_cnn(
+        images, targets, CNNConfig(channels=(8, 8, 16, 16, 16)), CNNTraining(epochs=150, batch_size=6, lr=3e-3, seed=0)
+    )
+    assert history["loss"][-1] < 0.02 * history["loss"][0]
+    with torch.no_grad():
+        predicted = cnn(torch.as_tensor(images)).numpy()
+    error = np.linalg.norm(predicted - targets, axis=1)
+    assert error.max() < 0.35 * np.linalg.norm(targets, axis=1).min()
+
+
+def test_decoder_drives_the_slave():
+    pushing = pytest.importorskip("seqmotion.sim.pushing")
+    from seqmotion.lfd.teleop import run_autonomous
+
+    policy = _policy()
+    scene = pushing.PushingScene()
+    try:
+        source = policy.source(np.zeros(8))
+        run = run_autonomous(scene, source, pushing.POSITIONS[1], duration=0.2)
+        assert source.calls == 10  # one decoder step per 20 ms
+        assert np.all(np.isfinite(run.slave_theta)) and np.all(np.isfinite(run.command_theta))
+        # the commands are the decoder's (not the initial hold), and the slave responds
+        assert np.abs(run.command_theta[-1] - run.command_theta[0]).max() > 0 or np.any(run.command_tau != 0)
+        run2, image, z = policy.run(scene, pushing.POSITIONS[4], duration=0.1)
+        assert image.shape == (64, 64, 3) and z.shape == (8,) and len(run2.slave_theta) == 100
+    finally:
+        scene.close()
+    with pytest.raises(ValueError, match="expected 0.0200 s"):
+        s = policy.source(np.zeros(8))
+        from seqmotion.lfd.teleop import ArmState
+
+        state = ArmState(np.zeros(3), np.zeros(3), np.zeros(3))
+        s(0.0, state)
+        s(0.04, state)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="layers"):
+        SeqAEConfig(layers=0)
+    with pytest.raises(ValueError, match="unknown model preset 'huge'"):
+        models.preset("huge")
+    with pytest.raises(ValueError, match="channels"):
+        CNNConfig(channels=(8, 8))
+    with pytest.raises(ValueError, match="unknown policy kind"):
+        PolicyConfig(kind="mystery")
+    policy = _policy()
+    with pytest.raises(ValueError, match=r"images must be \(64, 64, 3\)"):
+        policy.latent(np.zeros((32, 32, 3), dtype=np.uint8))
+    with pytest.raises(ValueError, match=r"\[0, 255\]"):
+        policy.latent(np.full((64, 64, 3), 300.0))
+    with pytest.raises(ValueError, match="NaN"):
+        policy.encode(np.full((5, 18), np.nan))
+    with pytest.raises(ValueError, match="K = 2"):
+        policy.encode(np.zeros((1, 18)))
+    with pytest.raises(ValueError, match=r"\(K, 18\)"):
+        policy.encode(np.zeros((5, 17)))
+    with pytest.raises(ValueError, match="z must be 8 finite"):
+        policy.source(np.zeros(3))
+    with pytest.raises(ValueError, match="no motion encoder"):
+        _policy("end_to_end").encode(_motions(1, 5)[0])

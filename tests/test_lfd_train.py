@@ -1,0 +1,274 @@
+"""Chapter-5 training, evaluation, CLI and the shipped policy, on tiny datasets and tiny models."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+import torch
+
+pushing = pytest.importorskip("seqmotion.sim.pushing")
+import seqmotion as sm  # noqa: E402
+from seqmotion.lfd import cli, dataset, evaluate, train  # noqa: E402
+from seqmotion.lfd.models import PushingPolicy, load_policy  # noqa: E402
+
+FAST = train.SeqAETraining(epochs=2, batch_size=4)
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    """6 motions, 6 + 6 image-motion pairs (default, position1) of 0.6 s: too short to push, fine to train on."""
+    out = tmp_path_factory.mktemp("lfd_data")
+    dataset.collect(
+        out,
+        ["motions", "pairs_default", "pairs_position1"],
+        seed=5,
+        duration=0.6,
+        per_position={"motions": 1, "pairs_default": 1, "pairs_position1": 1},
+        progress=False,
+    )
+    return out
+
+
+@pytest.fixture(scope="module")
+def trained(data_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("lfd_models")
+    report = train.train(
+        data_dir,
+        out,
+        "tiny",
+        ("proposed", "end_to_end"),
+        ("default",),
+        seed=3,
+        seqae_settings=train.SeqAETraining(epochs=2, batch_size=4),
+        e2e_settings=train.SeqAETraining(epochs=2),
+        cnn_settings=train.CNNTraining(epochs=2),
+        progress=False,
+        successful_only=False,
+    )
+    return out, report
+
+
+def test_seqae_training_learns():
+    """A 1 x 16 SeqAE fits two distinct motion families; the per-epoch loss falls by > 5x."""
+    t = np.linspace(0, 1, 30)[:, None]
+    base = np.concatenate([np.sin(2 * np.pi * t) * np.ones((1, 9)), np.sin(2 * np.pi * t - 0.2) * np.ones((1, 9))], 1)
+    motions = np.stack([base * s for s in (1.0, -1.0, 0.9, -0.9)])
+    model, history = train.train_seqae(
+        motions,
+        sm.lfd.SeqAEConfig(1, 16),
+        train.SeqAETraining(epochs=150, batch_size=4, lr=1e-2, state_noise=0.0, latent_noise=0.0, seed=0),
+    )
+    assert history["loss"][-1] < history["loss"][0] / 5
+    z = train.encode_motions(model, motions)
+    assert np.linalg.norm(z[0] - z[1]) > 1e-3  # the two directions get different latents
+
+
+def test_training_is_seeded():
+    motions = np.random.default_rng(0).normal(size=(4, 10, 18))
+    settings = train.SeqAETraining(epochs=2, batch_size=2, noise_correlation=3.0, seed=7)
+    a, _ = train.train_seqae(motions, sm.lfd.SeqAEConfig(1, 8), settings)
+    b, _ = train.train_seqae(motions, sm.lfd.SeqAEConfig(1, 8), settings)
+    for key, value in a.state_dict().items():
+        torch.testing.assert_close(b.state_dict()[key], value)
+
+
+def test_train_writes_loadable_policies(trained, data_dir, tmp_path):
+    out, report = trained
+    assert set(report.policies) == {"proposed_default", "end_to_end_default"}
+    assert set(report.seconds) == {"seqae", "cnn_default", "end_to_end_default"}
+    proposed = sm.load(report.policies["proposed_default"])
+    e2e = sm.load(report.policies["end_to_end_default"])
+    assert isinstance(proposed, PushingPolicy) and proposed.config.kind == "proposed"
+    assert e2e.config.kind == "end_to_end" and e2e.encoder is None
+    log = json.loads((out / "train_log.json").read_text())["runs"][-1]
+    assert log["preset"] == "tiny" and log["seed"] == 3 and "machine" in log
+    assert proposed.config.training["cnn"]["pairs"] == 6
+
+    # Camera moved: the SeqAE is reused bit for bit, only a new CNN is trained.
+    moved = train.train(
+        data_dir,
+        tmp_path,
+        "tiny",
+        ("proposed",),
+        ("position1",),
+        seed=3,
+        cnn_settings=train.CNNTraining(epochs=2),
+        seqae_from=report.policies["proposed_default"],
+        progress=False,
+        successful_only=False,
+    )
+    p1 = load_policy(moved.policies["proposed_position1"])
+    assert p1.config.camera == "position1" and "seqae" not in moved.seconds
+    for key, value in proposed.state_dict().items():
+        if not key.startswith("cnn."):
+            torch.testing.assert_close(p1.state_dict()[key], value)
+    assert not torch.equal(p1.state_dict()["cnn.out.weight"], proposed.state_dict()["cnn.out.weight"])
+
+
+def test_train_bad_arguments(data_dir, tmp_path):
+    with pytest.raises(ValueError, match="unknown model preset"):
+        train.train(data_dir, tmp_path, "gigantic")
+    with pytest.raises(ValueError, match="methods"):
+        train.train(data_dir, tmp_path, "tiny", ("imitation",))
+    with pytest.raises(ValueError, match="cameras"):
+        train.train(data_dir, tmp_path, "tiny", cameras=("ceiling",))
+    with pytest.raises(ValueError, match="pairs_position2.h5 is missing"):
+        train.train(data_dir, tmp_path, "tiny", cameras=("position2",))
+    with pytest.raises(ValueError, match="usable demonstration"):  # 0.6 s demonstrations never succeed
+        train.train(data_dir, tmp_path, "tiny", seqae_settings=FAST, progress=False)
+    with pytest.raises(ValueError, match="epochs"):
+        train.SeqAETraining(epochs=0)
+    with pytest.raises(ValueError, match="state_noise"):
+        train.SeqAETraining(state_noise=-1.0)
+    with pytest.raises(ValueError, match="seed"):
+        train.CNNTraining(seed=-1)
+    with pytest.raises(ValueError, match="3 images but 2 motions"):
+        train.train_end_to_end(np.zeros((3, 64, 64, 3), np.uint8), np.zeros((2, 5, 18)), sm.lfd.SeqAEConfig(1, 8))
+    with pytest.raises(ValueError, match="targets"):
+        train.train_cnn(np.zeros((3, 64, 64, 3), np.uint8), np.zeros((3, 5)))
+
+
+def test_evaluate_structure_and_determinism(trained):
+    _, report = trained
+    policy = load_policy(report.policies["proposed_default"])
+    result = evaluate(policy, positions=[0, 4], trials=2, seed=11, duration=0.3)
+    assert result.n_trials == 4 and result.camera == "default" and result.seed == 11
+    assert list(result.per_position) == ["left_4.5cm", "right_8cm"]
+    assert sum(ok for ok, _ in result.per_position.values()) == result.successes
+    assert result.success_rate == pytest.approx(result.successes / 4)
+    assert [(o.position_index, o.trial) for o in result.outcomes] == [(0, 0), (0, 1), (4, 0), (4, 1)]
+    for o in result.outcomes:
+        assert isinstance(o.success, bool) and o.latent.shape == (8,) and o.run is None
+        assert o.seed_key == (11, sm.lfd.evaluation.EVAL_STREAM, o.position_index, o.trial)
+    for o in result.outcomes:  # final_block_y is the block centre's lateral y: near its start after 0.3 s
+        nominal = pushing.POSITIONS[o.position_index].xy[1]  # ±4.5 / 8 cm (not the 16 cm forward reach x)
+        assert abs(o.final_block_y - nominal) < 0.01
+    json.dumps(result.as_dict())  # JSON-serialisable
+    again = evaluate(policy, positions=[0, 4], trials=2, seed=11, duration=0.3)
+    assert [o.final_block_y for o in again.outcomes] == [o.final_block_y for o in result.outcomes]
+    other = evaluate(policy, positions=[0], trials=1, seed=12, duration=0.3, keep_runs=True)
+    assert other.outcomes[0].final_block_y != result.outcomes[0].final_block_y  # fresh placement
+    assert other.outcomes[0].image.shape == (64, 64, 3) and other.outcomes[0].run is not None
+
+
+def test_evaluate_bad_arguments(trained):
+    _, report = trained
+    policy = load_policy(report.policies["proposed_default"])
+    with pytest.raises(ValueError, match="unknown camera 'ceiling'"):
+        evaluate(policy, camera="ceiling")
+    with pytest.raises(ValueError, match="block position index"):
+        evaluate(policy, positions=[7])
+    with pytest.raises(ValueError, match="positions is empty"):
+        evaluate(policy, positions=[])
+    with pytest.raises(ValueError, match="trials"):
+        evaluate(policy, trials=0)
+    with pytest.raises(ValueError, match="seed"):
+        evaluate(policy, seed=-3)
+    with pytest.raises(ValueError, match="PushingPolicy"):
+        evaluate("not a policy")
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog="seqmotion")
+    cli.add_parser(parser.add_subparsers(dest="command", required=True))
+    return parser
+
+
+def test_cli_train_and_evaluate(data_dir, tmp_path, capsys):
+    args = _parser().parse_args(
+        [
+            "lfd",
+            "train",
+            "--data",
+            str(data_dir),
+            "--out",
+            str(tmp_path / "m"),
+            "--preset",
+            "tiny",
+            "--seqae-epochs",
+            "1",
+            "--cnn-epochs",
+            "1",
+            "--keep-failed",
+            "--quiet",
+        ]
+    )
+    assert args.func(args) == 0
+    assert "proposed_default:" in capsys.readouterr().out
+    args = _parser().parse_args(
+        [
+            "lfd",
+            "evaluate",
+            str(tmp_path / "m" / "proposed_default"),
+            "--positions",
+            "2",
+            "--trials",
+            "1",
+            "--json",
+            str(tmp_path / "ev.json"),
+            "--quiet",
+        ]
+    )
+    assert args.func(args) == 0
+    assert "success " in capsys.readouterr().out
+    saved = json.loads((tmp_path / "ev.json").read_text())
+    assert saved["n_trials"] == 1 and len(saved["outcomes"]) == 1
+    with pytest.raises(ValueError, match="usable demonstration"):
+        args = _parser().parse_args(
+            [
+                "lfd",
+                "train",
+                "--data",
+                str(data_dir),
+                "--out",
+                str(tmp_path / "n"),
+                "--preset",
+                "tiny",
+                "--seqae-epochs",
+                "1",
+                "--quiet",
+            ]
+        )
+        args.func(args)
+
+
+def test_export_writes_a_model_card(trained, tmp_path):
+    _, report = trained
+    policy = load_policy(report.policies["proposed_default"])
+    result = evaluate(policy, positions=[1], trials=1, seed=2, duration=0.3)
+    (tmp_path / "ev.json").write_text(json.dumps(result.as_dict()))
+    target = sm.lfd.export_policy(
+        report.policies["proposed_default"],
+        "pushing-test",
+        [tmp_path / "ev.json"],
+        notes="a tiny test model",
+        root=tmp_path / "pretrained",
+    )
+    card = (target / "MODEL_CARD.md").read_text()
+    assert "2-core CPU container, no GPU" in card and "Seed: 3" in card and "a tiny test model" in card
+    assert (
+        f"proposed (tiny), default camera: **{result.success_rate:.1%}** ({result.successes}/1 trials, "
+        "evaluation seed 2)"
+    ) in card
+    shipped = sm.load(target)
+    for key, value in policy.state_dict().items():
+        torch.testing.assert_close(shipped.state_dict()[key], value)
+
+
+def test_shipped_policy_loads():
+    policy = sm.load_pretrained("pushing")
+    assert isinstance(policy, PushingPolicy) and policy.config.kind == "proposed"
+    assert policy.config.preset == train.DEFAULT_PRESET and policy.config.camera == "default"
+    assert policy.seqae_config == sm.lfd.PRESETS[train.DEFAULT_PRESET] and policy.seqae_config.latent == 8
+    card = (sm.api.pretrained_dir("pushing") / "MODEL_CARD.md").read_text()
+    assert "2-core CPU" in card and "success" in card
+    scene = pushing.PushingScene()
+    try:
+        scene.reset(pushing.POSITIONS[0])
+        z = policy.latent(scene.render("default"))
+    finally:
+        scene.close()
+    assert z.shape == (8,) and np.all(np.isfinite(z))
