@@ -57,3 +57,12 @@ def test_bad_input_gives_a_message_not_a_traceback(runs, tmp_path, capsys):
     assert main(["train", "nosuchtask", "--config", "tiny"]) == 2
     assert "unknown task" in capsys.readouterr().err
     assert main(["train", "pancake", "--config", "huge"]) == 2
+
+
+def test_demo_runs_on_the_shipped_models(tmp_path, capsys):
+    """`seqmotion demo` — the README's first command — end to end, the arm included."""
+    pytest.importorskip("mujoco")
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "deformed" in out and "Sliding" in out and "pancake stayed on" in out
+    assert (tmp_path / "fig2_5_deformation.png").stat().st_size > 0
