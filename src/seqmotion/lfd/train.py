@@ -31,8 +31,8 @@ the end-to-end baseline gets the same settings, so the comparison stays like for
 * Failed demonstrations (``success = False``, 3 of 90 in the default set) are left out.
 * Gradient-norm clipping at 1 and a cosine learning-rate decay to 10 % over the run.
 * Epochs per preset (:data:`SEQAE_EPOCHS`, :func:`default_settings`): the dissertation's 2000
-  for the ``smaller`` SeqAE (~5 min on one core of the project's 2-core CPU), fewer for the
-  bigger ones, whose 2000 epochs would take ~40 min (``original``) and ~3 h (``larger``);
+  for the ``smaller`` SeqAE (5–7 min on one core of the project's shared 2-core CPU), fewer for the
+  bigger ones, whose 2000 epochs would take ~48 min (``original``) and ~2.6 h (``larger``);
   2000 for the end-to-end baseline of every size, as in the dissertation.
 
 :data:`DEFAULT_PRESET` is the size ``seqmotion lfd train`` uses by default and the shipped
@@ -158,12 +158,14 @@ Not the dissertation's 7-layer model, by measurement (30 closed-loop trials on t
 camera, evaluation seed 1, the defaults below): the 3 × 32 ``smaller`` model reached 96.7 %
 (end-to-end 83.3 %) after a ~5-minute SeqAE training, while the 7 × 64 ``original`` reached
 only 73.3 % (end-to-end 86.7 %) after 800 epochs (19 min), and 76.7 % with the earlier
-σ_z = 0.5, β = 0.01 recipe; see ``benchmarks/RESULTS_lfd.md``.
+σ_z = 0.5, β = 0.01 recipe; the 10 × 128 ``larger`` reached 40.0 % (end-to-end 96.7 %) after
+200 epochs (16 min). See ``benchmarks/RESULTS_lfd.md``.
 """
 
 SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 800, "larger": 200}
 """Default SeqAE epochs per preset (the dissertation: 2000 for all; cut where 2000 would not fit
-the 45-minute collect-and-train budget on a 2-core CPU: ~1.1 s/epoch for 7 × 64, ~5 s for 10 × 128)."""
+the 45-minute collect-and-train budget on a 2-core CPU: measured 1.43 s/epoch for 7 × 64,
+4.75 s for 10 × 128)."""
 
 E2E_EPOCHS = 2000
 """Default epochs of the end-to-end baseline (the dissertation's), every preset."""

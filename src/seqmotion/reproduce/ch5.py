@@ -212,14 +212,18 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
         "| training method | " + " | ".join(f"{p} ({_shape(p)})" for p in PRESET_NAMES) + " |",
         "|---|---|---|---|",
     ]
-    names = {"proposed": "proposed (SeqAE on 90 motions + CNN on 18 pairs)", "end_to_end": "end-to-end (18 pairs)"}
+    names = {
+        "proposed": "proposed (SeqAE on the 90 motions + CNN on the 18 pairs)",
+        "end_to_end": "end-to-end (the 18 pairs)",
+    }
     for method, row in table52.items():
         lines.append(f"| {names[method]} | " + " | ".join(_cell(row[p]) for p in PRESET_NAMES) + " |")
     for method, row in DISSERTATION_TABLE_5_2.items():
         lines.append(
             f"| dissertation, {method.replace('_', '-')} | " + " | ".join(f"{row[p]:.1%}" for p in PRESET_NAMES) + " |"
         )
-    lines += ["", "Per position (successes/trials):", ""]
+    lines += ["", "Failed demonstrations are left out of training (see the policies' config.json).", ""]
+    lines += ["Per position (successes/trials):", ""]
     for method, row in table52.items():
         for p in PRESET_NAMES:
             cells = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in row[p]["per_position"].items())
