@@ -233,39 +233,49 @@ def train_seqae(
     model.scaler.fit(motions)
     data = torch.as_tensor(motions, dtype=torch.float32)
     params = [p for p in model.parameters() if p.requires_grad]
+    history = _fit(model, params, len(data), settings, gen,
+                   lambda idx: _seqae_loss(model, data[idx], settings, gen),
+                   f"SeqAE {config.layers}x{config.hidden}", progress)
+    return model.eval(), history
+
+
+def _fit(
+    module: torch.nn.Module, params: list, n: int, settings: SeqAETraining, gen: torch.Generator,
+    batch_loss: Any, desc: str, progress: bool, min_batch: int = 1,
+) -> dict[str, Any]:
+    """Adam over ``settings.epochs`` shuffled passes of ``n`` examples (cosine-decayed lr, clipped gradients).
+
+    ``batch_loss(indices) -> loss`` is the mean loss of one mini-batch; mini-batches smaller
+    than ``min_batch`` are skipped. Returns ``{"loss": per-epoch mean, "seconds": wall time}``.
+    """
     opt = torch.optim.Adam(params, lr=settings.lr)
-    n = len(data)
     steps_per_epoch = math.ceil(n / settings.batch_size)
-    total = settings.epochs * steps_per_epoch
+    total_steps = settings.epochs * steps_per_epoch
     history: dict[str, Any] = {"loss": []}
     start = time.perf_counter()
-    model.train()
-    bar = tqdm(
-        range(settings.epochs),
-        desc=f"SeqAE {config.layers}x{config.hidden}",
-        unit="epoch",
-        disable=not progress,
-        file=sys.stderr,
-    )
+    module.train()
+    bar = tqdm(range(settings.epochs), desc=desc, unit="epoch", disable=not progress, file=sys.stderr)
     step = 0
     for _ in bar:
         order = torch.randperm(n, generator=gen)
-        total_loss = 0.0
+        total = 0.0
         for b in range(steps_per_epoch):
-            batch = data[order[b * settings.batch_size : (b + 1) * settings.batch_size]]
+            idx = order[b * settings.batch_size : (b + 1) * settings.batch_size]
+            if len(idx) < min_batch:
+                continue
             for group in opt.param_groups:
-                group["lr"] = settings.lr * _lr_factor(step, total, settings.lr_final_fraction)
-            loss = _seqae_loss(model, batch, settings, gen)
+                group["lr"] = settings.lr * _lr_factor(step, total_steps, settings.lr_final_fraction)
+            loss = batch_loss(idx)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, settings.grad_clip)
             opt.step()
-            total_loss += loss.item() * len(batch)
+            total += loss.item() * len(idx)
             step += 1
-        history["loss"].append(total_loss / n)
+        history["loss"].append(total / n)
         bar.set_postfix(loss=f"{history['loss'][-1]:.4f}")
     history["seconds"] = time.perf_counter() - start
-    return model.eval(), history
+    return history
 
 
 def state_noise(shape: tuple[int, ...], settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor | None:
@@ -386,51 +396,23 @@ def train_end_to_end(
     )
     x = torch.as_tensor(images)
     data = torch.as_tensor(motions, dtype=torch.float32)
-    params = list(policy.parameters())
-    opt = torch.optim.Adam(params, lr=settings.lr)
-    n = len(data)
-    steps_per_epoch = math.ceil(n / settings.batch_size)
-    total_steps = settings.epochs * steps_per_epoch
-    history: dict[str, Any] = {"loss": []}
-    start = time.perf_counter()
-    policy.train()
-    bar = tqdm(
-        range(settings.epochs),
-        desc=f"end-to-end {config.layers}x{config.hidden}",
-        unit="epoch",
-        disable=not progress,
-        file=sys.stderr,
-    )
-    step = 0
-    for _ in bar:
-        order = torch.randperm(n, generator=gen)
-        total = 0.0
-        for b in range(steps_per_epoch):
-            idx = order[b * settings.batch_size : (b + 1) * settings.batch_size]
-            if len(idx) < 2:  # BatchNorm in the CNN needs two images
-                continue
-            for group in opt.param_groups:
-                group["lr"] = settings.lr * _lr_factor(step, total_steps, settings.lr_final_fraction)
-            z = policy.cnn(x[idx])
-            penalty = 0.5 * settings.latent_penalty * (z**2).sum(-1).mean() if settings.latent_penalty > 0 else 0.0
-            if settings.latent_noise > 0:
-                z = z + settings.latent_noise * torch.randn(z.shape, generator=gen)
-            batch = data[idx]
-            slave = batch[:, :-1, SLAVE]
-            noise = state_noise(tuple(slave.shape), settings, gen)
-            slave_n = policy.scaler.normalize(slave, SLAVE) + (0 if noise is None else noise)
-            out, _ = policy.decoder(z, slave_n)
-            loss = motion_loss(policy.scaler.denormalize(out, MASTER), batch[:, 1:, MASTER], policy.scaler.variance)
-            loss = loss + penalty
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(params, settings.grad_clip)
-            opt.step()
-            total += loss.item() * len(idx)
-            step += 1
-        history["loss"].append(total / n)
-        bar.set_postfix(loss=f"{history['loss'][-1]:.4f}")
-    history["seconds"] = time.perf_counter() - start
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        z = policy.cnn(x[idx])
+        penalty = 0.5 * settings.latent_penalty * (z**2).sum(-1).mean() if settings.latent_penalty > 0 else 0.0
+        if settings.latent_noise > 0:
+            z = z + settings.latent_noise * torch.randn(z.shape, generator=gen)
+        batch = data[idx]
+        slave = batch[:, :-1, SLAVE]
+        noise = state_noise(tuple(slave.shape), settings, gen)
+        slave_n = policy.scaler.normalize(slave, SLAVE) + (0 if noise is None else noise)
+        out, _ = policy.decoder(z, slave_n)
+        loss = motion_loss(policy.scaler.denormalize(out, MASTER), batch[:, 1:, MASTER], policy.scaler.variance)
+        return loss + penalty
+
+    # BatchNorm in the CNN needs two images per batch
+    history = _fit(policy, list(policy.parameters()), len(data), settings, gen, batch_loss,
+                   f"end-to-end {config.layers}x{config.hidden}", progress, min_batch=2)
     return policy.eval(), history
 
 
