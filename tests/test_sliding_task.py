@@ -142,3 +142,15 @@ def test_friction_randomisation_draws_valid_pairs_and_reaches_the_physics():
     default = TASK.sample(8, np.random.default_rng(0), {"loss_prime_prob": 0.0, "bspline_prob": 0.0},
                           TASK.train_config("tiny"))
     assert np.all(default.extras["mu"] == 1.0) and np.all(default.extras["mu_dyn"] == 0.5)
+
+
+def test_friction_pairs_draw_only_the_listed_pairs_and_bad_pairs_are_refused():
+    cfg = TASK.train_config("tiny")
+    cfg.options["friction_pairs"] = [[0.8, 0.35], [1.2, 0.65]]
+    params = {"loss_prime_prob": 0.0, "bspline_prob": 0.0}
+    batch = TASK.sample(64, np.random.default_rng(0), params, cfg)
+    drawn = set(zip(batch.extras["mu"].tolist(), batch.extras["mu_dyn"].tolist(), strict=True))
+    assert drawn == {(0.8, 0.35), (1.2, 0.65)}
+    cfg.options["friction_pairs"] = [[0.5, 0.7]]  # μ' > μ
+    with pytest.raises(ValueError, match="friction_pairs"):
+        TASK.sample(4, np.random.default_rng(0), params, cfg)

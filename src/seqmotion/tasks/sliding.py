@@ -90,7 +90,29 @@ DEFAULT_OPTIONS = {
     # Beyond the dissertation (off by default): draw each training trajectory's friction from
     # [[μ_lo, μ_hi], [μ'_lo, μ'_hi]] (with μ' < μ) instead of training at (mu, mu_dyn) only.
     "friction_range": None,
+    # Beyond the dissertation (off by default): draw each training trajectory's friction from
+    # this list of [μ, μ'] pairs, e.g. a few pairs none of which is on the ch. 3 evaluation grid.
+    "friction_pairs": None,
 }
+
+
+def training_friction(n: int, rng: np.random.Generator, opt: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Static and dynamic friction ``(μ, μ')`` for ``n`` training trajectories, each ``(n,)``."""
+    if opt.get("friction_pairs") is not None and opt.get("friction_range") is not None:
+        raise ValueError("set at most one of the options friction_range and friction_pairs")
+    if opt.get("friction_pairs") is not None:
+        pairs = np.asarray(opt["friction_pairs"], dtype=float)
+        if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.all((pairs[:, 1] >= 0) & (pairs[:, 1] <= pairs[:, 0])):
+            raise ValueError(
+                f"friction_pairs must be a list of [mu, mu_dyn] with 0 <= mu_dyn <= mu, got {opt['friction_pairs']}"
+            )
+        pick = pairs[rng.integers(len(pairs), size=n)]
+        return pick[:, 0], pick[:, 1]
+    if opt.get("friction_range") is not None:
+        (mu_lo, mu_hi), (mud_lo, mud_hi) = opt["friction_range"]
+        mu = rng.uniform(mu_lo, mu_hi, size=n)
+        return mu, rng.uniform(mud_lo, np.minimum(mud_hi, mu), size=n)  # μ' < μ
+    return np.full(n, opt["mu"]), np.full(n, opt["mu_dyn"])
 
 
 class SlidingTask(Task):
@@ -140,12 +162,7 @@ class SlidingTask(Task):
         self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
     ) -> TrajectoryBatch:
         opt = {**DEFAULT_OPTIONS, **config.options}
-        if opt["friction_range"] is None:
-            mu, mu_dyn = np.full(n, opt["mu"]), np.full(n, opt["mu_dyn"])
-        else:
-            (mu_lo, mu_hi), (mud_lo, mud_hi) = opt["friction_range"]
-            mu = rng.uniform(mu_lo, mu_hi, size=n)
-            mu_dyn = rng.uniform(mud_lo, np.minimum(mud_hi, mu), size=n)  # μ' < μ
+        mu, mu_dyn = training_friction(n, rng, opt)
         batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=tuple(opt["length"]),
                                  mu=mu, mu_dyn=mu_dyn)
         # which trajectories are scored with L' (only those with a pan trajectory behind them)
