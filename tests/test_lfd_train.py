@@ -272,3 +272,21 @@ def test_shipped_policy_loads():
     finally:
         scene.close()
     assert z.shape == (8,) and np.all(np.isfinite(z))
+
+
+def test_oracle_latents_bypass_the_cnn(trained, data_dir):
+    """evaluate(latents=...) decodes the given z per position (the CNN's ẑ is not used)."""
+    _, report = trained
+    policy = load_policy(report.policies["proposed_default"])
+    oracle = sm.lfd.position_latents(policy, data_dir / "motions.h5", successful_only=False)
+    assert oracle.shape == (6, 8) and np.isfinite(oracle).all()
+    result = evaluate(policy, positions=[1, 3], trials=1, seed=2, duration=0.2, latents=oracle)
+    for o in result.outcomes:
+        np.testing.assert_array_equal(o.latent, oracle[o.position_index])
+    cnn = evaluate(policy, positions=[1], trials=1, seed=2, duration=0.2)
+    assert not np.allclose(cnn.outcomes[0].latent, oracle[1])
+    with pytest.raises(ValueError, match="latents"):
+        evaluate(policy, positions=[1], trials=1, duration=0.2, latents=oracle[:3])
+    e2e = load_policy(report.policies["end_to_end_default"])
+    with pytest.raises(ValueError, match="no motion encoder"):
+        sm.lfd.position_latents(e2e, data_dir / "motions.h5", successful_only=False)

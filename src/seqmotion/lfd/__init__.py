@@ -54,6 +54,7 @@ _EXPORTS = {
     "evaluate": "evaluation",
     "Evaluation": "evaluation",
     "TrialOutcome": "evaluation",
+    "position_latents": "evaluation",
     "export_policy": "export",
 }
 

@@ -80,6 +80,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--trials", type=int, default=5, help="trials per position (default 5: 30 in all)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", help="write the full result (every trial) to this JSON file")
+    p.add_argument(
+        "--oracle-latents",
+        metavar="DATASET",
+        help="diagnostic: decode the mean z of this dataset's demonstrations at each position instead of the "
+        "CNN's (scores the decoder alone; proposed-method policies only)",
+    )
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
@@ -208,7 +214,7 @@ def _train(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     import seqmotion as sm
 
-    from .evaluation import evaluate
+    from .evaluation import evaluate, position_latents
 
     _set_threads(args.threads)
     policy = sm.load_pretrained("pushing") if args.model == "pushing" else sm.load(args.model, expected_task="pushing")
@@ -219,6 +225,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         trials=args.trials,
         seed=args.seed,
         progress=not args.quiet,
+        latents=None if args.oracle_latents is None else position_latents(policy, args.oracle_latents),
     )
     cells = "  ".join(f"{name} {ok}/{n}" for name, (ok, n) in result.per_position.items())
     print(

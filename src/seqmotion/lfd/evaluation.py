@@ -121,6 +121,7 @@ def evaluate(
     progress: bool = False,
     keep_runs: bool = False,
     scene: Any = None,
+    latents: Any = None,
 ) -> Evaluation:
     """Run ``trials`` closed-loop episodes at each block position and count the successes.
 
@@ -134,6 +135,8 @@ def evaluate(
         progress: print a progress line to stderr.
         keep_runs: keep each trial's run and image in its outcome (memory: ~0.5 MB per trial).
         scene: a :class:`~seqmotion.sim.pushing.PushingScene` to reuse (one is made and closed otherwise).
+        latents: ``(6, latent)``: decode ``latents[position]`` instead of the CNN's ẑ — a
+            diagnostic that takes the CNN out of the loop (see :func:`position_latents`).
 
     Returns:
         An :class:`Evaluation`.
@@ -162,6 +165,11 @@ def evaluate(
     if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration!r}")
 
+    if latents is not None:
+        latents = np.asarray(latents, dtype=np.float64)
+        if latents.ndim != 2 or latents.shape[0] != len(pushing.POSITIONS) or not np.isfinite(latents).all():
+            raise ValueError(f"latents must be a finite ({len(pushing.POSITIONS)}, latent) array, got {latents.shape}")
+
     own_scene = scene is None
     scene = pushing.PushingScene() if own_scene else scene
     outcomes: list[TrialOutcome] = []
@@ -172,7 +180,8 @@ def evaluate(
             for position in chosen:
                 rng = trial_rng(int(seed), position.index, trial)
                 variation = pushing.SceneVariation.sample(rng)
-                run, image, z = policy.run(scene, position, variation, camera, duration)
+                z_given = None if latents is None else latents[position.index]
+                run, image, z = policy.run(scene, position, variation, camera, duration, z_given)
                 outcomes.append(
                     TrialOutcome(
                         position.index,
@@ -217,3 +226,28 @@ def evaluate(
         policy.config.kind,
         policy.config.preset,
     )
+
+
+def position_latents(policy: Any, dataset: Any, successful_only: bool = True) -> np.ndarray:
+    """Mean encoder z of a dataset's (successful) demonstrations at each block position, ``(6, latent)``.
+
+    With :func:`evaluate`'s ``latents`` this scores the decoder with the best z a perfect
+    image-to-z map could give (no image can tell one operator's pass from another's).
+
+    Args:
+        policy: a proposed-method :class:`~seqmotion.lfd.models.PushingPolicy` (it has an encoder).
+        dataset: a :class:`~seqmotion.lfd.dataset.PushingDataset` or the path of one.
+        successful_only: leave failed demonstrations out (as training does).
+    """
+    from ..sim import pushing
+    from .dataset import PushingDataset, load_dataset
+    from .train import EVERY
+
+    data = dataset if isinstance(dataset, PushingDataset) else load_dataset(dataset)
+    ok = data.episodes["success"].astype(bool) if successful_only else np.ones(len(data), bool)
+    z = policy.encode(data.motion(EVERY)[ok])
+    where = data.episodes["position_index"][ok]
+    missing = [i for i in range(len(pushing.POSITIONS)) if not np.any(where == i)]
+    if missing:
+        raise ValueError(f"the dataset has no (successful) demonstration at block positions {missing}")
+    return np.stack([z[where == i].mean(0) for i in range(len(pushing.POSITIONS))])

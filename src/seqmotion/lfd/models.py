@@ -404,6 +404,7 @@ class PushingPolicy(nn.Module):
         variation: Any = None,
         camera: str | None = None,
         duration: float = 4.0,
+        latent: Any = None,
     ) -> tuple[Any, np.ndarray, np.ndarray]:
         """One closed-loop episode: reset the scene, take the image, ẑ = CNN(image), decode at 20 ms.
 
@@ -413,6 +414,8 @@ class PushingPolicy(nn.Module):
             variation: a :class:`~seqmotion.sim.pushing.SceneVariation` (none if omitted).
             camera: webcam pose (default: the one the CNN was trained on).
             duration: episode length [s].
+            latent: decode this z ``(latent,)`` instead of the CNN's ẑ (a diagnostic: with the
+                demonstrations' own z it measures the decoder alone).
 
         Returns:
             ``(AutonomousRun, image (64, 64, 3) uint8, z (latent,))``.
@@ -423,7 +426,9 @@ class PushingPolicy(nn.Module):
         variation = variation or SceneVariation()
         scene.reset(position, variation)
         image = scene.render(camera or self.config.camera)
-        z = self.latent(image)
+        z = self.latent(image) if latent is None else np.asarray(latent, dtype=np.float64)
+        if z.shape != (self.seqae_config.latent,):
+            raise ValueError(f"latent must have shape ({self.seqae_config.latent},), got {z.shape}")
         run = run_autonomous(
             scene, self.source(z), position, duration, variation, self.config.command_interval, reset=False
         )
