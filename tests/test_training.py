@@ -17,7 +17,7 @@ from seqmotion.tasks.pancake import chapter2_curriculum
 from seqmotion.training import checkpoint as ckpt
 from seqmotion.training.curriculum import Curriculum, Stage
 from seqmotion.training.losses import gaussian_nll_1d, gaussian_nll_2d
-from seqmotion.training.trainer import train
+from seqmotion.training.trainer import learning_rate, train
 
 
 def test_chapter2_schedule_matches_the_dissertation():
@@ -69,8 +69,9 @@ def tiny_config(**changes):
     return cfg
 
 
-def test_resume_continues_exactly(tmp_path):
-    cfg = tiny_config()
+@pytest.mark.parametrize("lr_final_fraction", [1.0, 0.1])
+def test_resume_continues_exactly(tmp_path, lr_final_fraction):
+    cfg = tiny_config(lr_final_fraction=lr_final_fraction)
     train(cfg, tmp_path / "straight", progress=False)
     train(cfg, tmp_path / "split", progress=False, stop_at_step=9)
     train(cfg, tmp_path / "split", progress=False)
@@ -79,6 +80,17 @@ def test_resume_continues_exactly(tmp_path):
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     rows = (tmp_path / "split" / "metrics.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + cfg.epochs * cfg.batches_per_epoch
+
+
+def test_learning_rate_schedule():
+    constant = tiny_config()
+    assert {learning_rate(constant, s, 100) for s in (0, 37, 99, 100)} == {constant.lr}
+    decayed = tiny_config(lr=1e-3, lr_final_fraction=0.1)
+    rates = [learning_rate(decayed, s, 100) for s in range(101)]
+    assert rates[0] == pytest.approx(1e-3) and rates[50] == pytest.approx(5.5e-4) and rates[100] == pytest.approx(1e-4)
+    assert all(a >= b for a, b in zip(rates, rates[1:], strict=False))
+    with pytest.raises(ValueError, match="lr_final_fraction"):
+        tiny_config(lr_final_fraction=0.0).__post_init__()
 
 
 def test_same_seed_same_model_other_seed_differs(tmp_path):
@@ -166,7 +178,7 @@ def test_torchrun_two_processes_matches_one(tmp_path):
     script.write_text(
         "import json, sys\n"
         "from seqmotion.tasks.base import TrainConfig\n"
-        "from seqmotion.training.trainer import train\n"
+        "from seqmotion.training.trainer import learning_rate, train\n"
         "train(TrainConfig.from_dict(json.load(open(sys.argv[1]))), sys.argv[2], progress=False)\n"
     )
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(sm.__file__).parents[1])}

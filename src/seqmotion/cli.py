@@ -93,7 +93,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         from seqmotion.training.curriculum import Curriculum
 
         config.curriculum = Curriculum.from_dict(config.curriculum).scaled(args.epochs).to_dict()
-    for name in ("seed", "batch_size", "batches_per_epoch", "lr", "checkpoint_every"):
+    for name in ("seed", "batch_size", "batches_per_epoch", "lr", "lr_final_fraction", "checkpoint_every"):
         value = getattr(args, name)
         if value is not None:
             setattr(config, name, value)
@@ -184,6 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int)
     p.add_argument("--batches-per-epoch", type=int)
     p.add_argument("--lr", type=float)
+    p.add_argument("--lr-final-fraction", type=float, help="cosine-decay the learning rate to this fraction of --lr")
     p.add_argument("--checkpoint-every", type=int, help="steps between checkpoints (default: every epoch)")
     p.add_argument("--max-steps", type=int, help="stop after this many steps (for timing)")
     p.add_argument("--set", action="append", metavar="KEY=JSON", help="override a task option")

@@ -32,6 +32,9 @@ class TrainConfig:
         batches_per_epoch, batch_size: mini-batches per epoch and trajectories per mini-batch
             (the global batch; data-parallel ranks each take an equal share).
         lr: Adam learning rate (other Adam settings are PyTorch's defaults, as in the dissertation).
+        lr_final_fraction: the learning rate follows a cosine from ``lr`` down to
+            ``lr_final_fraction · lr`` at the last step; 1.0 (the default) keeps it constant, as
+            the dissertation's Adam "with default settings" does.
         grad_clip: clip the global gradient norm to this (None: no clipping).
         seed: seeds weights, data and scheduled sampling.
         checkpoint_every: steps between checkpoints (default: once per epoch).
@@ -46,6 +49,7 @@ class TrainConfig:
     batches_per_epoch: int
     batch_size: int
     lr: float = 1e-3
+    lr_final_fraction: float = 1.0
     grad_clip: float | None = 1.0
     seed: int = 0
     checkpoint_every: int | None = None
@@ -57,6 +61,8 @@ class TrainConfig:
             raise ValueError("batches_per_epoch and batch_size must be positive")
         if not self.lr > 0:
             raise ValueError(f"lr must be positive, got {self.lr}")
+        if not 0.0 < self.lr_final_fraction <= 1.0:
+            raise ValueError(f"lr_final_fraction must be in (0, 1], got {self.lr_final_fraction}")
 
     @property
     def epochs(self) -> int:

@@ -18,6 +18,7 @@ gradient of the whole batch. Rank 0 writes checkpoints and logs.
 from __future__ import annotations
 
 import csv
+import math
 import os
 import platform
 import sys
@@ -85,6 +86,13 @@ def machine_description() -> str:
 def model_config(config: TrainConfig, extra: dict | None = None) -> dict:
     """The ``config.json`` of a trained model: task, architecture and how it was trained."""
     return {"task": config.task, "model": config.model, "training": config.to_dict(), **(extra or {})}
+
+
+def learning_rate(config: TrainConfig, step: int, total: int) -> float:
+    """Adam's learning rate at optimiser step ``step`` of ``total``: a cosine from ``lr`` to
+    ``lr_final_fraction · lr`` (constant when the fraction is 1)."""
+    low = config.lr * config.lr_final_fraction
+    return low + (config.lr - low) * 0.5 * (1.0 + math.cos(math.pi * min(step, total) / total))
 
 
 def train(
@@ -165,6 +173,8 @@ def train(
             _average_gradients(params, world)
         if config.grad_clip:
             torch.nn.utils.clip_grad_norm_(params, config.grad_clip)
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(config, step, total)
         optimizer.step()
         step += 1
 
