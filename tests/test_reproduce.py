@@ -59,7 +59,10 @@ def test_ch3_quick(tmp_path, monkeypatch):
     for res in study["models"].values():
         assert len(res["rmse_mm"]) == len(ch3.FRICTION_GRID) and res["worst_over_best"] >= 1.0
     assert study["still_pan_rmse_mm"] > 0
-    for name in ("fig3_7_paths.png", "fig3_10_friction.png", "table3_friction.md", "table3_range.md"):
+    for q in study["qualitative"].values():
+        assert q["rmse_mm"] > 0 and q["object_travel_share"] >= 0 and q["pan_max_m"] >= 0
+    for name in ("fig3_7_paths.png", "fig3_10_friction.png", "table3_friction.md", "table3_range.md",
+                 "table3_qualitative.md"):
         assert (tmp_path / "out" / name).stat().st_size > 0
 
 

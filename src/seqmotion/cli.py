@@ -220,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="ship a finished run inside the package, with a model card")
     p.add_argument("run", help="training run directory")
-    p.add_argument("--name", required=True, help="pretrained name (pancake, sliding, sliding-B, sliding-C)")
+    p.add_argument("--name", required=True, help="pretrained name (see seqmotion.api.PRETRAINED)")
     p.add_argument("--metrics", help="JSON file of measured metrics for the card")
     p.add_argument("--notes", help="free text for the card")
     p.set_defaults(func=cmd_export)

@@ -1,15 +1,19 @@
 """Chapter 3, reproduced: models A, B, C on the 2-D physics, across unseen friction, and on the arm.
 
 ``seqmotion reproduce ch3 [--model DIR] [--out DIR] [--quick]`` uses the shipped models
-``sliding`` (A, the full budget), ``sliding-A-equal``, ``sliding-B`` and ``sliding-C`` (A, B, C
-trained on one equal, smaller budget: the comparison of §3.5.2) — or, with ``--model DIR``, the
-run directories ``DIR/A``, ``DIR/B``, ``DIR/C`` (and ``DIR/A-equal`` if present) — and writes:
+``sliding`` (A, the shipped planner), ``sliding-A-nominal`` (A trained at the nominal friction
+only, the dissertation's protocol), ``sliding-B`` and ``sliding-C`` — all four on one equal
+budget (50 epochs × 128 × 64 trajectories), the comparison of §3.5.2 — or, with
+``--model DIR``, the run directories ``DIR/A``, ``DIR/B``, ``DIR/C`` (and ``DIR/A-nominal`` if
+present) — and writes:
 
 * ``fig3_7_paths.png`` — object and pan paths of A, B, C for one command (K = 1200);
 * ``fig3_10_friction.png`` and ``table3_friction.md`` — reproduction RMSE of A, B, C over a
   grid of friction pairs none of them saw (μ ∈ {0.7, 0.9, 1.1, 1.3}, μ' ∈ {0.3, 0.4, 0.6, 0.7},
   μ' < μ; 10 B-spline commands each), beside the RMSE of leaving the object where it is;
 * ``table3_range.md`` — the pan's range of motion and the training budget per model;
+* ``table3_qualitative.md`` — Fig. 3.7's reading, measured at the training friction over the
+  same commands: how far each model moves the object, how well, and how far its pan goes;
 * ``table3_speed.md`` — generation speed (samples/s) of the shipped model;
 * with MuJoCo: ``fig3_8_robot.png``, ``fig3_9_snapshots_{A,B,C}.png`` — the Fig. 3.7 command
   executed by the simulated arm.
@@ -32,13 +36,13 @@ MODELS = ("A", "B", "C")
 
 
 def load_models(model: str | None) -> dict[str, SlidingPlanner]:
-    """The shipped A, B, C (plus ``A-equal``: A on B's and C's budget), or ``DIR/{A,B,C[,A-equal]}``."""
+    """The shipped A, A-nominal, B, C, or the run directories ``DIR/{A,[A-nominal,]B,C}``."""
     import seqmotion as sm
 
     if model is None:
-        return {"A": sm.load_pretrained("sliding"), "A-equal": sm.load_pretrained("sliding-A-equal"),
+        return {"A": sm.load_pretrained("sliding"), "A-nominal": sm.load_pretrained("sliding-A-nominal"),
                 "B": sm.load_pretrained("sliding-B"), "C": sm.load_pretrained("sliding-C")}
-    names = [*MODELS[:1], *(["A-equal"] if (Path(model) / "A-equal").is_dir() else []), *MODELS[1:]]
+    names = [*MODELS[:1], *(["A-nominal"] if (Path(model) / "A-nominal").is_dir() else []), *MODELS[1:]]
     return {name: sm.load(Path(model) / name, expected_task="sliding") for name in names}
 
 
@@ -78,6 +82,26 @@ def friction_study(models: dict[str, SlidingPlanner], n: int, seed: int) -> dict
     return out
 
 
+def qualitative(models: dict[str, SlidingPlanner], n: int, seed: int) -> dict:
+    """Fig. 3.7's claims as numbers, at the training friction (μ = 1.0, μ' = 0.5) on ``n`` commands.
+
+    Per model: mean RMSE, the object's travel (farthest distance from its start) as a share of
+    the command's, and the pan's farthest excursion from home.
+    """
+    cmds = eval_commands(n, seed)
+    command_travel = np.linalg.norm(cmds[..., :2], axis=-1).max(-1)
+    out = {}
+    for name, planner in models.items():
+        plan = planner.plan(cmds)
+        travel = np.linalg.norm(plan.rel_states[..., :2], axis=-1).max(-1)
+        out[name] = {
+            "rmse_mm": float(rmse_mm(plan.rel_states, cmds).mean()),
+            "object_travel_share": float((travel / command_travel).mean()),
+            "pan_max_m": float(np.linalg.norm(plan.pan_states[..., :2], axis=-1).max()),
+        }
+    return out
+
+
 def _tables(study: dict, out: Path) -> None:
     names = list(study["models"])
     lines = ["| μ | μ' | " + " | ".join(f"model {n} RMSE [mm]" for n in names) + " |",
@@ -93,6 +117,12 @@ def _tables(study: dict, out: Path) -> None:
         m = study["models"][n]["pan_max_m"]
         lines.append(f"| {n} | {study['models'][n]['budget']:,} | {m:.3f} | {'yes' if m <= PAN_LIMIT else 'no'} |")
     (out / "table3_range.md").write_text("\n".join(lines) + "\n")
+    if "qualitative" in study:
+        lines = ["| model | RMSE [mm] (still pan: {:.2f}) | object travel / command travel | max pan excursion [m] |"
+                 .format(study["still_pan_rmse_mm"]), "|---|---|---|---|"]
+        for n, q in study["qualitative"].items():
+            lines.append(f"| {n} | {q['rmse_mm']:.2f} | {q['object_travel_share']:.2f} | {q['pan_max_m']:.3f} |")
+        (out / "table3_qualitative.md").write_text("\n".join(lines) + "\n")
 
 
 def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int) -> np.ndarray:
@@ -175,6 +205,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     out.mkdir(parents=True, exist_ok=True)
     models = load_models(model)
     study = friction_study(models, 3 if quick else 10, seed)
+    study["qualitative"] = qualitative(models, 3 if quick else 10, seed)
     _tables(study, out)
     command = figures(models, study, out, seed)
     study["speed_shipped_model"] = speed(models[next(iter(models))])
