@@ -384,6 +384,10 @@ class PancakeResult:
             what = f"pancake stayed on (max slip {self.max_slip * 1e3:.1f} mm, gap {self.max_gap * 1e3:.1f} mm)"
         end = "turned over" if self.turned_over else "face up"
         where = "on the spatula" if self.on_spatula else "off the spatula"
+        if not self.on_spatula and not self.contact_lost and self.contact_lost_in_tail:
+            # Kept during the motion; the spatula then holds its final tilt, which gravity alone
+            # can exceed (tilt > atan μ), so the pancake slides off in the tail.
+            where += " (it slid off after the motion, during the hold)"
         return f"{track}; {what}; ends {end}, {where}"
 
 
