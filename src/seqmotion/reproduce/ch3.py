@@ -62,6 +62,11 @@ def rmse_mm(rel_states: np.ndarray, command: np.ndarray) -> np.ndarray:
     return 1000 * np.sqrt(((rel_states[..., :2] - command[..., :2]) ** 2).sum(-1).mean(-1))
 
 
+def farthest_m(states: np.ndarray) -> np.ndarray:
+    """Farthest distance of the positions ``states[..., :2]`` from the origin, per trajectory [m]."""
+    return np.linalg.norm(states[..., :2], axis=-1).max(-1)
+
+
 def friction_study(models: dict[str, SlidingPlanner], n: int, seed: int) -> dict:
     cmds = eval_commands(n, seed)
     out: dict = {"grid": FRICTION_GRID, "models": {}, "still_pan_rmse_mm": float(rmse_mm(0 * cmds, cmds).mean())}
@@ -70,7 +75,7 @@ def friction_study(models: dict[str, SlidingPlanner], n: int, seed: int) -> dict
         for mu, mud in FRICTION_GRID:
             plan = planner.plan(cmds, mu=mu, mu_dyn=mud)
             cells.append(float(rmse_mm(plan.rel_states, cmds).mean()))
-            pan_max = max(pan_max, float(np.linalg.norm(plan.pan_states[..., :2], axis=-1).max()))
+            pan_max = max(pan_max, float(farthest_m(plan.pan_states).max()))
         cells_arr = np.array(cells)
         out["models"][name] = {
             "rmse_mm": cells,
@@ -89,15 +94,15 @@ def qualitative(models: dict[str, SlidingPlanner], n: int, seed: int) -> dict:
     the command's, and the pan's farthest excursion from home.
     """
     cmds = eval_commands(n, seed)
-    command_travel = np.linalg.norm(cmds[..., :2], axis=-1).max(-1)
+    command_travel = farthest_m(cmds)
     out = {}
     for name, planner in models.items():
         plan = planner.plan(cmds)
-        travel = np.linalg.norm(plan.rel_states[..., :2], axis=-1).max(-1)
+        travel = farthest_m(plan.rel_states)
         out[name] = {
             "rmse_mm": float(rmse_mm(plan.rel_states, cmds).mean()),
             "object_travel_share": float((travel / command_travel).mean()),
-            "pan_max_m": float(np.linalg.norm(plan.pan_states[..., :2], axis=-1).max()),
+            "pan_max_m": float(farthest_m(plan.pan_states).max()),
         }
     return out
 
