@@ -290,3 +290,34 @@ def test_oracle_latents_bypass_the_cnn(trained, data_dir):
     e2e = load_policy(report.policies["end_to_end_default"])
     with pytest.raises(ValueError, match="no motion encoder"):
         sm.lfd.position_latents(e2e, data_dir / "motions.h5", successful_only=False)
+
+
+def test_interrupted_training_resumes_exactly(tmp_path, monkeypatch):
+    """A SeqAE run killed mid-way and restarted ends with the weights of an uninterrupted one."""
+    motions = np.random.default_rng(1).normal(size=(6, 10, 18))
+    settings = train.SeqAETraining(epochs=5, batch_size=4, noise_correlation=2.0, latent_noise=0.1, seed=3)
+    config = sm.lfd.SeqAEConfig(1, 8)
+    straight, straight_history = train.train_seqae(motions, config, settings)
+
+    real_loss = train._seqae_loss
+    calls = {"n": 0}
+
+    def dies_in_epoch_four(*args, **kwargs):  # 2 mini-batches per epoch: die in the 4th epoch
+        calls["n"] += 1
+        if calls["n"] == 8:
+            raise KeyboardInterrupt
+        return real_loss(*args, **kwargs)
+
+    monkeypatch.setattr(train, "CHECKPOINT_EVERY", 1)
+    monkeypatch.setattr(train, "_seqae_loss", dies_in_epoch_four)
+    with pytest.raises(KeyboardInterrupt):
+        train.train_seqae(motions, config, settings, checkpoint_dir=tmp_path / "ckpt")
+    monkeypatch.setattr(train, "_seqae_loss", real_loss)
+    resumed, history = train.train_seqae(motions, config, settings, checkpoint_dir=tmp_path / "ckpt")
+    assert history["loss"] == straight_history["loss"]
+    for key, value in straight.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)
+    # a checkpoint of other settings is refused, not silently continued
+    with pytest.raises(ValueError, match="another training"):
+        train.train_seqae(motions, config, train.SeqAETraining(epochs=5, batch_size=2, seed=3),
+                          checkpoint_dir=tmp_path / "ckpt")

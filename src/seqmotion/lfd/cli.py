@@ -63,6 +63,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--seqae-from", help="reuse the SeqAE of this proposed-policy directory (retrain the CNN only)")
     p.add_argument("--keep-failed", action="store_true", help="train on failed demonstrations too")
     p.add_argument(
+        "--no-resume", action="store_true", help="start over instead of continuing from OUT/checkpoints/"
+    )
+    p.add_argument(
         "--threads",
         type=int,
         default=1,
@@ -204,6 +207,7 @@ def _train(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         command=command,
         successful_only=not args.keep_failed,
+        resume=not args.no_resume,
     )
     for name, path in report.policies.items():
         print(f"{name}: {path}")

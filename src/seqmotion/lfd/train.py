@@ -41,6 +41,7 @@ policy's; see its docstring for why it is not the dissertation's 7-layer model.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import platform
@@ -54,6 +55,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from ..training.checkpoint import (
+    latest_checkpoint,
+    load_state_dict_strict,
+    read_training_checkpoint,
+    write_training_checkpoint,
+)
 from .models import (
     MASTER,
     SLAVE,
@@ -72,6 +79,8 @@ from .models import (
 
 EVERY = 20
 """Samples of the 1 ms recordings per decoder step (Δt_NN = 20 ms)."""
+CHECKPOINT_EVERY = 50
+"""Epochs between training checkpoints of the SeqAE and the end-to-end baseline."""
 
 
 @dataclass
@@ -216,8 +225,11 @@ def train_seqae(
     config: SeqAEConfig,
     settings: SeqAETraining | None = None,
     progress: bool = False,
+    checkpoint_dir: str | Path | None = None,
 ) -> tuple[SeqAE, dict]:
     """Train a SeqAE on motions ``(N, K, 18)`` sampled every 20 ms (raw units).
+
+    ``checkpoint_dir``: write resumable checkpoints there and continue from one found there.
 
     Returns:
         ``(model in eval mode, history)`` with ``history = {"loss": [per-epoch mean eq.-5.1 loss],
@@ -235,28 +247,44 @@ def train_seqae(
     params = [p for p in model.parameters() if p.requires_grad]
     history = _fit(model, params, len(data), settings, gen,
                    lambda idx: _seqae_loss(model, data[idx], settings, gen),
-                   f"SeqAE {config.layers}x{config.hidden}", progress)
+                   f"SeqAE {config.layers}x{config.hidden}", progress,
+                   checkpoint_dir=None if checkpoint_dir is None else Path(checkpoint_dir), data=(motions,))
     return model.eval(), history
 
 
 def _fit(
     module: torch.nn.Module, params: list, n: int, settings: SeqAETraining, gen: torch.Generator,
     batch_loss: Any, desc: str, progress: bool, min_batch: int = 1,
+    checkpoint_dir: Path | None = None, data: tuple = (),
 ) -> dict[str, Any]:
     """Adam over ``settings.epochs`` shuffled passes of ``n`` examples (cosine-decayed lr, clipped gradients).
 
     ``batch_loss(indices) -> loss`` is the mean loss of one mini-batch; mini-batches smaller
     than ``min_batch`` are skipped. Returns ``{"loss": per-epoch mean, "seconds": wall time}``.
+
+    With ``checkpoint_dir``, everything the loop depends on (weights, Adam's moments, the random
+    generator, the epoch, the loss history) is written there every :data:`CHECKPOINT_EVERY`
+    epochs and at the end, and a run finding a checkpoint of the same settings and ``data``
+    (arrays whose hash identifies the training set) there continues from it: an interrupted
+    run resumed ends with exactly the weights of an uninterrupted one.
     """
     opt = torch.optim.Adam(params, lr=settings.lr)
     steps_per_epoch = math.ceil(n / settings.batch_size)
     total_steps = settings.epochs * steps_per_epoch
     history: dict[str, Any] = {"loss": []}
+    digest = hashlib.sha256()
+    for array in data:
+        digest.update(np.ascontiguousarray(array).tobytes())
+    identity = {"task": "lfd-fit", "what": desc, "data_sha256": digest.hexdigest(), "settings": asdict(settings)}
+    first_epoch, seconds_before = 0, 0.0
+    if checkpoint_dir is not None and latest_checkpoint(checkpoint_dir) is not None:
+        first_epoch, seconds_before = _resume(checkpoint_dir, module, opt, gen, identity, history)
     start = time.perf_counter()
     module.train()
-    bar = tqdm(range(settings.epochs), desc=desc, unit="epoch", disable=not progress, file=sys.stderr)
-    step = 0
-    for _ in bar:
+    bar = tqdm(range(first_epoch, settings.epochs), desc=desc, unit="epoch", disable=not progress, file=sys.stderr,
+               initial=first_epoch, total=settings.epochs)
+    step = first_epoch * steps_per_epoch
+    for epoch in bar:
         order = torch.randperm(n, generator=gen)
         total = 0.0
         for b in range(steps_per_epoch):
@@ -274,8 +302,34 @@ def _fit(
             step += 1
         history["loss"].append(total / n)
         bar.set_postfix(loss=f"{history['loss'][-1]:.4f}")
-    history["seconds"] = time.perf_counter() - start
+        done = epoch + 1
+        if checkpoint_dir is not None and (done % CHECKPOINT_EVERY == 0 or done == settings.epochs):
+            elapsed = seconds_before + time.perf_counter() - start
+            write_training_checkpoint(
+                checkpoint_dir, f"epoch-{done:06d}", {**module.state_dict(), "rng": gen.get_state()},
+                opt.state_dict(), identity, {"epoch": done, "loss": history["loss"], "seconds": elapsed},
+            )
+    history["seconds"] = seconds_before + time.perf_counter() - start
     return history
+
+
+def _resume(
+    checkpoint_dir: Path, module: torch.nn.Module, opt: torch.optim.Optimizer, gen: torch.Generator,
+    identity: dict, history: dict,
+) -> tuple[int, float]:
+    """Load the latest checkpoint of ``checkpoint_dir`` into the loop's state; return (epoch, seconds)."""
+    config, tensors, opt_state, state = read_training_checkpoint(latest_checkpoint(checkpoint_dir))
+    saved = {k: config.get(k) for k in identity}
+    if saved != json.loads(json.dumps(identity)):
+        raise ValueError(
+            f"{checkpoint_dir} holds a checkpoint of another training ({saved['what']}, other data or "
+            f"settings {saved['settings']}); use another output directory, or start over (--no-resume)"
+        )
+    gen.set_state(tensors.pop("rng"))
+    load_state_dict_strict(module, tensors, str(checkpoint_dir))
+    opt.load_state_dict(opt_state)
+    history["loss"] = list(state["loss"])
+    return int(state["epoch"]), float(state["seconds"])
 
 
 def state_noise(shape: tuple[int, ...], settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor | None:
@@ -372,11 +426,13 @@ def train_end_to_end(
     camera: str = "default",
     preset_name: str = "",
     progress: bool = False,
+    checkpoint_dir: str | Path | None = None,
 ) -> tuple[PushingPolicy, dict]:
     """The baseline: CNN → z → decoder trained together on image–motion pairs with eq. 5.1.
 
     Same layers and the same optimisation settings (noise injection included) as the
-    proposed method; mini-batches of ``settings.batch_size`` pairs.
+    proposed method; mini-batches of ``settings.batch_size`` pairs. ``checkpoint_dir`` as in
+    :func:`train_seqae`.
     """
     settings = settings or SeqAETraining()
     cnn_config = cnn_config or CNNConfig(latent=config.latent)
@@ -412,7 +468,8 @@ def train_end_to_end(
 
     # BatchNorm in the CNN needs two images per batch
     history = _fit(policy, list(policy.parameters()), len(data), settings, gen, batch_loss,
-                   f"end-to-end {config.layers}x{config.hidden}", progress, min_batch=2)
+                   f"end-to-end {config.layers}x{config.hidden}", progress, min_batch=2,
+                   checkpoint_dir=None if checkpoint_dir is None else Path(checkpoint_dir), data=(images, motions))
     return policy.eval(), history
 
 
@@ -471,6 +528,7 @@ def train(
     progress: bool = True,
     command: str | None = None,
     successful_only: bool = True,
+    resume: bool = True,
 ) -> TrainReport:
     """Train policies from ``data_dir`` (``motions.h5``, ``pairs_<camera>.h5``) into ``out/<method>_<camera>/``.
 
@@ -489,6 +547,9 @@ def train(
         progress: tqdm bars on stderr.
         command: the command line that started the run (recorded in each config).
         successful_only: leave failed demonstrations out (default); False keeps every episode.
+        resume: continue the SeqAE and end-to-end trainings from their checkpoints in
+            ``out/checkpoints/`` (written every :data:`CHECKPOINT_EVERY` epochs) when there are
+            some; False deletes them and starts over.
     """
     from .dataset import load_dataset
 
@@ -512,6 +573,11 @@ def train(
             raise ValueError(f"{path} is missing: run 'seqmotion lfd collect --out {data_dir}' first")
 
     report = TrainReport(out)
+    checkpoints = out / "checkpoints"
+    if not resume and checkpoints.exists():
+        import shutil
+
+        shutil.rmtree(checkpoints)
     record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_description()}
     pairs = {c: load_dataset(p) for c, p in pair_paths.items()}
 
@@ -528,7 +594,7 @@ def train(
             motions_data = load_dataset(data_dir / "motions.h5")
             keep = _episodes(motions_data, successful_only)
             motions = motions_data.motion(EVERY, keep)
-            seqae, history = train_seqae(motions, config, seqae_settings, progress)
+            seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae")
             report.seconds["seqae"] = history["seconds"]
             report.final_loss["seqae"] = history["loss"][-1]
             seqae_record = {
@@ -583,6 +649,7 @@ def train(
                 camera=camera,
                 preset_name=preset_name,
                 progress=progress,
+                checkpoint_dir=checkpoints / f"end_to_end_{camera}",
             )
             report.seconds[f"end_to_end_{camera}"] = history["seconds"]
             report.final_loss[f"end_to_end_{camera}"] = history["loss"][-1]
