@@ -154,3 +154,30 @@ def test_friction_pairs_draw_only_the_listed_pairs_and_bad_pairs_are_refused():
     cfg.options["friction_pairs"] = [[0.5, 0.7]]  # μ' > μ
     with pytest.raises(ValueError, match="friction_pairs"):
         TASK.sample(4, np.random.default_rng(0), params, cfg)
+
+
+def test_velocity_shaking_slides_as_often_but_lets_the_pan_drift():
+    rng = np.random.default_rng(5)
+    bounded = commands.physics_type(200, rng, length=1200)
+    drifting = commands.physics_type(200, rng, length=1200, shaking="velocity")
+
+    def farthest(states):
+        return np.linalg.norm(states[..., :2], axis=-1).max(1)
+
+    def share_above_mu_g(batch):
+        return float((np.linalg.norm(batch.extras["pan_accel"], axis=-1) > contact.MU * 9.81).mean())
+
+    assert np.all(drifting.extras["pan_states"][:, 0] == 0)  # from rest at home
+    # both shake hard enough for the object to break away, in a comparable share of samples
+    assert 0.5 < share_above_mu_g(drifting) / share_above_mu_g(bounded) < 2.0
+    # a bounded shake stays near home; a velocity shake random-walks away from it
+    assert farthest(bounded.extras["pan_states"]).max() < 0.1
+    assert np.median(farthest(drifting.extras["pan_states"])) > 0.1
+    # and the object's path is still what the pan's shaking does to it
+    k = drifting.lengths[0]
+    _, rel = contact.rollout(drifting.extras["pan_accel"][0, : k - 1])
+    np.testing.assert_allclose(rel, drifting.states[0, :k], atol=1e-12)
+    cfg = TASK.train_config("tiny")
+    cfg.options["pan_shaking"] = "sideways"
+    with pytest.raises(ValueError, match="pan shaking"):
+        TASK.sample(4, np.random.default_rng(0), {"loss_prime_prob": 1.0, "bspline_prob": 0.0}, cfg)

@@ -3,12 +3,21 @@
 A command is the object's state relative to the pan, ``x_d = [x, y, vx, vy]`` (K, 4), from
 rest at 0. Two families, seeded and vectorised:
 
-* **physics type** — random pan shaking rolled out through the contact model. The pan's
-  position is a uniform cubic B-spline through random control points 40–120 ms apart with a
-  random amplitude of 5–30 mm, so its acceleration often exceeds μg and the object slides;
-  the pan trajectory that produced the command is kept (``extras["pan_states"]``) for the
-  supervised loss L'. (A ratchet-like, zero-mean sawtooth shaking was tried instead: L' then
-  learned its mean, a nearly still pan, and training never left the gradient-vanishing zone.)
+* **physics type** — random pan shaking rolled out through the contact model, so its
+  acceleration often exceeds μg and the object slides; the pan trajectory that produced the
+  command is kept (``extras["pan_states"]``) for the supervised loss L'. Two shakings:
+
+  - ``"position"`` (default): the pan's position is a uniform cubic B-spline through random
+    control points 40–120 ms apart with a random amplitude of 5–30 mm. The pan always stays
+    near home (99 % of shakes within 7 cm), so the pan's return is predictable from the past.
+  - ``"velocity"``: the pan's *velocity* is such a B-spline (amplitude 0.2–0.8 m/s), so its
+    position random-walks (median farthest 0.16 m, 10 % beyond 0.34 m) with about the same
+    share of accelerations above μg. Each slip displaces the pan and nothing brings it back,
+    so a model imitating these pans (L' alone: model C) learns to let the pan drift with the
+    object's travel — the dissertation's model C, which drove the pan past its range.
+
+  (A ratchet-like, zero-mean sawtooth shaking was tried too: L' then learned its mean, a
+  nearly still pan, and training never left the gradient-vanishing zone.)
 * **B-spline type** — the object's relative acceleration ``u_d`` is a uniform cubic B-spline
   through random control points 100–300 ms apart, integrated to ``x_d`` and scaled so the
   object travels at most 10–80 mm from its start: arbitrary paths with no pan behind them.
@@ -35,7 +44,9 @@ from .trajectories import (
 
 DEFAULT_LENGTH = (500, 1500)
 SHAKE_SPACING_MS = (40, 120)
-SHAKE_AMPLITUDE = (0.005, 0.03)  # m
+SHAKE_AMPLITUDE = (0.005, 0.03)  # m: control-point spread of the "position" shaking
+SHAKE_VELOCITY = (0.2, 0.8)  # m/s: control-point spread of the "velocity" shaking
+PAN_SHAKINGS = ("position", "velocity")
 COMMAND_SPACING_MS = (100, 300)
 COMMAND_REACH = (0.01, 0.08)  # m: the farthest the object gets from its start
 
@@ -49,14 +60,23 @@ def _knots(rng: np.random.Generator, lengths: np.ndarray, spacing_ms: tuple[int,
     return samples_per_segment, u, n_control
 
 
-def _smooth_shaking(rng: np.random.Generator, lengths: np.ndarray, dt: float) -> np.ndarray:
-    """Pan accelerations whose position is a random cubic B-spline (starts at rest): ``(n, K_max-1, 2)``."""
+def _smooth_shaking(rng: np.random.Generator, lengths: np.ndarray, dt: float, shaking: str = "position") -> np.ndarray:
+    """Pan accelerations whose position (or velocity) is a random cubic B-spline: ``(n, K_max-1, 2)``.
+
+    The pan starts at rest at the origin either way.
+    """
+    if shaking not in PAN_SHAKINGS:
+        raise ValueError(f"unknown pan shaking {shaking!r}; choose from {PAN_SHAKINGS}")
     n = len(lengths)
     per_segment, u, n_control = _knots(rng, lengths, SHAKE_SPACING_MS, dt)
-    control = rng.uniform(*SHAKE_AMPLITUDE, size=(n, 1, 1)) * rng.normal(size=(n, n_control, 2))
-    control[:, :3] = 0.0  # start at rest at the origin
-    _, _, d2 = uniform_bspline(control, u)
-    return d2 / (per_segment[:, None, None] * dt) ** 2
+    spread = SHAKE_AMPLITUDE if shaking == "position" else SHAKE_VELOCITY
+    control = rng.uniform(*spread, size=(n, 1, 1)) * rng.normal(size=(n, n_control, 2))
+    control[:, :3] = 0.0  # start at rest (and, for "position", at the origin)
+    _, d1, d2 = uniform_bspline(control, u)
+    seconds_per_segment = per_segment[:, None, None] * dt
+    if shaking == "position":
+        return d2 / seconds_per_segment**2
+    return d1 / seconds_per_segment
 
 
 def physics_type(
@@ -67,13 +87,15 @@ def physics_type(
     mu: float | np.ndarray = contact.MU,
     mu_dyn: float | np.ndarray = contact.MU_DYN,
     dt: float = DT,
+    shaking: str = "position",
 ) -> TrajectoryBatch:
     """Commands produced by random pan shaking (returns the pan's states too, in ``extras``).
 
     ``mu``, ``mu_dyn``: the friction the shaking is rolled out with, scalars or ``(n,)``.
+    ``shaking``: ``"position"`` (a bounded shake around home) or ``"velocity"`` (a drifting one).
     """
     lengths = draw_lengths(rng, n, length)
-    pan_accel = _smooth_shaking(rng, lengths, dt)
+    pan_accel = _smooth_shaking(rng, lengths, dt, shaking)
     valid = np.arange(pan_accel.shape[1])[None, :] < (lengths[:, None] - 1)
     pan_accel = np.where(valid[..., None], pan_accel, 0.0)
     pan_states, rel_states = contact.rollout(pan_accel, mu, mu_dyn, dt)
@@ -115,12 +137,13 @@ def mixture(
     mu: float | np.ndarray = contact.MU,
     mu_dyn: float | np.ndarray = contact.MU_DYN,
     dt: float = DT,
+    shaking: str = "position",
 ) -> TrajectoryBatch:
     """B-spline type with probability ``bspline_prob``, else physics type (the ch. 3 curriculum's mixture).
 
     ``extras["pan_states"]`` holds the pan trajectory where one exists (zeros otherwise) and
     ``extras["has_pan"]`` (n,) says where. ``mu``, ``mu_dyn`` (scalars or ``(n,)``) are the
-    friction the physics-type commands are rolled out with.
+    friction the physics-type commands are rolled out with; ``shaking`` is their pan shaking.
     """
     if not 0.0 <= bspline_prob <= 1.0:
         raise ValueError(f"bspline_prob must be in [0, 1], got {bspline_prob}")
@@ -136,7 +159,7 @@ def mixture(
             parts.append((idx, bspline_type(idx.size, rng, length=lengths[idx], dt=dt)))
         else:
             parts.append((idx, physics_type(idx.size, rng, length=lengths[idx], mu=mu_all[idx], mu_dyn=mud_all[idx],
-                                            dt=dt)))
+                                            dt=dt, shaking=shaking)))
     batch = combine(lengths, parts, extras=("pan_states",))
     if batch.extras is None:  # only B-spline commands: no pan behind any of them
         batch.extras = {"pan_states": np.zeros_like(batch.states)}

@@ -93,6 +93,9 @@ DEFAULT_OPTIONS = {
     # Beyond the dissertation (off by default): draw each training trajectory's friction from
     # this list of [μ, μ'] pairs, e.g. a few pairs none of which is on the ch. 3 evaluation grid.
     "friction_pairs": None,
+    # How the physics-type commands' pans shake (data.sliding): "position" keeps the pan near
+    # home; "velocity" lets it random-walk, so L' alone (model C) learns a drifting pan.
+    "pan_shaking": "position",
 }
 
 
@@ -164,7 +167,7 @@ class SlidingTask(Task):
         opt = {**DEFAULT_OPTIONS, **config.options}
         mu, mu_dyn = training_friction(n, rng, opt)
         batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=tuple(opt["length"]),
-                                 mu=mu, mu_dyn=mu_dyn)
+                                 mu=mu, mu_dyn=mu_dyn, shaking=opt["pan_shaking"])
         # which trajectories are scored with L' (only those with a pan trajectory behind them)
         use_prime = (rng.random(n) < params["loss_prime_prob"]) & batch.extras["has_pan"]
         batch.extras.update(loss_prime=use_prime, mu=mu, mu_dyn=mu_dyn)
