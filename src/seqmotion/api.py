@@ -15,6 +15,7 @@ PRETRAINED = {  # shipped model → its task
     "pancake": "pancake",  # ch. 2/4: 2 × 64 LN-LSTM Deformer
     "sliding": "sliding",  # ch. 3: model A (full curriculum, trained across 9 friction pairs), the SlidingPlanner
     "sliding-A-nominal": "sliding",  # ch. 3: A trained at the nominal friction only (the dissertation's protocol)
+    "sliding-A-velocity": "sliding",  # ch. 3: A on the drifting (velocity-level) pan shaking B and C learn from
     "sliding-B": "sliding",  # ch. 3 baselines on A's budget, for `seqmotion reproduce ch3`
     "sliding-C": "sliding",
     "pushing": "pushing",  # ch. 5: SeqAE + CNN policy

@@ -2,9 +2,10 @@
 
 ``seqmotion reproduce ch3 [--model DIR] [--out DIR] [--quick]`` uses the shipped models
 ``sliding`` (A, the shipped planner), ``sliding-A-nominal`` (A trained at the nominal friction
-only, the dissertation's protocol), ``sliding-B`` and ``sliding-C`` — all four on one equal
-budget (50 epochs × 128 × 64 trajectories), the comparison of §3.5.2 — or, with
-``--model DIR``, the run directories ``DIR/A``, ``DIR/B``, ``DIR/C`` (and ``DIR/A-nominal`` if
+only, the dissertation's protocol), ``sliding-A-velocity`` (A trained on the same drifting
+pan shaking as B and C), ``sliding-B`` and ``sliding-C`` — all five on one equal budget
+(50 epochs × 128 × 64 trajectories), the comparison of §3.5.2 — or, with ``--model DIR``, the
+run directories ``DIR/A``, ``DIR/B``, ``DIR/C`` (and ``DIR/A-nominal``, ``DIR/A-velocity`` if
 present) — and writes:
 
 * ``fig3_7_paths.png`` — object and pan paths of A, B, C for one command (K = 1200);
@@ -33,16 +34,17 @@ from ..tasks.sliding import PAN_LIMIT, SlidingPlanner
 FRICTION_GRID = [(mu, mud) for mu in (0.7, 0.9, 1.1, 1.3) for mud in (0.3, 0.4, 0.6, 0.7) if mud < mu]
 LENGTH = 1200
 MODELS = ("A", "B", "C")
+OPTIONAL_MODELS = ("A-nominal", "A-velocity")  # variants of A shipped beside it
 
 
 def load_models(model: str | None) -> dict[str, SlidingPlanner]:
-    """The shipped A, A-nominal, B, C, or the run directories ``DIR/{A,[A-nominal,]B,C}``."""
+    """The shipped A, A-nominal, A-velocity, B, C, or the run directories ``DIR/{A,[A-nominal,A-velocity,]B,C}``."""
     import seqmotion as sm
 
     if model is None:
-        return {"A": sm.load_pretrained("sliding"), "A-nominal": sm.load_pretrained("sliding-A-nominal"),
-                "B": sm.load_pretrained("sliding-B"), "C": sm.load_pretrained("sliding-C")}
-    names = [*MODELS[:1], *(["A-nominal"] if (Path(model) / "A-nominal").is_dir() else []), *MODELS[1:]]
+        return {"A": sm.load_pretrained("sliding"), **{name: sm.load_pretrained(f"sliding-{name}") for name in
+                                                       (*OPTIONAL_MODELS, *MODELS[1:])}}
+    names = [*MODELS[:1], *(n for n in OPTIONAL_MODELS if (Path(model) / n).is_dir()), *MODELS[1:]]
     return {name: sm.load(Path(model) / name, expected_task="sliding") for name in names}
 
 
@@ -143,6 +145,7 @@ def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int
         plan = planner.plan(command)
         axes[0].plot(plan.rel_states[:, 0], plan.rel_states[:, 1], color=f"C{i}", label=f"model {name}")
         axes[1].plot(plan.pan_states[:, 0], plan.pan_states[:, 1], color=f"C{i}", lw=0.8, label=f"model {name}")
+    axes[1].add_patch(plt.Circle((0, 0), PAN_LIMIT, fill=False, ls=":", color="0.5", label="p_lim = 0.2 m"))
     axes[0].set(xlabel="x [m]", ylabel="y [m]", title="(a) object relative to the pan")
     axes[1].set(xlabel="x [m]", ylabel="y [m]", title="(b) frying pan")
     for ax in axes:
