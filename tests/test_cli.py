@@ -13,8 +13,18 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli")
     assert main(["train", "pancake", "--config", "tiny", "--out", str(root / "pancake"), "--quiet"]) == 0
     assert main(["train", "sliding", "--config", "tiny", "--variant", "B", "--out", str(root / "sliding"),
-                 "--quiet", "--epochs", "2"]) == 0
+                 "--quiet", "--epochs", "2", "--set", "pan_shaking=velocity", "--set", "length=[60, 90]"]) == 0
     return root
+
+
+def test_set_takes_json_and_bare_words_for_text_options(runs, capsys):
+    import seqmotion as sm
+
+    config = sm.load(runs / "sliding").config
+    assert config["training"]["options"]["pan_shaking"] == "velocity"
+    assert config["training"]["options"]["length"] == [60, 90]
+    assert main(["train", "sliding", "--config", "tiny", "--set", "pan_limit=far"]) == 2
+    assert "not a JSON value" in capsys.readouterr().err
 
 
 def test_train_writes_a_loadable_run_and_resumes(runs, capsys):

@@ -101,7 +101,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         key, _, raw = item.partition("=")
         if key not in config.options:
             raise ValueError(f"unknown option {key!r}; options of {args.task}: {sorted(config.options)}")
-        config.options[key] = json.loads(raw)
+        try:
+            config.options[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            if not isinstance(config.options[key], str):  # only text options take bare words
+                raise ValueError(f"--set {key}=...: {raw!r} is not a JSON value") from None
+            config.options[key] = raw  # --set pan_shaking=velocity
     variant = f"-{args.variant}" if args.variant else ""
     out = Path(args.out or f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
     train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps)
@@ -187,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr-final-fraction", type=float, help="cosine-decay the learning rate to this fraction of --lr")
     p.add_argument("--checkpoint-every", type=int, help="steps between checkpoints (default: every epoch)")
     p.add_argument("--max-steps", type=int, help="stop after this many steps (for timing)")
-    p.add_argument("--set", action="append", metavar="KEY=JSON", help="override a task option")
+    p.add_argument("--set", action="append", metavar="KEY=JSON", help="override a task option (a JSON value; text options also take bare words)")
     p.add_argument("--no-resume", action="store_true", help="start over even if the run has checkpoints")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)

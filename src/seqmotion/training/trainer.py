@@ -21,6 +21,7 @@ import csv
 import math
 import os
 import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -136,7 +137,8 @@ def train(
         program = "seqmotion"
     elif program.endswith(os.path.join("seqmotion", "cli.py")):
         program = "python -m seqmotion.cli" if world == 1 else f"torchrun --nproc_per_node={world} -m seqmotion.cli"
-    provenance = {"command": " ".join([program, *sys.argv[1:]]), "machine": machine_description(), "world_size": world}
+    # shell-quoted, so the recorded command can be pasted back into a shell as it is
+    provenance = {"command": " ".join([program, *map(shlex.quote, sys.argv[1:])]), "machine": machine_description(), "world_size": world}
     latest = ckpt.latest_checkpoint(run_dir) if resume and run_dir.exists() else None
     if latest is not None:
         saved_config, tensors, opt_state, trainer_state = ckpt.read_training_checkpoint(latest)
