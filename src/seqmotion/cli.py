@@ -192,7 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr-final-fraction", type=float, help="cosine-decay the learning rate to this fraction of --lr")
     p.add_argument("--checkpoint-every", type=int, help="steps between checkpoints (default: every epoch)")
     p.add_argument("--max-steps", type=int, help="stop after this many steps (for timing)")
-    p.add_argument("--set", action="append", metavar="KEY=JSON", help="override a task option (a JSON value; text options also take bare words)")
+    p.add_argument("--set", action="append", metavar="KEY=JSON",
+                   help="override a task option (a JSON value; text options also take bare words)")
     p.add_argument("--no-resume", action="store_true", help="start over even if the run has checkpoints")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)

@@ -138,7 +138,8 @@ def train(
     elif program.endswith(os.path.join("seqmotion", "cli.py")):
         program = "python -m seqmotion.cli" if world == 1 else f"torchrun --nproc_per_node={world} -m seqmotion.cli"
     # shell-quoted, so the recorded command can be pasted back into a shell as it is
-    provenance = {"command": " ".join([program, *map(shlex.quote, sys.argv[1:])]), "machine": machine_description(), "world_size": world}
+    command = " ".join([program, *map(shlex.quote, sys.argv[1:])])
+    provenance = {"command": command, "machine": machine_description(), "world_size": world}
     latest = ckpt.latest_checkpoint(run_dir) if resume and run_dir.exists() else None
     if latest is not None:
         saved_config, tensors, opt_state, trainer_state = ckpt.read_training_checkpoint(latest)
