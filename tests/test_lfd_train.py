@@ -321,3 +321,34 @@ def test_interrupted_training_resumes_exactly(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="another training"):
         train.train_seqae(motions, config, train.SeqAETraining(epochs=5, batch_size=2, seed=3),
                           checkpoint_dir=tmp_path / "ckpt")
+
+
+def test_resume_keeps_the_learning_rate_when_a_short_batch_is_skipped(tmp_path, monkeypatch):
+    """5 examples in batches of 4 with min_batch=2 (end-to-end's BatchNorm rule): one batch a epoch is skipped."""
+    monkeypatch.setattr(train, "CHECKPOINT_EVERY", 2)
+    settings = train.SeqAETraining(epochs=4, batch_size=4, seed=0)
+    x = torch.linspace(-1, 1, 5).unsqueeze(1)
+
+    def run(checkpoint_dir, die_at=None):
+        torch.manual_seed(0)
+        module = torch.nn.Linear(1, 1)
+        gen = torch.Generator().manual_seed(0)
+        calls = {"n": 0}
+
+        def batch_loss(idx):
+            calls["n"] += 1
+            if calls["n"] == die_at:
+                raise KeyboardInterrupt
+            return ((module(x[idx]) - 2 * x[idx]) ** 2).mean()
+
+        history = train._fit(module, list(module.parameters()), 5, settings, gen, batch_loss, "toy", False,
+                             min_batch=2, checkpoint_dir=checkpoint_dir)
+        return module, history
+
+    straight, straight_history = run(None)
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path / "ckpt", die_at=3)  # one step per epoch: dies in epoch 3, after the epoch-2 checkpoint
+    resumed, history = run(tmp_path / "ckpt")
+    assert history["loss"] == straight_history["loss"]
+    for key, value in straight.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)

@@ -98,7 +98,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         if value is not None:
             setattr(config, name, value)
     for item in args.set or []:
-        key, _, raw = item.partition("=")
+        key, equals, raw = item.partition("=")
+        if not equals:
+            raise ValueError(f"--set needs KEY=VALUE, got {item!r}")
         if key not in config.options:
             raise ValueError(f"unknown option {key!r}; options of {args.task}: {sorted(config.options)}")
         try:

@@ -275,15 +275,16 @@ def _fit(
     digest = hashlib.sha256()
     for array in data:
         digest.update(np.ascontiguousarray(array).tobytes())
-    identity = {"task": "lfd-fit", "what": desc, "data_sha256": digest.hexdigest(), "settings": asdict(settings)}
-    first_epoch, seconds_before = 0, 0.0
+    shapes = {name: list(t.shape) for name, t in module.state_dict().items()}
+    identity = {"task": "lfd-fit", "what": desc, "data_sha256": digest.hexdigest(), "settings": asdict(settings),
+                "shapes": shapes}
+    first_epoch, step, seconds_before = 0, 0, 0.0  # step: optimiser steps taken (sets the learning rate)
     if checkpoint_dir is not None and latest_checkpoint(checkpoint_dir) is not None:
-        first_epoch, seconds_before = _resume(checkpoint_dir, module, opt, gen, identity, history)
+        first_epoch, step, seconds_before = _resume(checkpoint_dir, module, opt, gen, identity, history)
     start = time.perf_counter()
     module.train()
     bar = tqdm(range(first_epoch, settings.epochs), desc=desc, unit="epoch", disable=not progress, file=sys.stderr,
                initial=first_epoch, total=settings.epochs)
-    step = first_epoch * steps_per_epoch
     for epoch in bar:
         order = torch.randperm(n, generator=gen)
         total = 0.0
@@ -307,7 +308,7 @@ def _fit(
             elapsed = seconds_before + time.perf_counter() - start
             write_training_checkpoint(
                 checkpoint_dir, f"epoch-{done:06d}", {**module.state_dict(), "rng": gen.get_state()},
-                opt.state_dict(), identity, {"epoch": done, "loss": history["loss"], "seconds": elapsed},
+                opt.state_dict(), identity, {"epoch": done, "step": step, "loss": history["loss"], "seconds": elapsed},
             )
     history["seconds"] = seconds_before + time.perf_counter() - start
     return history
@@ -316,20 +317,20 @@ def _fit(
 def _resume(
     checkpoint_dir: Path, module: torch.nn.Module, opt: torch.optim.Optimizer, gen: torch.Generator,
     identity: dict, history: dict,
-) -> tuple[int, float]:
-    """Load the latest checkpoint of ``checkpoint_dir`` into the loop's state; return (epoch, seconds)."""
+) -> tuple[int, int, float]:
+    """Load the latest checkpoint of ``checkpoint_dir`` into the loop's state; return (epoch, step, seconds)."""
     config, tensors, opt_state, state = read_training_checkpoint(latest_checkpoint(checkpoint_dir))
     saved = {k: config.get(k) for k in identity}
     if saved != json.loads(json.dumps(identity)):
         raise ValueError(
-            f"{checkpoint_dir} holds a checkpoint of another training ({saved['what']}, other data or "
-            f"settings {saved['settings']}); use another output directory, or start over (--no-resume)"
+            f"{checkpoint_dir} holds a checkpoint of another training ({saved['what']}: other data, layer "
+            f"sizes or settings {saved['settings']}); use another output directory, or start over (--no-resume)"
         )
     gen.set_state(tensors.pop("rng"))
     load_state_dict_strict(module, tensors, str(checkpoint_dir))
     opt.load_state_dict(opt_state)
     history["loss"] = list(state["loss"])
-    return int(state["epoch"]), float(state["seconds"])
+    return int(state["epoch"]), int(state["step"]), float(state["seconds"])
 
 
 def state_noise(shape: tuple[int, ...], settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor | None:
