@@ -60,13 +60,18 @@ def _knots(rng: np.random.Generator, lengths: np.ndarray, spacing_ms: tuple[int,
     return samples_per_segment, u, n_control
 
 
+def check_shaking(shaking: str) -> None:
+    """``ValueError`` unless ``shaking`` names one of :data:`PAN_SHAKINGS`."""
+    if shaking not in PAN_SHAKINGS:
+        raise ValueError(f"unknown pan shaking {shaking!r}; choose from {PAN_SHAKINGS}")
+
+
 def _smooth_shaking(rng: np.random.Generator, lengths: np.ndarray, dt: float, shaking: str = "position") -> np.ndarray:
     """Pan accelerations whose position (or velocity) is a random cubic B-spline: ``(n, K_max-1, 2)``.
 
     The pan starts at rest at the origin either way.
     """
-    if shaking not in PAN_SHAKINGS:
-        raise ValueError(f"unknown pan shaking {shaking!r}; choose from {PAN_SHAKINGS}")
+    check_shaking(shaking)
     n = len(lengths)
     per_segment, u, n_control = _knots(rng, lengths, SHAKE_SPACING_MS, dt)
     spread = SHAKE_AMPLITUDE if shaking == "position" else SHAKE_VELOCITY

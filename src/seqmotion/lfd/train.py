@@ -248,14 +248,14 @@ def train_seqae(
     history = _fit(model, params, len(data), settings, gen,
                    lambda idx: _seqae_loss(model, data[idx], settings, gen),
                    f"SeqAE {config.layers}x{config.hidden}", progress,
-                   checkpoint_dir=None if checkpoint_dir is None else Path(checkpoint_dir), data=(motions,))
+                   checkpoint_dir=checkpoint_dir, data=(motions,))
     return model.eval(), history
 
 
 def _fit(
     module: torch.nn.Module, params: list, n: int, settings: SeqAETraining, gen: torch.Generator,
     batch_loss: Any, desc: str, progress: bool, min_batch: int = 1,
-    checkpoint_dir: Path | None = None, data: tuple = (),
+    checkpoint_dir: str | Path | None = None, data: tuple = (),
 ) -> dict[str, Any]:
     """Adam over ``settings.epochs`` shuffled passes of ``n`` examples (cosine-decayed lr, clipped gradients).
 
@@ -268,6 +268,7 @@ def _fit(
     (arrays whose hash identifies the training set) there continues from it: an interrupted
     run resumed ends with exactly the weights of an uninterrupted one.
     """
+    checkpoint_dir = None if checkpoint_dir is None else Path(checkpoint_dir)
     opt = torch.optim.Adam(params, lr=settings.lr)
     steps_per_epoch = math.ceil(n / settings.batch_size)
     total_steps = settings.epochs * steps_per_epoch
@@ -470,7 +471,7 @@ def train_end_to_end(
     # BatchNorm in the CNN needs two images per batch
     history = _fit(policy, list(policy.parameters()), len(data), settings, gen, batch_loss,
                    f"end-to-end {config.layers}x{config.hidden}", progress, min_batch=2,
-                   checkpoint_dir=None if checkpoint_dir is None else Path(checkpoint_dir), data=(images, motions))
+                   checkpoint_dir=checkpoint_dir, data=(images, motions))
     return policy.eval(), history
 
 

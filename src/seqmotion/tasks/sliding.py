@@ -165,8 +165,7 @@ class SlidingTask(Task):
         self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
     ) -> TrajectoryBatch:
         opt = {**DEFAULT_OPTIONS, **config.options}
-        if opt["pan_shaking"] not in commands.PAN_SHAKINGS:  # checked here too: B-spline-only stages never shake
-            raise ValueError(f"unknown pan shaking {opt['pan_shaking']!r}; choose from {commands.PAN_SHAKINGS}")
+        commands.check_shaking(opt["pan_shaking"])  # up front: B-spline-only stages never shake
         mu, mu_dyn = training_friction(n, rng, opt)
         batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=tuple(opt["length"]),
                                  mu=mu, mu_dyn=mu_dyn, shaking=opt["pan_shaking"])
