@@ -86,6 +86,7 @@ def test_train_writes_loadable_policies(trained, data_dir, tmp_path):
     log = json.loads((out / "train_log.json").read_text())["runs"][-1]
     assert log["preset"] == "tiny" and log["seed"] == 3 and "machine" in log
     assert proposed.config.training["cnn"]["pairs"] == 6
+    assert proposed.config.training["cnn"]["settings"]["targets"] == "position_mean"
 
     # Camera moved: the SeqAE is reused bit for bit, only a new CNN is trained.
     moved = train.train(
@@ -129,6 +130,19 @@ def test_train_bad_arguments(data_dir, tmp_path):
         train.train_end_to_end(np.zeros((3, 64, 64, 3), np.uint8), np.zeros((2, 5, 18)), sm.lfd.SeqAEConfig(1, 8))
     with pytest.raises(ValueError, match="targets"):
         train.train_cnn(np.zeros((3, 64, 64, 3), np.uint8), np.zeros((3, 5)))
+    with pytest.raises(ValueError, match="CNN targets"):
+        train.CNNTraining(targets="motion")
+
+
+def test_mean_latent_per_position():
+    """The CNN's default targets: per block position, the mean z of the demonstrations there."""
+    z = np.arange(14.0).reshape(7, 2)
+    where = np.array([0, 1, 2, 3, 4, 5, 0])
+    means = train.mean_latent_per_position(z, where)
+    np.testing.assert_allclose(means[0], [6.0, 7.0])  # rows 0 and 6
+    np.testing.assert_allclose(means[1:], z[1:6])
+    with pytest.raises(ValueError, match=r"block positions \[5\]"):
+        train.mean_latent_per_position(z[:5], where[:5])
 
 
 def test_evaluate_structure_and_determinism(trained):

@@ -53,10 +53,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
-        "--seqae-epochs", type=int, help="SeqAE epochs (default per preset: smaller 2000, original 800, larger 200)"
+        "--seqae-epochs", type=int, help="SeqAE epochs (default 2000, as in the dissertation; tiny 200)"
     )
     p.add_argument("--e2e-epochs", type=int, help="end-to-end epochs (default 2000, as in the dissertation)")
     p.add_argument("--cnn-epochs", type=int, help="CNN epochs (default 100, as in the dissertation)")
+    p.add_argument(
+        "--cnn-targets",
+        choices=["position_mean", "pair"],
+        help="what the CNN regresses per image: the mean z of the motions at its block position (default) "
+        "or its own demonstration's z (pair: the dissertation's eq. 5.2)",
+    )
     p.add_argument("--state-noise", type=float, help="decoder input noise [normalised units] (default 0.3)")
     p.add_argument("--latent-noise", type=float, help="noise added to z in training (default 0.1)")
     p.add_argument("--latent-penalty", type=float, help="weight of the 1/2 |z|^2 bottleneck term (default 0)")
@@ -190,6 +196,8 @@ def _train(args: argparse.Namespace) -> int:
         e2e.epochs = args.e2e_epochs
     if args.cnn_epochs is not None:
         cnn.epochs = args.cnn_epochs
+    if args.cnn_targets is not None:
+        cnn.targets = args.cnn_targets
     for settings in (seqae, e2e, cnn):
         settings.__post_init__()  # re-validate the overridden values
     command = "seqmotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["lfd"] else None

@@ -239,15 +239,9 @@ def position_latents(policy: Any, dataset: Any, successful_only: bool = True) ->
         dataset: a :class:`~seqmotion.lfd.dataset.PushingDataset` or the path of one.
         successful_only: leave failed demonstrations out (as training does).
     """
-    from ..sim import pushing
     from .dataset import PushingDataset, load_dataset
-    from .train import EVERY
+    from .train import EVERY, mean_latent_per_position
 
     data = dataset if isinstance(dataset, PushingDataset) else load_dataset(dataset)
     ok = data.episodes["success"].astype(bool) if successful_only else np.ones(len(data), bool)
-    z = policy.encode(data.motion(EVERY)[ok])
-    where = data.episodes["position_index"][ok]
-    missing = [i for i in range(len(pushing.POSITIONS)) if not np.any(where == i)]
-    if missing:
-        raise ValueError(f"the dataset has no (successful) demonstration at block positions {missing}")
-    return np.stack([z[where == i].mean(0) for i in range(len(pushing.POSITIONS))])
+    return mean_latent_per_position(policy.encode(data.motion(EVERY)[ok]), data.episodes["position_index"][ok])

@@ -144,12 +144,21 @@ class CNNTraining:
         augment: photometric augmentation of the training images (see :func:`augment_images`):
             the nuisance the webcam sees between episodes is lighting and colour, and 18 images
             show too little of it. Geometry is never altered (it carries the block's position).
+        targets: what the CNN regresses for each image (one of :data:`CNN_TARGETS`).
+            ``"pair"`` is the dissertation's eq. 5.2: the encoder's z of the image's own
+            demonstration. ``"position_mean"`` (default) is the mean encoder z of all the
+            (successful) demonstrations *without* images at the image's block position. Under
+            |z − ẑ|² the best a CNN can do is E[z | image], and an image shows where the block
+            is, not how this operator's pass went; with 2–3 pairs per position the pair's own z
+            is a noisy estimate of that mean (for the 7-layer SeqAE 9 of 17 pairs' z lie nearer
+            another position's mean), the 90 motions give a far better one.
     """
 
     epochs: int = 100
     batch_size: int = 8
     lr: float = 1e-3
     augment: bool = True
+    targets: str = "position_mean"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -157,24 +166,28 @@ class CNNTraining:
         _positive_int("batch_size", self.batch_size)
         if not (isinstance(self.lr, int | float) and math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be positive, got {self.lr!r}")
+        if self.targets not in CNN_TARGETS:
+            raise ValueError(f"CNN targets must be one of {CNN_TARGETS}, got {self.targets!r}")
         _seed(self.seed)
 
+
+CNN_TARGETS = ("position_mean", "pair")
+"""What the CNN learns to output per image (see :class:`CNNTraining`)."""
 
 DEFAULT_PRESET = "smaller"
 """Model size ``seqmotion lfd train`` (and the shipped ``"pushing"`` policy) uses by default.
 
 Not the dissertation's 7-layer model, by measurement (30 closed-loop trials on the default
-camera, evaluation seed 1, the defaults below): the 3 × 32 ``smaller`` model reached 96.7 %
-(end-to-end 83.3 %) after a ~5-minute SeqAE training, while the 7 × 64 ``original`` reached
-only 73.3 % (end-to-end 86.7 %) after 800 epochs (19 min), and 76.7 % with the earlier
-σ_z = 0.5, β = 0.01 recipe; the 10 × 128 ``larger`` reached 40.0 % (end-to-end 96.7 %) after
-200 epochs (16 min). See ``benchmarks/RESULTS_lfd.md``.
+camera, evaluation seeds 1 / 0, the defaults below; ``benchmarks/RESULTS_lfd.md``): the 3 × 32
+``smaller`` model reaches 100 % / 100 % after a ~7-minute SeqAE training, inside the 45-minute
+collect-and-train budget of a 2-core CPU; the 7 × 64 ``original`` reaches 100 % / 93.3 % but
+its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` ~2.6 CPU-hours.
 """
 
-SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 800, "larger": 200}
-"""Default SeqAE epochs per preset (the dissertation: 2000 for all; cut where 2000 would not fit
-the 45-minute collect-and-train budget on a 2-core CPU: measured 1.43 s/epoch for 7 × 64,
-4.75 s for 10 × 128)."""
+SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 2000}
+"""Default SeqAE epochs per preset: the dissertation's 2000 (``tiny`` is for tests). Measured on
+one core: ~0.22 s/epoch for 3 × 32, 1.43 s for 7 × 64, 4.75–6.6 s for 10 × 128 (fewer epochs
+leave the deep decoders unable to push from every position)."""
 
 E2E_EPOCHS = 2000
 """Default epochs of the end-to-end baseline (the dissertation's), every preset."""
@@ -366,6 +379,21 @@ def encode_motions(model: SeqAE, motions: np.ndarray) -> np.ndarray:
     """z ``(N, latent)`` of motions ``(N, K, 18)`` with a trained SeqAE."""
     model.eval()
     return model.encode(torch.as_tensor(check_motions(motions), dtype=torch.float32)).double().numpy()
+
+
+def mean_latent_per_position(z: np.ndarray, position_index: np.ndarray) -> np.ndarray:
+    """Mean of latents ``z (N, latent)`` over the demonstrations at each block position → ``(6, latent)``.
+
+    ``position_index (N,)``: each demonstration's block position index 0..5. ``ValueError`` when
+    a position has no demonstration (its mean would be NaN).
+    """
+    from ..sim.pushing import POSITIONS
+
+    where = np.asarray(position_index)
+    missing = [i for i in range(len(POSITIONS)) if not np.any(where == i)]
+    if missing:
+        raise ValueError(f"no (successful) demonstration at block positions {missing}: their mean z is undefined")
+    return np.stack([z[where == i].mean(0) for i in range(len(POSITIONS))])
 
 
 def train_cnn(
@@ -584,6 +612,8 @@ def train(
     pairs = {c: load_dataset(p) for c, p in pair_paths.items()}
 
     if "proposed" in methods:
+        motions_data = load_dataset(data_dir / "motions.h5")
+        keep_motions = _episodes(motions_data, successful_only)
         if seqae_from is not None:
             from .models import load_policy
 
@@ -593,22 +623,28 @@ def train(
                 raise ValueError(f"{seqae_from} holds a {donor.config.preset!r} SeqAE, not {preset_name!r}")
             seqae_record = {"reused_from": str(seqae_from), **donor.config.training.get("seqae", {})}
         else:
-            motions_data = load_dataset(data_dir / "motions.h5")
-            keep = _episodes(motions_data, successful_only)
-            motions = motions_data.motion(EVERY, keep)
+            motions = motions_data.motion(EVERY, keep_motions)
             seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae")
             report.seconds["seqae"] = history["seconds"]
             report.final_loss["seqae"] = history["loss"][-1]
             seqae_record = {
                 "settings": asdict(seqae_settings),
-                "motions": int(len(keep)),
+                "motions": int(len(keep_motions)),
                 "of": len(motions_data),
                 "seconds": history["seconds"],
                 "final_loss": history["loss"][-1],
             }
+        if cnn_settings.targets == "position_mean":
+            means = mean_latent_per_position(
+                encode_motions(seqae, motions_data.motion(EVERY, keep_motions)),
+                motions_data.episodes["position_index"][keep_motions],
+            )
         for camera, data in pairs.items():
             keep = _episodes(data, successful_only)
-            targets = encode_motions(seqae, data.motion(EVERY, keep))
+            if cnn_settings.targets == "position_mean":
+                targets = means[data.episodes["position_index"][keep]]
+            else:
+                targets = encode_motions(seqae, data.motion(EVERY, keep))
             cnn, history = train_cnn(
                 data.images[keep], targets, CNNConfig(latent=config.latent), cnn_settings, progress
             )
