@@ -263,6 +263,7 @@ def test_export_writes_a_model_card(trained, tmp_path):
     )
     card = (target / "MODEL_CARD.md").read_text()
     assert "2-core CPU container, no GPU" in card and "Seed: 3" in card and "a tiny test model" in card
+    assert "mean encoder z of the demonstrations without images at its block position" in card
     assert (
         f"proposed (tiny), default camera: **{result.success_rate:.1%}** ({result.successes}/1 trials, "
         "evaluation seed 2)"

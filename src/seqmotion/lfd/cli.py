@@ -239,12 +239,14 @@ def _evaluate(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         latents=None if args.oracle_latents is None else position_latents(policy, args.oracle_latents),
     )
+    if args.json:  # before printing: a closed stdout (e.g. piped into head) must not lose the result
+        from ..training.checkpoint import atomic_write_bytes
+
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # keys in position order, not sorted
+        atomic_write_bytes(Path(args.json), (json.dumps(result.as_dict(), indent=1) + "\n").encode())
     cells = "  ".join(f"{name} {ok}/{n}" for name, (ok, n) in result.per_position.items())
     print(
         f"success {result.successes}/{result.n_trials} = {result.success_rate:.1%} (camera {result.camera}, "
         f"seed {result.seed}, {result.seconds:.0f} s)\n  {cells}"
     )
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result.as_dict(), indent=1) + "\n")
     return 0

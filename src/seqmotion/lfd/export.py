@@ -17,6 +17,11 @@ from ..training import checkpoint as ckpt
 
 PRETRAINED_ROOT = Path(__file__).resolve().parents[1] / "pretrained"
 MACHINE = "2-core CPU container, no GPU"
+_TARGETS = {
+    "pair": "each image's target the encoder's z of its own demonstration (eq. 5.2)",
+    "position_mean": "each image's target the mean encoder z of the demonstrations without images at its block "
+    "position (see `CNNTraining.targets`)",
+}
 
 
 def _evaluation_line(path: Path) -> tuple[str, dict]:
@@ -95,7 +100,8 @@ def export_policy(
         f"- SeqAE: {seqae_rec.get('motions')} of {seqae_rec.get('of')} demonstrations without images (failed ones "
         f"left out); settings {json.dumps(seqae_rec.get('settings', {}), sort_keys=True)}; final eq.-5.1 loss "
         f"{seqae_rec.get('final_loss', float('nan')):.4f}",
-        f"- CNN: {cnn_rec.get('pairs')} of {cnn_rec.get('of')} image–motion pairs (`{cnn_rec.get('dataset')}`); "
+        f"- CNN: {cnn_rec.get('pairs')} of {cnn_rec.get('of')} image–motion pairs (`{cnn_rec.get('dataset')}`), "
+        f"{_TARGETS.get(cnn_rec.get('settings', {}).get('targets', 'pair'), '')}; "
         f"settings {json.dumps(cnn_rec.get('settings', {}), sort_keys=True)}",
         "- Wall time: "
         + ", ".join(f"{part} {s:.0f} s" for part, s in zip(("SeqAE", "CNN"), seconds, strict=True) if s is not None)
