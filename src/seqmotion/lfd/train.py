@@ -179,14 +179,14 @@ DEFAULT_PRESET = "smaller"
 
 Not the dissertation's 7-layer model, by measurement (30 closed-loop trials on the default
 camera, evaluation seeds 1 / 0, the defaults below; ``benchmarks/RESULTS_lfd.md``): the 3 × 32
-``smaller`` model reaches 100 % / 100 % after a ~7-minute SeqAE training, inside the 45-minute
+``smaller`` model reaches 100 % / 100 % after a 7–9-minute SeqAE training, inside the 45-minute
 collect-and-train budget of a 2-core CPU; the 7 × 64 ``original`` reaches 100 % / 93.3 % but
 its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` ~2.6 CPU-hours.
 """
 
 SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 2000}
 """Default SeqAE epochs per preset: the dissertation's 2000 (``tiny`` is for tests). Measured on
-one core: ~0.22 s/epoch for 3 × 32, 1.43 s for 7 × 64, 4.75–6.6 s for 10 × 128 (fewer epochs
+one core: 0.22–0.27 s/epoch for 3 × 32, 1.43 s for 7 × 64, 4.75–6.6 s for 10 × 128 (fewer epochs
 leave the deep decoders unable to push from every position)."""
 
 E2E_EPOCHS = 2000
@@ -573,7 +573,8 @@ def train(
         seqae_settings, e2e_settings, cnn_settings: optimisation settings (defaults:
             :func:`default_settings` of the preset).
         seqae_from: reuse the SeqAE of this proposed-policy directory instead of training one
-            (the camera-moved experiment: only the CNN is retrained).
+            (the camera-moved experiment: only the CNN is retrained; position-mean CNN targets
+            are still taken over ``data_dir``'s motions).
         progress: tqdm bars on stderr.
         command: the command line that started the run (recorded in each config).
         successful_only: leave failed demonstrations out (default); False keeps every episode.
