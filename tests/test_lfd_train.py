@@ -86,7 +86,7 @@ def test_train_writes_loadable_policies(trained, data_dir, tmp_path):
     log = json.loads((out / "train_log.json").read_text())["runs"][-1]
     assert log["preset"] == "tiny" and log["seed"] == 3 and "machine" in log
     assert proposed.config.training["cnn"]["pairs"] == 6
-    assert proposed.config.training["cnn"]["settings"]["targets"] == "position_mean"
+    assert proposed.config.training["cnn"]["settings"]["targets"] == "position_medoid"
 
     # Camera moved: the SeqAE is reused bit for bit, only a new CNN is trained.
     moved = train.train(
@@ -135,12 +135,18 @@ def test_train_bad_arguments(data_dir, tmp_path):
 
 
 def test_mean_latent_per_position():
-    """The CNN's default targets: per block position, the mean z of the demonstrations there."""
+    """The CNN's position-wise targets: per block position, the mean (or medoid) z of the demonstrations there."""
     z = np.arange(14.0).reshape(7, 2)
     where = np.array([0, 1, 2, 3, 4, 5, 0])
     means = train.mean_latent_per_position(z, where)
     np.testing.assert_allclose(means[0], [6.0, 7.0])  # rows 0 and 6
     np.testing.assert_allclose(means[1:], z[1:6])
+    # medoid: of (0, 1), (1, 1.5), (12, 13) (mean (4.3, 5.2)) the demonstration nearest the mean
+    z_medoid = np.array([[0.0, 1.0], [1.0, 1.5], [12.0, 13.0], *z[1:6]])
+    where_medoid = np.array([0, 0, 0, 1, 2, 3, 4, 5])
+    medoids = train.mean_latent_per_position(z_medoid, where_medoid, medoid=True)
+    np.testing.assert_allclose(medoids[0], [1.0, 1.5])
+    np.testing.assert_allclose(medoids[1:], z[1:6])
     with pytest.raises(ValueError, match=r"block positions \[5\]"):
         train.mean_latent_per_position(z[:5], where[:5])
 
@@ -263,7 +269,7 @@ def test_export_writes_a_model_card(trained, tmp_path):
     )
     card = (target / "MODEL_CARD.md").read_text()
     assert "2-core CPU container, no GPU" in card and "Seed: 3" in card and "a tiny test model" in card
-    assert "mean encoder z of the demonstrations without images at its block position" in card
+    assert "most typical demonstration without images at its block position" in card
     assert (
         f"proposed (tiny), default camera: **{result.success_rate:.1%}** ({result.successes}/1 trials, "
         "evaluation seed 2)"

@@ -59,9 +59,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--cnn-epochs", type=int, help="CNN epochs (default 100, as in the dissertation)")
     p.add_argument(
         "--cnn-targets",
-        choices=["position_mean", "pair"],
-        help="what the CNN regresses per image: the mean z of the motions at its block position (default) "
-        "or its own demonstration's z (pair: the dissertation's eq. 5.2)",
+        choices=["position_medoid", "position_mean", "pair"],
+        help="what the CNN regresses per image: the z of the most typical motion at its block position (the one "
+        "nearest their mean; default), their mean z, or its own demonstration's z (pair: the dissertation's eq. 5.2)",
     )
     p.add_argument("--state-noise", type=float, help="decoder input noise [normalised units] (default 0.3)")
     p.add_argument("--latent-noise", type=float, help="noise added to z in training (default 0.1)")

@@ -21,6 +21,8 @@ _TARGETS = {
     "pair": "each image's target the encoder's z of its own demonstration (eq. 5.2)",
     "position_mean": "each image's target the mean encoder z of the demonstrations without images at its block "
     "position (see `CNNTraining.targets`)",
+    "position_medoid": "each image's target the encoder z of the most typical demonstration without images at its "
+    "block position, the one nearest their mean (see `CNNTraining.targets`)",
 }
 
 
