@@ -236,6 +236,10 @@ def test_cli_train_and_evaluate(data_dir, tmp_path, capsys):
     assert "success " in capsys.readouterr().out
     saved = json.loads((tmp_path / "ev.json").read_text())
     assert saved["n_trials"] == 1 and len(saved["outcomes"]) == 1
+    oracle = ["lfd", "evaluate", str(tmp_path / "m" / "proposed_default"), "--positions", "2", "--trials", "1"]
+    args = _parser().parse_args([*oracle, "--quiet", "--oracle-latents", str(data_dir / "motions.h5")])
+    with pytest.raises(ValueError, match=r"no \(successful\) demonstration"):  # 0.6 s demonstrations never succeed
+        args.func(args)
     with pytest.raises(ValueError, match="usable demonstration"):
         args = _parser().parse_args(
             [
@@ -301,6 +305,9 @@ def test_oracle_latents_bypass_the_cnn(trained, data_dir):
     policy = load_policy(report.policies["proposed_default"])
     oracle = sm.lfd.position_latents(policy, data_dir / "motions.h5", successful_only=False)
     assert oracle.shape == (6, 8) and np.isfinite(oracle).all()
+    medoids = sm.lfd.position_latents(policy, data_dir / "motions.h5", successful_only=False, medoid=True)
+    demonstrations = policy.encode(dataset.load_dataset(data_dir / "motions.h5").motion(train.EVERY))
+    assert all(np.isclose(demonstrations, m).all(1).any() for m in medoids)  # each one a demonstration's z
     result = evaluate(policy, positions=[1, 3], trials=1, seed=2, duration=0.2, latents=oracle)
     for o in result.outcomes:
         np.testing.assert_array_equal(o.latent, oracle[o.position_index])

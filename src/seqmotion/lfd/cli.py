@@ -14,6 +14,12 @@ import json
 import shlex
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from .models import PushingPolicy
 
 _SET_NAMES = ("motions", "pairs_default", "pairs_position1", "pairs_position2")
 
@@ -92,8 +98,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument(
         "--oracle-latents",
         metavar="DATASET",
-        help="diagnostic: decode the mean z of this dataset's demonstrations at each position instead of the "
-        "CNN's (scores the decoder alone; proposed-method policies only)",
+        help="diagnostic: decode, at each position, the z the CNN was trained to output (the medoid or mean z of "
+        "this dataset's demonstrations there) instead of the CNN's (scores the decoder alone; proposed-method "
+        "policies only)",
     )
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -223,10 +230,18 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _oracle_latents(policy: PushingPolicy, dataset: str) -> np.ndarray:
+    """``(6, latent)``: the targets the policy's CNN was trained on, per position (pair-trained CNNs: the mean)."""
+    from .evaluation import position_latents
+
+    targets = policy.config.training.get("cnn", {}).get("settings", {}).get("targets", "pair")
+    return position_latents(policy, dataset, medoid=targets == "position_medoid")
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     import seqmotion as sm
 
-    from .evaluation import evaluate, position_latents
+    from .evaluation import evaluate
 
     _set_threads(args.threads)
     policy = sm.load_pretrained("pushing") if args.model == "pushing" else sm.load(args.model, expected_task="pushing")
@@ -237,7 +252,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         trials=args.trials,
         seed=args.seed,
         progress=not args.quiet,
-        latents=None if args.oracle_latents is None else position_latents(policy, args.oracle_latents),
+        latents=None if args.oracle_latents is None else _oracle_latents(policy, args.oracle_latents),
     )
     if args.json:  # before printing: a closed stdout (e.g. piped into head) must not lose the result
         from ..training.checkpoint import atomic_write_bytes

@@ -228,7 +228,7 @@ def evaluate(
     )
 
 
-def position_latents(policy: Any, dataset: Any, successful_only: bool = True) -> np.ndarray:
+def position_latents(policy: Any, dataset: Any, successful_only: bool = True, medoid: bool = False) -> np.ndarray:
     """Mean encoder z of a dataset's (successful) demonstrations at each block position, ``(6, latent)``.
 
     With :func:`evaluate`'s ``latents`` this scores the decoder with the best z a perfect
@@ -238,10 +238,14 @@ def position_latents(policy: Any, dataset: Any, successful_only: bool = True) ->
         policy: a proposed-method :class:`~seqmotion.lfd.models.PushingPolicy` (it has an encoder).
         dataset: a :class:`~seqmotion.lfd.dataset.PushingDataset` or the path of one.
         successful_only: leave failed demonstrations out (as training does).
+        medoid: per position the z of the demonstration nearest the mean instead of the mean
+            (the CNN's default targets, see :class:`~seqmotion.lfd.train.CNNTraining`).
     """
     from .dataset import PushingDataset, load_dataset
     from .train import EVERY, mean_latent_per_position
 
     data = dataset if isinstance(dataset, PushingDataset) else load_dataset(dataset)
     ok = data.episodes["success"].astype(bool) if successful_only else np.ones(len(data), bool)
-    return mean_latent_per_position(policy.encode(data.motion(EVERY)[ok]), data.episodes["position_index"][ok])
+    return mean_latent_per_position(
+        policy.encode(data.motion(EVERY)[ok]), data.episodes["position_index"][ok], medoid=medoid
+    )
