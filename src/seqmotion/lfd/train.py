@@ -185,8 +185,9 @@ DEFAULT_PRESET = "smaller"
 Not the dissertation's 7-layer model, by measurement (30 closed-loop trials on the default
 camera, evaluation seeds 1 / 0, the defaults below; ``benchmarks/RESULTS_lfd.md``): the 3 × 32
 ``smaller`` model reaches 100 % / 100 % after a 7–9-minute SeqAE training, inside the 45-minute
-collect-and-train budget of a 2-core CPU; the 7 × 64 ``original`` reaches 100 % / 93.3 % but
-its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` ~2.6 CPU-hours.
+collect-and-train budget of a 2-core CPU; the 7 × 64 ``original`` also reaches 100 % / 100 %
+but its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` takes ~2.6
+CPU-hours and then pushes only from the left (50 %).
 """
 
 SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 2000}
