@@ -627,6 +627,7 @@ def train(
     if "proposed" in methods:
         motions_data = load_dataset(data_dir / "motions.h5")
         keep_motions = _episodes(motions_data, successful_only)
+        motions = motions_data.motion(EVERY, keep_motions)  # trains the SeqAE and/or sets the CNN's targets
         if seqae_from is not None:
             from .models import load_policy
 
@@ -636,7 +637,6 @@ def train(
                 raise ValueError(f"{seqae_from} holds a {donor.config.preset!r} SeqAE, not {preset_name!r}")
             seqae_record = {"reused_from": str(seqae_from), **donor.config.training.get("seqae", {})}
         else:
-            motions = motions_data.motion(EVERY, keep_motions)
             seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae")
             report.seconds["seqae"] = history["seconds"]
             report.final_loss["seqae"] = history["loss"][-1]
@@ -649,7 +649,7 @@ def train(
             }
         if cnn_settings.targets != "pair":
             position_z = mean_latent_per_position(
-                encode_motions(seqae, motions_data.motion(EVERY, keep_motions)),
+                encode_motions(seqae, motions),
                 motions_data.episodes["position_index"][keep_motions],
                 medoid=cnn_settings.targets == "position_medoid",
             )
