@@ -196,9 +196,26 @@ def test_decoder_drives_the_slave():
         s(0.04, state)
 
 
+def test_all_layers_readout_reaches_z_from_a_deep_stack():
+    """At its initial weights a 10-layer encoder's top barely varies with the motion; reading every layer does."""
+    motions = np.cumsum(_motions(n=32, k=50), axis=1)
+    spread = {}
+    for readout in models.READOUTS:
+        torch.manual_seed(0)
+        seqae = SeqAE(SeqAEConfig(layers=10, hidden=16, readout=readout))
+        seqae.scaler.fit(motions)
+        with torch.no_grad():
+            spread[readout] = seqae.encode(torch.as_tensor(motions, dtype=torch.float32)).std(0).mean().item()
+    assert spread["top"] < 1e-4  # below any latent noise of training: z would carry nothing
+    assert spread["all_layers"] > 1e-2
+    assert models.preset("larger").readout == "all_layers"
+
+
 def test_bad_arguments():
     with pytest.raises(ValueError, match="layers"):
         SeqAEConfig(layers=0)
+    with pytest.raises(ValueError, match="readout"):
+        SeqAEConfig(readout="middle")
     with pytest.raises(ValueError, match="unknown model preset 'huge'"):
         models.preset("huge")
     with pytest.raises(ValueError, match="channels"):
