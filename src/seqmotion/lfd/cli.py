@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -207,7 +206,9 @@ def _train(args: argparse.Namespace) -> int:
         cnn.targets = args.cnn_targets
     for settings in (seqae, e2e, cnn):
         settings.__post_init__()  # re-validate the overridden values
-    command = "seqmotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["lfd"] else None
+    from ..training.provenance import command_line
+
+    command = command_line() if sys.argv[1:2] == ["lfd"] else None
     report = training.train(
         args.data,
         args.out,

@@ -44,7 +44,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import platform
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -61,6 +60,7 @@ from ..training.checkpoint import (
     read_training_checkpoint,
     write_training_checkpoint,
 )
+from ..training.provenance import machine_record
 from .models import (
     MASTER,
     SLAVE,
@@ -542,20 +542,6 @@ def _episodes(data: Any, successful_only: bool) -> np.ndarray:
     return keep
 
 
-def machine_description() -> dict:
-    """Where a run happened (recorded with every model)."""
-    import os
-
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpus": os.cpu_count(),
-        "torch": torch.__version__,
-        "torch_threads": torch.get_num_threads(),
-        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-    }
-
-
 def train(
     data_dir: str | Path,
     out: str | Path,
@@ -621,7 +607,7 @@ def train(
         import shutil
 
         shutil.rmtree(checkpoints)
-    record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_description()}
+    record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_record()}
     pairs = {c: load_dataset(p) for c, p in pair_paths.items()}
 
     if "proposed" in methods:

@@ -20,8 +20,6 @@ from __future__ import annotations
 import csv
 import math
 import os
-import platform
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -35,6 +33,7 @@ from .. import tasks
 from ..errors import CheckpointError
 from ..tasks.base import TrainConfig
 from . import checkpoint as ckpt
+from .provenance import command_line, machine_description
 
 METRICS = "metrics.csv"
 
@@ -69,19 +68,6 @@ def _same_run(saved: dict, current: TrainConfig) -> None:
     if a != b:
         diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
         raise CheckpointError(f"cannot resume: the run was trained with a different configuration ({diff})")
-
-
-def machine_description() -> str:
-    """CPU model, core count, torch threads and versions: what a timing needs to be read against."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    gpu = f", GPU {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else ""
-    return (f"{cpu}, {os.cpu_count()} cores, {torch.get_num_threads()} torch threads{gpu}; "
-            f"Python {platform.python_version()}, torch {torch.__version__}")
 
 
 def model_config(config: TrainConfig, extra: dict | None = None) -> dict:
@@ -137,8 +123,7 @@ def train(
         program = "seqmotion"
     elif program.endswith(os.path.join("seqmotion", "cli.py")):
         program = "python -m seqmotion.cli" if world == 1 else f"torchrun --nproc_per_node={world} -m seqmotion.cli"
-    # shell-quoted, so the recorded command can be pasted back into a shell as it is
-    command = " ".join([program, *map(shlex.quote, sys.argv[1:])])
+    command = command_line(program)
     provenance = {"command": command, "machine": machine_description(), "world_size": world}
     latest = ckpt.latest_checkpoint(run_dir) if resume and run_dir.exists() else None
     if latest is not None:
