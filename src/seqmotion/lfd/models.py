@@ -22,7 +22,8 @@ O(1) whatever the units; the loss is still eq. 5.1 on the raw values (see :func:
 
 Presets (layers × LSTM units, same for encoder and decoder): ``original`` 7 × 64 (the
 dissertation gives 7 layers but no width; 64 sits between its ``smaller`` and ``larger``),
-``larger`` 10 × 128, ``smaller`` 3 × 32 (and ``tiny`` 1 × 16 for tests).
+``larger`` 10 × 128 (its encoder reads every layer's final hidden state; see
+:attr:`SeqAEConfig.readout`), ``smaller`` 3 × 32 (and ``tiny`` 1 × 16 for tests).
 """
 
 from __future__ import annotations

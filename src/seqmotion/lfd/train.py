@@ -31,9 +31,9 @@ the end-to-end baseline gets the same settings, so the comparison stays like for
 * Failed demonstrations (``success = False``, 3 of 90 in the default set) are left out.
 * Gradient-norm clipping at 1 and a cosine learning-rate decay to 10 % over the run.
 * Epochs per preset (:data:`SEQAE_EPOCHS`, :func:`default_settings`): the dissertation's 2000
-  for the ``smaller`` SeqAE (5–7 min on one core of the project's shared 2-core CPU), fewer for the
-  bigger ones, whose 2000 epochs would take ~48 min (``original``) and ~2.6 h (``larger``);
-  2000 for the end-to-end baseline of every size, as in the dissertation.
+  for the ``smaller`` SeqAE (5–9 min on one core of the project's shared 2-core CPU) and the
+  ``original`` (~48 CPU-minutes), 1200 for ``larger`` (~1.5 h on two threads); 2000 for the
+  end-to-end baseline of every size, as in the dissertation.
 
 :data:`DEFAULT_PRESET` is the size ``seqmotion lfd train`` uses by default and the shipped
 policy's; see its docstring for why it is not the dissertation's 7-layer model.
@@ -186,14 +186,15 @@ Not the dissertation's 7-layer model, by measurement (30 closed-loop trials on t
 camera, evaluation seeds 1 / 0, the defaults below; ``benchmarks/RESULTS_lfd.md``): the 3 × 32
 ``smaller`` model reaches 100 % / 100 % after a 7–9-minute SeqAE training, inside the 45-minute
 collect-and-train budget of a 2-core CPU; the 7 × 64 ``original`` also reaches 100 % / 100 %
-but its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` takes ~2.6
-CPU-hours and then pushes only from the left (50 %).
+but its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` (100 % / 100 %)
+takes 1.5 hours on both cores for 1200 epochs.
 """
 
-SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 2000}
-"""Default SeqAE epochs per preset: the dissertation's 2000 (``tiny`` is for tests). Measured on
-one core: 0.22–0.27 s/epoch for 3 × 32, 1.43 s for 7 × 64, 4.75–6.6 s for 10 × 128 (fewer epochs
-leave the deep decoders unable to push from every position)."""
+SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 1200}
+"""Default SeqAE epochs per preset: the dissertation's 2000, except ``larger`` (``tiny`` is for
+tests). Measured: 0.22–0.27 s/epoch for 3 × 32 and 1.43 s for 7 × 64 on one core; 4.5 s for
+10 × 128 on two threads, so its 1200 epochs take 1.5 h (2000 were not run with the all-layers
+readout of :class:`~seqmotion.lfd.models.SeqAEConfig`, which the 10 × 128 encoder needs)."""
 
 E2E_EPOCHS = 2000
 """Default epochs of the end-to-end baseline (the dissertation's), every preset."""

@@ -8,8 +8,8 @@
 * ``models/<preset>/<method>_<camera>/`` — the policies (or ``MODELS/<preset>/...`` when
   ``--model MODELS`` is given); any that is missing is trained with the defaults of
   ``seqmotion lfd train`` for its preset (:func:`seqmotion.lfd.train.default_settings`: the
-  dissertation's 2000 SeqAE epochs, so ``original`` takes about an hour and ``larger`` about
-  three on a 2-core CPU; ``--model`` reuses models trained elsewhere).
+  dissertation's 2000 SeqAE epochs (1200 for ``larger``), so ``original`` takes about an hour
+  and ``larger`` about two on a 2-core CPU; ``--model`` reuses models trained elsewhere).
 
 and writes
 
