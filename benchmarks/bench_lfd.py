@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import sys
 import time
@@ -57,6 +56,7 @@ def main() -> int:
     torch.set_num_threads(1)
     from seqmotion.lfd import dataset, evaluate, train
     from seqmotion.lfd.models import load_policy
+    from seqmotion.training.provenance import machine_record
 
     out = Path(args.out)
     parts: dict[str, dict] = {}
@@ -119,9 +119,7 @@ def main() -> int:
     summary = {
         "parts": parts,
         "collect_and_train_wall_s": round(total, 1),
-        "machine": platform.platform(),
-        "cpus": os.cpu_count(),
-        "torch": torch.__version__,
+        "machine": machine_record(),
         "preset": preset,
     }
     out.mkdir(parents=True, exist_ok=True)

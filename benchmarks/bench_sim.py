@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import platform
 import time
 
@@ -30,6 +29,7 @@ from seqmotion.physics.pancake import violation
 from seqmotion.sim import GAP_LIMIT, SLIP_LIMIT, run_pancake, run_sliding, workspace_problem
 from seqmotion.sim.kinematics import planar_reference
 from seqmotion.sim.motions import pan_circle, pan_ramp, still
+from seqmotion.training.provenance import machine_record
 
 MU_G = 0.5 * 9.8
 
@@ -159,18 +159,13 @@ def incline() -> list[dict]:
 
 
 def machine() -> str:
-    cpu = platform.processor() or "unknown CPU"
-    try:
-        with open("/proc/cpuinfo") as f:
-            names = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
-        cpu = f"{names[0]} × {len(names)} logical cores" if names else cpu
-    except OSError:
-        pass
+    """The project's machine record in one line, with the MuJoCo version these timings depend on."""
     import mujoco
 
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return f"{cpu}; {platform.system()} {platform.release()}; Python {platform.python_version()}; " \
-           f"MuJoCo {mujoco.__version__}; load average at start {load:.1f}"
+    m = machine_record()
+    load = m["load_average"][0] if m["load_average"] else float("nan")
+    return f"{m['processor']} × {m['cpus']} logical cores; {platform.system()} {platform.release()}; " \
+           f"Python {m['python']}; MuJoCo {mujoco.__version__}; load average at start {load:.1f}"
 
 
 def main() -> None:

@@ -21,7 +21,7 @@ import numpy as np
 import seqmotion as sm
 from seqmotion import sim
 from seqmotion.data import pancake as inputs
-from seqmotion.training.trainer import machine_description
+from seqmotion.training.provenance import machine_description
 
 
 def bench_pancake(model: str | None, n: int) -> None:

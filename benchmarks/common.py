@@ -8,7 +8,8 @@ import tempfile
 import time
 
 from seqmotion.tasks.base import TrainConfig
-from seqmotion.training.trainer import machine_description, train
+from seqmotion.training.provenance import machine_description
+from seqmotion.training.trainer import train
 
 
 def time_training(config: TrainConfig, steps: int) -> dict:
