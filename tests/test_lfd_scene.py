@@ -72,7 +72,7 @@ def test_untouched_block_stays_put(scene):
 
 
 def test_friction_holds_below_and_slides_above_mu_m_g(scene):
-    limit = pushing.BLOCK_TABLE_FRICTION * pushing.BLOCK_MASS * pushing.GRAVITY  # ~0.59 N
+    limit = pushing.BLOCK_TABLE_FRICTION * pushing.BLOCK_MASS * pushing.PUSHING_GRAVITY  # ~0.59 N
     scene.reset(pushing.POSITIONS[1])
     start = scene.block_pose
     _settle(scene, 500, block_force=[0.0, -0.7 * limit, 0.0])

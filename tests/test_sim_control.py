@@ -7,6 +7,7 @@ import pytest
 
 from seqmotion.data.pancake import acceleration_type, straight
 from seqmotion.sim import GAINS, run_pancake
+from seqmotion.sim.backend import import_mujoco
 from seqmotion.sim.control import Gains, TaskSpaceController, resolve_gains, solve_ik
 from seqmotion.sim.kinematics import (
     attitude_matrix,
@@ -16,7 +17,7 @@ from seqmotion.sim.kinematics import (
     planar_tilt,
     quat_to_matrix,
 )
-from seqmotion.sim.scene import SUBSTEPS, build_scene, import_mujoco
+from seqmotion.sim.scene import SUBSTEPS, build_scene
 
 
 def test_gain_presets_are_the_dissertations():

@@ -135,8 +135,8 @@ def test_cli_runs_both_scenes_from_npz_and_csv(tmp_path, capsys):
 
 
 def test_video_and_snapshots_are_written(tmp_path):
+    from seqmotion.sim.arm import get_scene
     from seqmotion.sim.render import FrameRecorder
-    from seqmotion.sim.runner import get_scene
 
     try:
         FrameRecorder(get_scene("pancake").model, "oblique", 64, 48).close()

@@ -5,8 +5,15 @@ Entry points (MuJoCo is imported on first use, so ``import seqmotion.sim`` stays
 * :func:`run_pancake` — execute planar spatula states on the MH3F-like arm (chs. 2, 4).
 * :func:`run_sliding` — shake the frying pan along planned pan states (ch. 3).
 * :data:`GAINS` — the experiments' PD/DOB gain presets ``"ch2"``, ``"ch3"``, ``"ch4"``.
+* :mod:`seqmotion.sim.pushing` — the chapter-5 pushing scene (Touch-like arm, block, webcam).
 * Gymnasium environments ``seqmotion/PancakeArm-v0`` and ``seqmotion/SlidingArm-v0``: registered
   by ``import seqmotion.sim.envs`` (or ``gymnasium.make("seqmotion.sim.envs:seqmotion/PancakeArm-v0")``).
+
+Layout: :mod:`~seqmotion.sim.backend` (MuJoCo import, gravity, one control period) and
+:mod:`~seqmotion.sim.render` (one renderer) are shared by every scene; :mod:`~seqmotion.sim.arm`
+is the MH3F arm (scene cache, placing the object, the execute loop) under
+:mod:`~seqmotion.sim.pancake`, :mod:`~seqmotion.sim.sliding` and :mod:`~seqmotion.sim.envs`;
+:mod:`~seqmotion.sim.pushing` steps and renders through the same backend and renderer.
 """
 
 from __future__ import annotations
@@ -14,13 +21,13 @@ from __future__ import annotations
 from typing import Any
 
 _LAZY = {
-    "run_pancake": ("runner", "run_pancake"),
-    "run_sliding": ("runner", "run_sliding"),
-    "PancakeResult": ("runner", "PancakeResult"),
-    "SlidingResult": ("runner", "SlidingResult"),
-    "workspace_problem": ("runner", "workspace_problem"),
-    "SLIP_LIMIT": ("runner", "SLIP_LIMIT"),
-    "GAP_LIMIT": ("runner", "GAP_LIMIT"),
+    "run_pancake": ("pancake", "run_pancake"),
+    "run_sliding": ("sliding", "run_sliding"),
+    "PancakeResult": ("pancake", "PancakeResult"),
+    "SlidingResult": ("sliding", "SlidingResult"),
+    "workspace_problem": ("arm", "workspace_problem"),
+    "SLIP_LIMIT": ("pancake", "SLIP_LIMIT"),
+    "GAP_LIMIT": ("pancake", "GAP_LIMIT"),
     "GAINS": ("control", "GAINS"),
     "Gains": ("control", "Gains"),
     "TaskSpaceController": ("control", "TaskSpaceController"),

@@ -1,7 +1,9 @@
 """``seqmotion simulate pancake|sliding --trajectory FILE [--video out.mp4]``.
 
 ``add_parser(subparsers)`` registers the ``simulate`` command on the main parser and
-``run(args)`` executes it. MuJoCo is imported only when a simulation runs.
+``run(args)`` executes it. MuJoCo is imported only when a simulation runs. ``--mu`` sets the
+friction coefficient a pancake run's executed friction cone is judged with
+(:func:`~seqmotion.sim.pancake.run_pancake`'s ``mu``).
 
 Trajectory files:
 
@@ -31,6 +33,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--gains", choices=["ch2", "ch3", "ch4"],
                         help="controller preset (default: ch2 for pancake, ch3 for sliding)")
     parser.add_argument("--camera", help="scene camera (pancake: oblique | front; sliding: front | top)")
+    parser.add_argument("--mu", type=float, default=None,
+                        help="pancake: friction coefficient the executed motion's friction cone is judged with "
+                             "(default: the model's μ = 1; the simulated contact keeps μ = 1)")
     parser.add_argument("--json", help="also write the metrics (and the logged paths) here as JSON")
     parser.set_defaults(func=run)
     return parser
@@ -62,7 +67,9 @@ def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the simulation named by the parsed arguments; print and optionally save the metrics."""
-    from . import runner
+    from ..training.checkpoint import atomic_write_bytes
+    from .pancake import run_pancake
+    from .sliding import run_sliding
 
     path = Path(args.trajectory)
     common = {"video": args.video, "snapshots": args.snapshots}
@@ -70,17 +77,21 @@ def run(args: argparse.Namespace) -> int:
         common["camera"] = args.camera
     if args.scene == "pancake":
         arrays = _read(path, ("states",), 6)
-        result = runner.run_pancake(arrays["states"], gains=args.gains or "ch2", **common)
+        if args.mu is not None:
+            common["mu"] = args.mu
+        result = run_pancake(arrays["states"], gains=args.gains or "ch2", **common)
         logged = {"time": result.time, "command": result.command, "response": result.response,
                   "slip": result.slip, "gap": result.gap}
     else:
+        if args.mu is not None:
+            raise ValueError("--mu applies to the pancake scene only (the sliding measurements use no friction cone)")
         arrays = _read(path, ("pan_states", "rel_states", "command"), 4)
         pan = arrays["pan_states"]
         if "rel_states" in arrays:
             plan = argparse.Namespace(pan_states=pan, rel_states=arrays["rel_states"])
-            result = runner.run_sliding(plan, arrays.get("command"), gains=args.gains or "ch3", **common)
+            result = run_sliding(plan, arrays.get("command"), gains=args.gains or "ch3", **common)
         else:
-            result = runner.run_sliding(pan, arrays.get("command"), gains=args.gains or "ch3", **common)
+            result = run_sliding(pan, arrays.get("command"), gains=args.gains or "ch3", **common)
         logged = {"time": result.time, "pan_command": result.pan_command, "pan_response": result.pan_response,
                   "object_path": result.object_path}
     print(f"{args.scene}: {result.describe()}")
@@ -92,6 +103,6 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.json)
         out.parent.mkdir(parents=True, exist_ok=True)
         payload = {"metrics": result.summary(), **{k: np.asarray(v).tolist() for k, v in logged.items()}}
-        out.write_text(json.dumps(payload))
+        atomic_write_bytes(out, json.dumps(payload).encode())  # never a half-written file at out
         print(f"metrics: {out}")
     return 0

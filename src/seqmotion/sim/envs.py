@@ -29,22 +29,21 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .control import TaskSpaceController, resolve_gains, solve_ik
+from .arm import Arm, Place, get_scene, place_on_tool, weight
+from .backend import CONTROL_DT, import_mujoco
+from .control import TaskSpaceController, resolve_gains
 from .kinematics import attitude_matrix, matrix_to_quat, quat_to_matrix
-from .runner import GAP_LIMIT, SLIP_LIMIT, _place_on_tool, get_scene
+from .pancake import GAP_LIMIT, SLIP_LIMIT
+from .render import Renderer
 from .scene import (
     BLADE_HALF,
-    CONTROL_DT,
-    GRAVITY,
     OBJECT_HALF_HEIGHT,
     OBJECT_MASS,
     PAN_ORIGIN,
     PAN_RADIUS,
     PANCAKE_MASS,
     PANCAKE_ORIGIN,
-    SUBSTEPS,
     TOOL_PITCH,
-    import_mujoco,
 )
 
 OBS_DIM = 22
@@ -92,9 +91,9 @@ class _ArmEnv(gym.Env):
         self.action_mode = action
         self.render_mode = render_mode
         self._camera, self._size = camera, (width, height)
-        self._renderer = None
-        self.data = self._mj.MjData(self.scene.model)
-        self.controller: TaskSpaceController | None = None
+        self._renderer: Renderer | None = None
+        self.arm = Arm(self.scene, self.gains)
+        self.data = self.arm.data  # the arm's MjData, stepped in place
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float64)
         self._pos = np.zeros(3)
         self._quat = np.array([1.0, 0.0, 0.0, 0.0])
@@ -103,7 +102,7 @@ class _ArmEnv(gym.Env):
     def _start_pose(self, options: dict) -> np.ndarray:  # (6,) pose
         raise NotImplementedError
 
-    def _place(self, options: dict):  # returns place(data)
+    def _place(self, options: dict) -> Place:
         raise NotImplementedError
 
     def _load(self) -> np.ndarray:
@@ -119,20 +118,18 @@ class _ArmEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         options = dict(options or {})
-        mj, m, d = self._mj, self.scene.model, self.data
-        mj.mj_resetData(m, d)
         pose = np.asarray(self._start_pose(options), dtype=np.float64)
         self._pos = pose[:3].copy()
         self._quat = matrix_to_quat(attitude_matrix(pose[3:]))
-        d.qpos[self.scene.arm_qpos] = solve_ik(self.scene, self._pos, self._quat)
-        mj.mj_forward(m, d)
-        self._place(options)(d)
-        mj.mj_forward(m, d)
-        self.controller = TaskSpaceController(self.scene, self.gains)
-        self.controller.reset(d, self._load())
+        self.arm.reset(self._pos, self._quat, self._place(options), self._load())
         self._placed = self._relative()[0].copy()
         self._step_hold(20)  # let the object settle into contact (20 ms)
         return self._observation(), {}
+
+    @property
+    def controller(self) -> TaskSpaceController | None:
+        """The arm's task-space controller (``None`` before the first :meth:`reset`)."""
+        return self.arm.controller
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self.controller is None:
@@ -145,17 +142,11 @@ class _ArmEnv(gym.Env):
         duration = self.frame_skip * CONTROL_DT
         twist = np.concatenate([(pos1 - self._pos) / duration, _angular_velocity(self._quat, quat1, duration)])
         still = np.zeros(6)
-        mj, m, d = self._mj, self.scene.model, self.data
         for i in range(1, self.frame_skip + 1):
             s = i / self.frame_skip
-            pos, quat = self._pos + s * (pos1 - self._pos), _slerp(self._quat, quat1, s)
-            mj.mj_step1(m, d)
-            d.ctrl[:] = self.controller.torque(d, pos, quat, twist, still)
-            mj.mj_step2(m, d)
-            for _ in range(SUBSTEPS - 1):
-                mj.mj_step(m, d)
+            self.arm.step(self._pos + s * (pos1 - self._pos), _slerp(self._quat, quat1, s), twist, still)
         self._pos, self._quat = pos1.copy(), quat1
-        unstable = bool(d.warning[mj.mjtWarning.mjWARN_BADQACC].number) or not np.all(np.isfinite(d.qpos))
+        unstable = self.arm.diverged() or not np.all(np.isfinite(self.data.qpos))
         reward, terminated, info = self._reward()
         if unstable:
             terminated, info["unstable"] = True, True
@@ -165,11 +156,8 @@ class _ArmEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            from .render import FrameRecorder
-
-            self._renderer = FrameRecorder(self.scene.model, self._camera, *self._size)
-        self._renderer.capture(self.data, self.data.time)
-        return self._renderer.frames.pop()
+            self._renderer = Renderer(self.scene.model, *self._size)
+        return self._renderer.render(self.data, self._camera)
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -178,14 +166,10 @@ class _ArmEnv(gym.Env):
 
     # -- helpers -------------------------------------------------------------------------------
     def _step_hold(self, steps: int) -> None:
-        mj, m, d = self._mj, self.scene.model, self.data
+        """Hold the current command for ``steps`` control periods."""
         still = np.zeros(6)
         for _ in range(steps):
-            mj.mj_step1(m, d)
-            d.ctrl[:] = self.controller.torque(d, self._pos, self._quat, still, still)
-            mj.mj_step2(m, d)
-            for _ in range(SUBSTEPS - 1):
-                mj.mj_step(m, d)
+            self.arm.step(self._pos, self._quat, still, still)
 
     def _relative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Object position, velocity and up axis in the tool frame."""
@@ -211,7 +195,7 @@ class PancakeArmEnv(_ArmEnv):
     """Keep the pancake on the spatula (chs. 2, 4 scene).
 
     Reward 1 per step while the pancake keeps contact (slip < 5 mm from where it was placed and
-    gap < 2 mm: :data:`~seqmotion.sim.runner.SLIP_LIMIT`, :data:`~seqmotion.sim.runner.GAP_LIMIT`),
+    gap < 2 mm: :data:`~seqmotion.sim.pancake.SLIP_LIMIT`, :data:`~seqmotion.sim.pancake.GAP_LIMIT`),
     else 0; the episode terminates once the pancake is off the blade. ``reset(options=...)``
     accepts ``start=(y, z, θ)``; the pancake is placed within ±``jitter`` m of the blade centre.
     """
@@ -240,10 +224,10 @@ class PancakeArmEnv(_ArmEnv):
 
     def _place(self, options: dict):
         offset = self.np_random.uniform(-self.jitter, self.jitter, size=2)
-        return _place_on_tool(self.scene, 0.0, offset)
+        return place_on_tool(self.scene, 0.0, offset)
 
     def _load(self) -> np.ndarray:
-        return np.array([0.0, 0.0, -PANCAKE_MASS * GRAVITY])
+        return weight(PANCAKE_MASS)
 
     def _reward(self) -> tuple[float, bool, dict]:
         pos, _, _ = self._relative()
@@ -292,10 +276,10 @@ class SlidingArmEnv(_ArmEnv):
             r = self.goal_radius * np.sqrt(self.np_random.uniform())
             phi = self.np_random.uniform(-np.pi, np.pi)
             self.goal = np.array([r * np.cos(phi), r * np.sin(phi)])
-        return _place_on_tool(self.scene, OBJECT_HALF_HEIGHT, np.zeros(2))
+        return place_on_tool(self.scene, OBJECT_HALF_HEIGHT, np.zeros(2))
 
     def _load(self) -> np.ndarray:
-        return np.array([0.0, 0.0, -OBJECT_MASS * GRAVITY])
+        return weight(OBJECT_MASS)
 
     def _reward(self) -> tuple[float, bool, dict]:
         pos, _, _ = self._relative()

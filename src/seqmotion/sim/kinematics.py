@@ -153,6 +153,20 @@ def _tail(pos: np.ndarray, vel: np.ndarray, decel_time: float, hold_time: float,
     return p, v, a, decel
 
 
+def _with_tail(
+    pos: np.ndarray, vel: np.ndarray, decel_time: float, hold_time: float, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Task-space positions, velocities and accelerations ``(K + N_tail, D)`` of a trajectory and its tail.
+
+    ``pos``, ``vel``: ``(K, D)`` at ``dt``. Accelerations are the velocity differences; the last
+    sample's is the tail's constant deceleration (:func:`_tail`).
+    """
+    acc = _accel_from_velocity(vel, dt)
+    tp, tv, ta, decel = _tail(pos[-1], vel[-1], decel_time, hold_time, dt)
+    acc[-1] = decel
+    return np.concatenate([pos, tp]), np.concatenate([vel, tv]), np.concatenate([acc, ta])
+
+
 def planar_reference(
     states: np.ndarray,
     *,
@@ -169,13 +183,7 @@ def planar_reference(
         hold_time: further time held at rest [s].
         origin: tool position of the planar origin [m].
     """
-    pos_yzt, vel_yzt = states[:, :3], states[:, 3:]
-    acc_yzt = _accel_from_velocity(vel_yzt, dt)
-    tp, tv, ta, decel = _tail(pos_yzt[-1], vel_yzt[-1], decel_time, hold_time, dt)
-    acc_yzt[-1] = decel
-    p = np.concatenate([pos_yzt, tp])
-    v = np.concatenate([vel_yzt, tv])
-    a = np.concatenate([acc_yzt, ta])
+    p, v, a = _with_tail(states[:, :3], states[:, 3:], decel_time, hold_time, dt)  # (y, z, θ)
     n = p.shape[0]
     zeros = np.zeros(n)
     pos = np.stack([np.full(n, origin[0]), origin[1] + p[:, 0], origin[2] + p[:, 1]], -1)
@@ -205,11 +213,7 @@ def pan_reference(
     Args:
         pan_states: ``(K, 4)`` ``[x_p, y_p, vx_p, vy_p]`` at ``dt``.
     """
-    pos_xy, vel_xy = pan_states[:, :2], pan_states[:, 2:]
-    acc_xy = _accel_from_velocity(vel_xy, dt)
-    tp, tv, ta, decel = _tail(pos_xy[-1], vel_xy[-1], decel_time, hold_time, dt)
-    acc_xy[-1] = decel
-    p, v, a = np.concatenate([pos_xy, tp]), np.concatenate([vel_xy, tv]), np.concatenate([acc_xy, ta])
+    p, v, a = _with_tail(pan_states[:, :2], pan_states[:, 2:], decel_time, hold_time, dt)  # (x_p, y_p)
     n = p.shape[0]
     zeros = np.zeros((n, 1))
     quat = matrix_to_quat(attitude_matrix(np.array([0.0, TOOL_PITCH, 0.0])))

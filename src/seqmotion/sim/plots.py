@@ -8,8 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from ..physics.pancake import MU, psi
-from .runner import PancakeResult, SlidingResult
+from ..physics.pancake import psi
+from .pancake import PancakeResult, check_mu
+from .sliding import SlidingResult
 
 
 def _pyplot():
@@ -19,6 +20,16 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def _save(plt: Any, fig: Any, path: str | Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` (PNG, 130 dpi; parent folders made) and close it."""
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
 
 
 def plot_pancake_tracking(
@@ -44,21 +55,19 @@ def plot_pancake_tracking(
     axes[0].legend(fontsize=8, loc="best")
     axes[-1].set_xlabel("time [ms] (grey: end of the input; then 0.1 s deceleration)")
     fig.suptitle(f"Tracking: {result.position_rmse * 1e3:.1f} mm, {math.degrees(result.attitude_rmse):.2f}° RMSE")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
-def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu: float = MU) -> Path:
+def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu: float | None = None) -> Path:
     """Fig. 2.9: ψ of the commanded motion and of the robot's, with the friction cone shaded.
 
     Args:
         deformed: an object with ``states (K, 6)`` and ``accel (K-1, 3)`` (a deformer's result), or
             a ``(K, 6)`` states array (its accelerations are taken from its velocities).
         result: the robot run of those states.
+        path: the PNG to write.
+        mu: friction coefficient of the shaded cone ``|ψ| ≤ atan μ``; default the μ the run
+            was judged with (``result.mu``, the ``mu`` given to :func:`~seqmotion.sim.run_pancake`).
     """
     plt = _pyplot()
     if hasattr(deformed, "states"):
@@ -77,6 +86,8 @@ def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu:
         resp_psi = psi(resp, acc)
     else:
         resp_psi = np.zeros(0)
+    mu = result.mu if mu is None else mu
+    check_mu(mu)
     cone = math.atan(mu)
     fig, ax = plt.subplots(figsize=(6.5, 3.2))
     ax.axhspan(-cone, cone, color="tab:blue", alpha=0.15, label="friction cone")
@@ -84,12 +95,7 @@ def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu:
     ax.plot(np.arange(len(resp_psi)), resp_psi, "-", color="tab:red", lw=1.0, label="robot (5 ms mean)")
     ax.set(xlabel="time [ms]", ylabel="arg(g − u) − θ [rad]", ylim=(-math.pi, math.pi))
     ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Path:
@@ -108,9 +114,4 @@ def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Pa
         ax.legend(fontsize=8)
     rmse = "" if result.rmse is None else f"object RMSE {result.rmse * 1e3:.1f} mm"
     fig.suptitle(f"{label} {rmse}".strip())
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

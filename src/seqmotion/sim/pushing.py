@@ -51,19 +51,18 @@ pen–block, pen–table and forearm–block. The links never reach the table in
 from __future__ import annotations
 
 import math
-import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-if "MUJOCO_GL" not in os.environ and "DISPLAY" not in os.environ:
-    # Headless machines: offscreen rendering through EGL. Must be set before mujoco is imported.
-    os.environ["MUJOCO_GL"] = "egl"
+from .backend import CONTROL_DT, PUSHING_GRAVITY, control_period, import_mujoco
+from .render import Renderer, free_camera
 
-import mujoco  # noqa: E402  (after the MUJOCO_GL default above)
+mujoco = import_mujoco()  # this module's scenes are built at construction: import MuJoCo now
 
-DT = 1e-3
-"""Simulation and control period [s] (Table 5.1)."""
+DT = CONTROL_DT
+"""Simulation and control period [s] (Table 5.1): one physics step per control period."""
 
 IMAGE_SIZE = 64
 """Webcam images are ``IMAGE_SIZE × IMAGE_SIZE`` RGB (dissertation 5.3.1)."""
@@ -111,7 +110,8 @@ class ArmGeometry:
 ARM = ArmGeometry()
 JOINT_NAMES = ("yaw", "shoulder", "elbow")
 N_JOINTS = 3
-GRAVITY = 9.81
+# Gravity is PUSHING_GRAVITY = 9.81 m/s², not the arm scenes' 9.8: the shipped policy and its
+# evaluations were made at 9.81 (see seqmotion.sim.backend.PUSHING_GRAVITY).
 
 
 def forward_kinematics(q: np.ndarray, arm: ArmGeometry = ARM) -> np.ndarray:
@@ -154,8 +154,9 @@ def gravity_torque(q: np.ndarray, arm: ArmGeometry = ARM) -> np.ndarray:
     upper_lever = 0.5 * arm.upper * math.cos(q[1])
     elbow_lever = arm.upper * math.cos(q[1])
     forearm_lever = arm.forearm_com * math.cos(forearm_angle)
-    tau_elbow = -arm.forearm_mass * GRAVITY * forearm_lever
-    tau_shoulder = -arm.upper_mass * GRAVITY * upper_lever - arm.forearm_mass * GRAVITY * elbow_lever + tau_elbow
+    g = PUSHING_GRAVITY
+    tau_elbow = -arm.forearm_mass * g * forearm_lever
+    tau_shoulder = -arm.upper_mass * g * upper_lever - arm.forearm_mass * g * elbow_lever + tau_elbow
     return np.array([0.0, tau_shoulder, tau_elbow])
 
 
@@ -237,6 +238,9 @@ CAMERAS: dict[str, CameraPose] = {
     # Position 2: high on the robot's left, looking down over its shoulder.
     "position2": CameraPose((-0.05, 0.32, 0.50), (0.16, 0.0, 0.0)),
 }
+
+OVERVIEW = {"lookat": (0.14, 0.0, 0.03), "distance": 0.5, "azimuth": 180.0, "elevation": -35.0}
+"""A free camera in front of the robot looking down at the workspace (figures; not a webcam pose)."""
 
 DEFAULT_TIP = np.array([0.15, 0.0, 0.10])
 """Tip position [m] of the default (start) pose: in front of the robot, above the centre line."""
@@ -359,7 +363,7 @@ def pushing_mjcf(with_environment: bool = True, arm: ArmGeometry = ARM) -> str:
         contacts = ""
     return f"""<mujoco model="pushing_{"slave" if with_environment else "master"}">
   <compiler angle="radian" autolimits="true"/>
-  <option timestep="{DT}" integrator="implicitfast" cone="elliptic" impratio="10" gravity="0 0 {-GRAVITY}"/>
+  <option timestep="{DT}" integrator="implicitfast" cone="elliptic" impratio="10" gravity="0 0 {-PUSHING_GRAVITY}"/>
   <visual>
     <global offwidth="{IMAGE_SIZE}" offheight="{IMAGE_SIZE}"/>
     <quality shadowsize="4096"/>
@@ -445,13 +449,16 @@ class ArmSim:
     def step(self, motor_torque: np.ndarray, external_torque: np.ndarray | None = None) -> np.ndarray:
         """Apply motor torques ``(3,)`` [N m] (saturated) and external torques, advance one ``DT``.
 
+        The torques were computed from the state before the step (the encoders read it), so the
+        period is the shared :func:`~seqmotion.sim.backend.control_period` with one physics step.
+        External torques ``(3,)`` [N m] (e.g. :meth:`hand_torque`) stay applied until replaced.
+
         Returns the motor torques actually applied after saturation.
         """
         applied = np.clip(motor_torque, -self._limit, self._limit)
-        self.data.ctrl[:N_JOINTS] = applied
         if external_torque is not None:
             self.data.qfrc_applied[self._dof] = external_torque
-        mujoco.mj_step(self.model, self.data)
+        control_period(self.model, self.data, lambda: applied)
         return applied
 
     def hand_torque(self, force: np.ndarray) -> np.ndarray:
@@ -528,7 +535,7 @@ class PushingScene(ArmSim):
         self._nominal_table_rgba = m.mat_rgba[self._table_mat].copy()
         self._nominal_light_pos = m.light_pos[self._key_light].copy()
         self._nominal_light_diffuse = m.light_diffuse[self._key_light].copy()
-        self._renderer: mujoco.Renderer | None = None
+        self._renderer: Renderer | None = None  # the webcam, opened on first use
         self.position: BlockPosition = POSITIONS[0]
 
     def reset(
@@ -576,9 +583,29 @@ class PushingScene(ArmSim):
         if camera not in CAMERAS:
             raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(CAMERAS)}")
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.model, IMAGE_SIZE, IMAGE_SIZE)
-        self._renderer.update_scene(self.data, camera=camera)
-        return self._renderer.render().copy()
+            self._renderer = Renderer(self.model, IMAGE_SIZE, IMAGE_SIZE)
+        return self._renderer.render(self.data, camera)
+
+    def render_states(
+        self, theta: Sequence[np.ndarray], block_pose: Sequence[np.ndarray], width: int = 320, height: int = 240
+    ) -> list[np.ndarray]:
+        """Frames ``(height, width, 3)`` uint8 of recorded states, seen from :data:`OVERVIEW` (for figures).
+
+        Each arm pose ``theta[i]`` ``(3,)`` [rad] and block pose ``block_pose[i]`` ``(7,)`` is
+        written into the scene (:meth:`set_state`, no physics) and rendered; the scene keeps its
+        current lighting and colours (reset it with the run's variation first). Enlarges the
+        model's offscreen buffer to the frame size if needed.
+        """
+        renderer = Renderer(self.model, width, height, grow_buffer=True)
+        camera = free_camera(**OVERVIEW)
+        frames = []
+        try:
+            for q, pose in zip(theta, block_pose, strict=True):
+                self.set_state(q, pose)
+                frames.append(renderer.render(self.data, camera))
+        finally:
+            renderer.close()
+        return frames
 
     def close(self) -> None:
         """Release the offscreen rendering context (if one was opened)."""

@@ -24,7 +24,7 @@ the tool along world +x with its surface facing up, and ``a = θ`` rolls it abou
 Arm (MH3F-like, reach ≈ 0.54 m from the joint-1 axis to the wrist centre; the MH3F datasheet
 gives 532 mm): S (z), L (y), U (y), R (forearm axis), B (y), T (flange axis), all torque
 driven without torque limits; joint ranges are not modelled (the tasks stay well inside the
-MH3F's ±170°…±360° axes, and :func:`seqmotion.sim.runner.workspace_problem` keeps commands
+MH3F's ±170°…±360° axes, and :func:`seqmotion.sim.arm.workspace_problem` keeps commands
 inside the reach). Arm links do not collide with anything; only the tool surfaces, the table
 and the manipulated objects do.
 
@@ -71,21 +71,20 @@ so a flat object rests on several exact contact points instead of one convex-col
 from __future__ import annotations
 
 import math
-import os
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 
-CONTROL_DT = 1e-3
-"""Control period [s] (SPEC §2: 1 ms everywhere)."""
+from ..physics.pancake import MU as MU_PANCAKE
+from .backend import CONTROL_DT, GRAVITY, import_mujoco
+
+# CONTROL_DT (from .backend): the control period [s], 1 ms everywhere (SPEC §2).
 PHYSICS_DT = 5e-4
 """MuJoCo time step [s]; the torque is held for ``CONTROL_DT / PHYSICS_DT`` steps."""
 SUBSTEPS = round(CONTROL_DT / PHYSICS_DT)
 NOSLIP_ITERATIONS = 0
 """NoSlip post-solver sweeps per step: not needed with :data:`FRICTION_DAMPING` (module docstring)."""
-GRAVITY = 9.8
-"""[m/s²], the 2-D models' value (MuJoCo's default is 9.81)."""
+# GRAVITY (from .backend) is the 2-D models' 9.8 m/s², not MuJoCo's default 9.81.
 
 ARM_JOINTS = ("s", "l", "u", "r", "b", "t")
 """Joint names, base to flange (Yaskawa's S, L, U, R, B, T axes)."""
@@ -115,8 +114,7 @@ PANCAKE_MASS = 0.08
 """[kg] (a rubber plate of this size, as in §4.4.1)."""
 PANCAKE_RING = 8
 """Number of edge spheres (plus one at the centre)."""
-MU_PANCAKE = 1.0
-"""Friction between pancake and spatula (SPEC §3)."""
+# MU_PANCAKE (imported above): friction between pancake and spatula, the 2-D model's μ (SPEC §3).
 
 # Frying pan and object (ch. 3).
 PAN_HANDLE = 0.18
@@ -161,19 +159,6 @@ TOOL_SURFACE = 'contype="2" conaffinity="0"'
 """Tool surfaces touch the object only through explicit pairs (see the module docstring)."""
 
 _VISUAL = 'contype="0" conaffinity="0" group="1" density="0"'
-
-
-def import_mujoco():
-    """Import MuJoCo on first use (``import seqmotion.sim`` stays cheap).
-
-    On a Linux machine without a display, offscreen rendering needs ``MUJOCO_GL=egl``, which
-    MuJoCo reads when it is first imported; set it unless the user chose a backend.
-    """
-    if "mujoco" not in sys.modules and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-        os.environ.setdefault("MUJOCO_GL", "egl")
-    import mujoco
-
-    return mujoco
 
 
 def _arm_xml(tool: str) -> str:

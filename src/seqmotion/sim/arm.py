@@ -1,0 +1,462 @@
+"""The simulated MH3F-like arm, shared by the pancake and sliding scenes and the Gymnasium envs.
+
+* :func:`get_scene` — the compiled scene, once per process.
+* :class:`Arm` — one ``MjData`` of a scene driven by the task-space controller:
+  :meth:`Arm.reset` (inverse kinematics to a start pose, the object placed at rest on the
+  tool, the controller started) and :meth:`Arm.step` (one 1 ms control period through
+  :func:`seqmotion.sim.backend.control_period`, the torque held over :data:`SUBSTEPS` physics steps).
+* :func:`place_on_tool`, :func:`weight` — put the object on the tool; the load it puts on it.
+* :func:`execute` — run a whole :class:`~seqmotion.sim.kinematics.Reference`: a settling hold
+  at the first pose, then the reference, logging the tool and object every period
+  (:class:`ExecutionLog`) and rendering the periods a :class:`Media` plan asks for.
+* :func:`workspace_problem` — why a commanded tool path is out of the arm's reach.
+
+The scenes' runners (:mod:`seqmotion.sim.pancake`, :mod:`seqmotion.sim.sliding`) turn a
+trajectory into a reference, call :func:`execute`, and measure what the object did.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..errors import as_trajectories
+from .backend import CONTROL_DT, GRAVITY, control_period, import_mujoco
+from .control import Gains, TaskSpaceController, solve_ik
+from .kinematics import Reference, quat_to_matrix
+from .scene import (
+    BLADE_CENTRE,
+    BLADE_HALF,
+    FOREARM,
+    PAN_CENTRE,
+    PANCAKE_HALF_THICKNESS,
+    SHOULDER_HEIGHT,
+    SHOULDER_OFFSET,
+    SUBSTEPS,
+    TABLE_TOP,
+    UPPER_ARM,
+    WRIST_TO_FLANGE,
+    Scene,
+    build_scene,
+)
+
+TRACKING_LIMIT = 0.1
+"""A tool position error beyond this aborts the run as 'lost tracking' [m]."""
+REACH_MARGIN = 0.02
+"""The wrist centre must stay this far inside the arm's full extension [m] (elbow singularity)."""
+
+_SITE_IN_TOOL = {
+    # The control site in the tool frame (z along the tool, x the surface's down normal) [m].
+    "pancake": np.array([-BLADE_HALF[0] - PANCAKE_HALF_THICKNESS, 0.0, BLADE_CENTRE]),
+    "sliding": np.array([0.0, 0.0, PAN_CENTRE]),
+}
+
+Place = Callable[[Any], None]
+"""``place(data)``: puts the object at rest on the tool of a scene's ``mujoco.MjData``."""
+
+
+@lru_cache(maxsize=2)
+def get_scene(kind: str) -> Scene:
+    """The compiled ``"pancake"`` or ``"sliding"`` scene (compiled once per process; runs never modify the model)."""
+    return build_scene(kind)
+
+
+def weight(mass: float) -> np.ndarray:
+    """``(3,)`` force [N] an object of ``mass`` [kg] resting on the tool puts on it (world frame)."""
+    return np.array([0.0, 0.0, -mass * GRAVITY])
+
+
+def place_on_tool(scene: Scene, height: float, offset: np.ndarray) -> Place:
+    """A ``place(data)`` that puts the object on the tool surface, face up, ``height`` above the site.
+
+    Args:
+        scene: the scene whose tool and object are meant.
+        height: the object's centre above the site along the surface's up normal [m] (0.1 mm
+            more is added, so the object drops onto the surface rather than starting in it).
+        offset: ``(2,)`` position on the surface along the tool's (z, y) axes [m] — the planar
+            (x, y) of the pan, or along/across the blade.
+    """
+
+    def place(data: Any) -> None:
+        mujoco = import_mujoco()
+        rot = data.site_xmat[scene.site].reshape(3, 3)
+        up, along, across = -rot[:, 0], rot[:, 2], rot[:, 1]
+        pos = data.site_xpos[scene.site] + (height + 1e-4) * up + offset[0] * along + offset[1] * across
+        quat = np.zeros(4)
+        body_rot = np.stack([along, np.cross(up, along), up], axis=1)  # body z = the surface's up normal
+        mujoco.mju_mat2Quat(quat, body_rot.flatten())
+        data.qpos[scene.body_qpos : scene.body_qpos + 3] = pos
+        data.qpos[scene.body_qpos + 3 : scene.body_qpos + 7] = quat
+        data.qvel[scene.body_dof : scene.body_dof + 6] = 0.0
+
+    return place
+
+
+class Arm:
+    """One simulation of a scene: its ``MjData`` and the task-space controller driving the arm.
+
+    Args:
+        scene: the compiled scene (e.g. :func:`get_scene`).
+        gains: the controller's PD gains and observer cutoff.
+        model_bias: feed MuJoCo's gravity/Coriolis torque forward (see
+            :class:`~seqmotion.sim.control.TaskSpaceController`).
+
+    Attributes:
+        data: the ``mujoco.MjData`` (read it between steps; :meth:`step` advances it).
+        controller: the controller started by the latest :meth:`reset` (``None`` before).
+    """
+
+    def __init__(self, scene: Scene, gains: Gains, *, model_bias: bool = False) -> None:
+        self._mj = import_mujoco()
+        self.scene, self.gains, self.model_bias = scene, gains, model_bias
+        self.data = self._mj.MjData(scene.model)
+        self.controller: TaskSpaceController | None = None
+
+    def reset(self, pos: np.ndarray, quat: np.ndarray, place: Place, load: np.ndarray) -> None:
+        """Start at rest with the tool site at ``pos`` ``(3,)`` [m] and attitude ``quat`` ``(4,)``.
+
+        The arm is put there by inverse kinematics, ``place(data)`` puts the object on the tool,
+        and a fresh controller starts with its observer at the static disturbance of ``load``
+        ``(3,)`` [N] (the object's :func:`weight`).
+        """
+        mj, m, d = self._mj, self.scene.model, self.data
+        mj.mj_resetData(m, d)
+        d.qpos[self.scene.arm_qpos] = solve_ik(self.scene, pos, quat)
+        mj.mj_forward(m, d)
+        place(d)
+        mj.mj_forward(m, d)
+        self.controller = TaskSpaceController(self.scene, self.gains, model_bias=self.model_bias)
+        self.controller.reset(d, load)
+
+    def step(
+        self,
+        pos: np.ndarray,
+        quat: np.ndarray,
+        twist: np.ndarray,
+        accel: np.ndarray,
+        inspect: Callable[[np.ndarray], bool] | None = None,
+    ) -> np.ndarray | None:
+        """One control period toward the commanded tool state (arguments of
+        :meth:`~seqmotion.sim.control.TaskSpaceController.torque`).
+
+        ``inspect(tau)``, if given, is called with the torque ``(6,)`` [N m] while ``data`` still
+        holds the kinematics of the state it was computed from (a logger reads the tool and the
+        object there); returning ``False`` stops before the state is advanced.
+
+        Returns:
+            The torque applied, or ``None`` if ``inspect`` stopped the period.
+        """
+        ctl, d = self.controller, self.data
+        if ctl is None:
+            raise RuntimeError("call Arm.reset() before Arm.step()")
+
+        def torque() -> np.ndarray | None:
+            tau = ctl.torque(d, pos, quat, twist, accel)
+            return tau if inspect is None or inspect(tau) else None
+
+        return control_period(self.scene.model, d, torque, SUBSTEPS)
+
+    def diverged(self) -> bool:
+        """Whether MuJoCo has flagged a bad acceleration (the simulation became unstable)."""
+        return bool(self.data.warning[self._mj.mjtWarning.mjWARN_BADQACC].number)
+
+
+def workspace_problem(reference: Reference, kind: str) -> str | None:
+    """Why the commanded tool path cannot be executed by the arm, or ``None`` if it can.
+
+    Checks, per sample, that the wrist centre stays within the arm's reach (minus
+    :data:`REACH_MARGIN`), away from the base axis (shoulder singularity) and that the tool
+    stays above the table. The arm's own wrist singularity is not predicted here; the run
+    reports it as lost tracking if it happens.
+    """
+    rot = quat_to_matrix(reference.quat)
+    flange = reference.pos - rot @ _SITE_IN_TOOL[kind]
+    wrist = flange - WRIST_TO_FLANGE * rot[:, :, 2]
+    heading = np.arctan2(wrist[:, 1], wrist[:, 0])
+    shoulder = np.stack(
+        [SHOULDER_OFFSET * np.cos(heading), SHOULDER_OFFSET * np.sin(heading), np.full_like(heading, SHOULDER_HEIGHT)],
+        -1,
+    )
+    dist = np.linalg.norm(wrist - shoulder, axis=1)
+    reach = UPPER_ARM + FOREARM - REACH_MARGIN
+    checks = [
+        (dist > reach, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder (reach {reach:.3f} m)"),
+        (dist < abs(UPPER_ARM - FOREARM) + 0.05, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder"),
+        (np.hypot(wrist[:, 0], wrist[:, 1]) < 0.05, lambda k: "the wrist centre is over the base axis"),
+        (reference.pos[:, 2] < TABLE_TOP + 0.11,
+         lambda k: f"the tool is down at the table (z = {reference.pos[k, 2]:.3f} m)"),
+    ]
+    first = None
+    for bad, why in checks:
+        idx = np.flatnonzero(bad)
+        if idx.size and (first is None or idx[0] < first[0]):
+            first = (int(idx[0]), why)
+    if first is None:
+        return None
+    k, why = first
+    return f"sample {k} (t = {k * reference.dt:.3f} s, tool at {np.round(reference.pos[k], 3).tolist()}): {why(k)}"
+
+
+def prepare_reference(ref: Reference, kind: str, *, accel_feedforward: bool, check_workspace: bool) -> Reference:
+    """Drop the reference's acceleration feedforward unless asked for; refuse paths out of reach.
+
+    Modifies ``ref`` in place (and returns it). Raises ``ValueError`` naming the first sample
+    out of reach if ``check_workspace``.
+    """
+    if not accel_feedforward:
+        ref.acc[:], ref.alpha[:] = 0.0, 0.0
+    if check_workspace and (problem := workspace_problem(ref, kind)) is not None:
+        tool = "spatula" if kind == "pancake" else "pan"
+        raise ValueError(f"the {tool} command leaves the arm's workspace at {problem}")
+    return ref
+
+
+class ObjectInTool(NamedTuple):
+    """The logged object seen from the tool, per logged period (N of them)."""
+
+    rot: np.ndarray
+    """``(N, 3, 3)`` tool attitude (columns: the tool's x = surface down normal, y, z = along the tool)."""
+    rel: np.ndarray
+    """``(N, 3)`` object centre relative to the site, in the tool frame [m] (``-rel[:, 0]`` is its height)."""
+    up: np.ndarray
+    """``(N, 3)`` the object's own z axis (its top face's normal), world frame."""
+    tilt: np.ndarray
+    """``(N,)`` angle between the object's z axis and the surface's up normal [rad]."""
+
+
+@dataclass
+class ExecutionLog:
+    """What :func:`execute` records at every control period of the reference (index k ↔ t = k dt).
+
+    Arrays have one row per executed period (``steps`` of them; fewer than the reference if
+    the run was cut short): tool site position ``(N, 3)`` [m], quaternion ``(N, 4)``, measured
+    twist ``(N, 6)`` [m/s, rad/s]; object position ``(N, 3)`` [m] and quaternion ``(N, 4)``;
+    joint torque ``(N, 6)`` [N m]. ``body_rel_placed`` ``(3,)`` is where the object was put, in
+    the tool site's frame [m]. ``frames`` are rendered at the periods ``frame_steps``.
+    """
+
+    tool_pos: np.ndarray
+    tool_quat: np.ndarray
+    tool_twist: np.ndarray
+    body_pos: np.ndarray
+    body_quat: np.ndarray
+    torque: np.ndarray
+    body_rel_placed: np.ndarray
+    steps: int
+    diverged: str | None
+    wall_time: float
+    simulated_time: float
+    frames: list = field(default_factory=list)
+    frame_steps: list = field(default_factory=list)
+
+    @property
+    def torque_peak(self) -> np.ndarray:
+        """``(6,)`` largest |joint torque| [N m] (zeros if nothing was executed)."""
+        return np.abs(self.torque).max(axis=0) if self.steps else np.zeros(6)
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated time / wall-clock time of the control loop."""
+        return self.simulated_time / max(self.wall_time, 1e-9)
+
+    def object_in_tool(self) -> ObjectInTool:
+        """The object's position and attitude relative to the tool over the run."""
+        rot = quat_to_matrix(self.tool_quat)
+        rel = np.einsum("nji,nj->ni", rot, self.body_pos - self.tool_pos)
+        up = quat_to_matrix(self.body_quat)[:, :, 2]
+        tilt = np.arccos(np.clip(np.einsum("ni,ni->n", up, -rot[:, :, 0]), -1.0, 1.0))
+        return ObjectInTool(rot, rel, up, tilt)
+
+
+@dataclass
+class Media:
+    """Which control periods to render, and where to write the results."""
+
+    video: str | Path | None
+    snapshots: str | Path | None
+    video_steps: set[int]
+    snapshot_steps: list[int]
+    fps: float
+    camera: str = "front"
+    size: tuple[int, int] = (640, 480)
+
+    @classmethod
+    def plan(
+        cls,
+        ref: Reference,
+        video: str | Path | None,
+        snapshots: str | Path | None,
+        n_snapshots: int,
+        fps: float,
+        slow_motion: float,
+        camera: str,
+    ) -> Media:
+        """A video at ``fps`` ``slow_motion`` × slower than real time, and/or ``n_snapshots`` over the motion."""
+        video_steps: set[int] = set()
+        if video is not None:
+            if not (fps > 0 and slow_motion > 0):
+                raise ValueError(f"fps and slow_motion must be positive, got {fps} and {slow_motion}")
+            every = max(1, round(1.0 / (fps * slow_motion * ref.dt)))  # a frame every this many periods
+            video_steps = set(range(0, len(ref), every))
+        snap_steps: list[int] = []
+        if snapshots is not None:
+            if n_snapshots < 1:
+                raise ValueError(f"n_snapshots must be at least 1, got {n_snapshots}")
+            last = min(len(ref), ref.n_motion + round(0.1 / ref.dt)) - 1  # the motion and its deceleration
+            snap_steps = sorted(set(np.linspace(0, last, n_snapshots).round().astype(int).tolist()))
+        return cls(video, snapshots, video_steps, snap_steps, fps, camera)
+
+    @property
+    def steps(self) -> set[int] | None:
+        """The periods to render (``None``: none)."""
+        return (self.video_steps | set(self.snapshot_steps)) or None
+
+    def write(self, log: ExecutionLog) -> None:
+        """Write the video and the snapshot strip from the frames ``log`` holds."""
+        from .render import write_strip, write_video
+
+        by_step = dict(zip(log.frame_steps, log.frames, strict=True))
+        if not by_step:  # the run was cut short before its first frame
+            return
+        if self.video is not None:
+            write_video([by_step[k] for k in sorted(self.video_steps) if k in by_step], self.video, fps=self.fps)
+        if self.snapshots is not None:
+            picks = [k for k in self.snapshot_steps if k in by_step]
+            labels = [f"t = {k * CONTROL_DT:.2f} s" for k in picks]
+            write_strip([by_step[k] for k in picks], self.snapshots, labels=labels)
+
+
+def execute(
+    kind: str,
+    ref: Reference,
+    gains: Gains,
+    *,
+    model_bias: bool,
+    object_height: float,
+    object_offset: np.ndarray,
+    object_mass: float,
+    settle_time: float,
+    media: Media | None = None,
+) -> ExecutionLog:
+    """Run the reference on the arm of scene ``kind`` and log every control period.
+
+    The arm starts at the reference's first pose with the object placed at rest on the tool
+    (:func:`place_on_tool` with ``object_height`` [m] and ``object_offset`` ``(2,)`` [m]; the
+    controller's observer starts at its weight, ``object_mass`` [kg]); it holds that pose for
+    ``settle_time`` [s] while the object comes to rest, then follows the reference. A run is
+    cut short (``diverged``) if the tool strays :data:`TRACKING_LIMIT` from the command, the
+    torque is not finite, or MuJoCo flags the simulation unstable. ``media`` (if any) says which
+    periods to render; its files are written at the end.
+    """
+    scene = get_scene(kind)
+    arm = Arm(scene, gains, model_bias=model_bias)
+    arm.reset(ref.pos[0], ref.quat[0], place_on_tool(scene, object_height, object_offset), weight(object_mass))
+    d, ctl = arm.data, arm.controller
+    site, bq = scene.site, scene.body_qpos
+    # Where the object was put, in the tool site's frame (slip is measured from here).
+    body_rel_placed = d.site_xmat[site].reshape(3, 3).T @ (d.qpos[bq : bq + 3] - d.site_xpos[site])
+
+    frame_steps = media.steps if media is not None else None
+    recorder = None
+    if frame_steps:
+        from .render import FrameRecorder
+
+        recorder = FrameRecorder(scene.model, camera=media.camera, width=media.size[0], height=media.size[1])
+
+    n = len(ref)
+    twist = np.concatenate([ref.vel, ref.omega], axis=1)
+    accel = np.concatenate([ref.acc, ref.alpha], axis=1)
+    still = np.zeros(6)
+    log = {name: np.zeros((n, dim)) for name, dim in
+           [("tool_pos", 3), ("tool_quat", 4), ("tool_twist", 6), ("body_pos", 3), ("body_quat", 4), ("torque", 6)]}
+    n_settle = round(settle_time / ref.dt)
+    frame_steps_done: list[int] = []
+    limit2 = TRACKING_LIMIT**2
+    diverged = None
+    steps = 0
+    k = -n_settle  # the period being executed; inspect() reads it
+
+    def inspect(tau: np.ndarray) -> bool:
+        """Log period k (the state the torque was computed from); stop if the run diverged."""
+        nonlocal steps, diverged
+        if k >= 0:
+            log["tool_pos"][k] = d.site_xpos[site]
+            log["tool_quat"][k] = d.site_xquat[site]
+            log["tool_twist"][k] = ctl.last_twist  # measured by the controller at this state
+            log["body_pos"][k] = d.qpos[bq : bq + 3]
+            log["body_quat"][k] = d.qpos[bq + 3 : bq + 7]
+            log["torque"][k] = tau
+            if recorder is not None and k in frame_steps:
+                recorder.capture(d, k * ref.dt)
+                frame_steps_done.append(k)
+            steps = k + 1
+        # Cheap per-period checks (NaN fails every comparison): torque finite, tool within reach of the command.
+        err = ctl.last_error
+        if not (tau @ tau < 1e12) or not (err[0] * err[0] + err[1] * err[1] + err[2] * err[2] < limit2):
+            diverged = f"lost tracking at t = {k * ref.dt:.3f} s (tool error {np.linalg.norm(err[:3]):.3f} m)"
+            return False
+        return True
+
+    start = _time.perf_counter()
+    try:
+        for k in range(-n_settle, n):  # inspect() reads k too
+            if k < 0:  # settle: hold the first pose while the object comes to rest
+                applied = arm.step(ref.pos[0], ref.quat[0], still, still, inspect)
+            else:
+                applied = arm.step(ref.pos[k], ref.quat[k], twist[k], accel[k], inspect)
+            if applied is None:
+                break
+            if k % 50 == 0 and arm.diverged():
+                diverged = f"the simulation became unstable near t = {k * ref.dt:.3f} s"
+                break
+        if diverged is None and arm.diverged():
+            diverged = "the simulation became unstable"
+    finally:
+        wall = _time.perf_counter() - start
+        if recorder is not None:
+            recorder.close()
+    result = ExecutionLog(
+        **{name: arr[:steps] for name, arr in log.items()},
+        body_rel_placed=body_rel_placed,
+        steps=steps,
+        diverged=diverged,
+        wall_time=wall,
+        simulated_time=(n_settle + steps) * ref.dt,
+        frames=[] if recorder is None else recorder.frames,
+        frame_steps=frame_steps_done,
+    )
+    if media is not None:
+        media.write(result)
+    return result
+
+
+def single_trajectory(array: object, dim: int, name: str) -> np.ndarray:
+    """``array`` as one ``(K, dim)`` float trajectory (K ≥ 2); ``ValueError`` naming ``name`` otherwise."""
+    arr, single = as_trajectories(array, dim, name, min_length=2)
+    if not single:
+        raise ValueError(f"{name} must be one trajectory of shape (K, {dim}); run a batch one trajectory at a time")
+    return arr[0]
+
+
+def check_times(**times: float) -> None:
+    """``ValueError`` naming the first of ``times`` [s] that is not a non-negative number."""
+    for name, value in times.items():
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a non-negative number of seconds, got {value}")
+
+
+def first_true(mask: np.ndarray) -> int | None:
+    """Index of the first ``True`` in ``mask`` ``(N,)``, or ``None``."""
+    idx = np.flatnonzero(mask)
+    return int(idx[0]) if idx.size else None
+
+
+def rmse(err: np.ndarray) -> float:
+    """Root mean square of the norms of the rows of ``err`` ``(N, d)`` (NaN if empty)."""
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=-1)))) if err.size else float("nan")

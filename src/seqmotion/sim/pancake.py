@@ -1,0 +1,281 @@
+"""Pancake turning on the simulated arm (chs. 2 and 4): :func:`run_pancake`.
+
+Planar spatula states ``(K, 6)`` → the spatula command of eq. 4.9, executed at 1 ms with PD +
+DOB (:func:`seqmotion.sim.arm.execute`), then 0.1 s of constant deceleration and a hold;
+measures tracking, the pancake's slip along the blade, its separation from the blade, whether
+it ends turned over, and the friction-cone violation of the motion the spatula really made.
+
+**Losing contact** (the sim's counterpart of the 2-D model's friction-cone constraint, which
+says the pancake *sticks* to the blade): the pancake has lost contact once its centre has
+slipped more than :data:`SLIP_LIMIT` = 5 mm along the blade from where it was placed, or
+risen more than :data:`GAP_LIMIT` = 2 mm off its resting height. Both are well above what a
+sticking contact does in this model (≤ 0.7 mm of slip and ≤ 0.3 mm of gap over 100 feasible
+motions; 3 µm of creep in 1.5 s held still at 40°; the pancake is placed 0.1 mm above the
+blade and drops onto it) and small against the pancake (radius 55 mm, thickness 10 mm): a
+visible slide or a visible gap. They were fixed before any trajectory set was measured;
+``benchmarks/RESULTS_sim.md`` reports how the counts change with half or twice the limits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..physics.pancake import MU, violation
+from .arm import (
+    ExecutionLog,
+    Media,
+    check_times,
+    execute,
+    first_true,
+    prepare_reference,
+    rmse,
+    single_trajectory,
+)
+from .backend import GRAVITY
+from .control import Gains, resolve_gains
+from .kinematics import Reference, planar_reference, planar_tilt, quat_to_matrix, rotation_angle
+from .scene import BLADE_HALF, PANCAKE_MASS, PANCAKE_ORIGIN
+
+SLIP_LIMIT = 5e-3
+"""Slip of the pancake's centre along the blade beyond which contact counts as lost [m]."""
+GAP_LIMIT = 2e-3
+"""Rise of the pancake's centre above its resting height beyond which contact counts as lost [m]."""
+FREE_FALL = 1.0
+"""Specific force [m/s²] below which the executed motion counts as free fall (no cone to violate)."""
+
+
+@dataclass
+class PancakeResult:
+    """What happened when the arm executed a planar spatula trajectory.
+
+    Time ``time[k] = k dt`` with k = 0 the first input sample; samples ``[0, n_motion)`` are the
+    input trajectory, the rest the deceleration tail and the hold. Positions in metres, angles
+    in radians.
+
+    Attributes:
+        time: ``(N,)`` [s].
+        command: ``(N, 6)`` commanded planar states ``[y, z, θ, v_y, v_z, v_θ]`` (input + tail).
+        response: ``(N, 6)`` the same quantities of the executed spatula (θ unwrapped).
+        slip: ``(N,)`` distance the pancake's centre has moved along the blade since it was placed.
+        gap: ``(N,)`` height of the pancake's centre above its resting height on the blade.
+        tilt: ``(N,)`` angle between the pancake's face and the blade.
+        position_rmse, attitude_rmse: tool tracking RMSE over the input trajectory [m], [rad].
+        max_slip, max_gap: maxima of ``slip`` and ``gap`` over the input trajectory.
+        contact_lost: whether ``slip > SLIP_LIMIT`` or ``gap > GAP_LIMIT`` during the input trajectory.
+        contact_lost_time: the first such time [s], or ``None``.
+        contact_lost_in_tail: the same test during the deceleration tail and hold.
+        on_spatula: the pancake rests on the blade at the end (centre over the blade, gap < 1 cm).
+        turned_over: the pancake's top face points down at the end (it was turned over).
+        executed_violation: ``(n_motion - 1,)`` F_c of the executed spatula motion (eq. 2.18) for
+            friction coefficient ``mu`` [rad]; 0 where its specific force is below
+            :data:`FREE_FALL` (direction undefined).
+        torque_peak: ``(6,)`` largest |joint torque| [N m].
+        realtime_factor: simulated time / wall-clock time of the control loop.
+        diverged: ``None``, or why the run was cut short (then arrays end there).
+        n_motion: number of input samples.
+        mu: the friction coefficient ``executed_violation`` was judged with.
+    """
+
+    time: np.ndarray
+    command: np.ndarray
+    response: np.ndarray
+    slip: np.ndarray
+    gap: np.ndarray
+    tilt: np.ndarray
+    position_rmse: float
+    attitude_rmse: float
+    max_slip: float
+    max_gap: float
+    contact_lost: bool
+    contact_lost_time: float | None
+    contact_lost_in_tail: bool
+    on_spatula: bool
+    turned_over: bool
+    executed_violation: np.ndarray
+    torque_peak: np.ndarray
+    realtime_factor: float
+    diverged: str | None
+    n_motion: int
+    mu: float = MU
+
+    def summary(self) -> dict[str, Any]:
+        """The scalar metrics as a JSON-friendly dict."""
+        return {
+            "position_rmse_m": self.position_rmse,
+            "attitude_rmse_rad": self.attitude_rmse,
+            "max_slip_m": self.max_slip,
+            "max_gap_m": self.max_gap,
+            "contact_lost": self.contact_lost,
+            "contact_lost_time_s": self.contact_lost_time,
+            "contact_lost_in_tail": self.contact_lost_in_tail,
+            "on_spatula": self.on_spatula,
+            "turned_over": self.turned_over,
+            "executed_max_violation_rad": float(self.executed_violation.max(initial=0.0)),
+            "realtime_factor": self.realtime_factor,
+            "diverged": self.diverged,
+        }
+
+    def describe(self) -> str:
+        """One line for people: tracking, and what the pancake did."""
+        track = f"tracking {self.position_rmse * 1e3:.1f} mm / {np.degrees(self.attitude_rmse):.2f}° RMSE"
+        if self.diverged:
+            return f"{track}; run cut short: {self.diverged}"
+        if self.contact_lost:
+            what = (f"pancake lost contact at t = {self.contact_lost_time:.3f} s "
+                    f"(max slip {self.max_slip * 1e3:.0f} mm, gap {self.max_gap * 1e3:.0f} mm)")
+        else:
+            what = f"pancake stayed on (max slip {self.max_slip * 1e3:.1f} mm, gap {self.max_gap * 1e3:.1f} mm)"
+        end = "turned over" if self.turned_over else "face up"
+        where = "on the spatula" if self.on_spatula else "off the spatula"
+        if not self.on_spatula and not self.contact_lost and self.contact_lost_in_tail:
+            # Kept during the motion; the spatula then holds its final tilt, which gravity alone
+            # can exceed (tilt > atan μ), so the pancake slides off in the tail.
+            where += " (it slid off after the motion, during the hold)"
+        return f"{track}; {what}; ends {end}, {where}"
+
+
+
+def run_pancake(
+    states: object,
+    *,
+    gains: str | Gains = "ch2",
+    video: str | Path | None = None,
+    snapshots: str | Path | None = None,
+    n_snapshots: int = 6,
+    camera: str = "oblique",
+    decel_time: float = 0.1,
+    hold_time: float = 0.5,
+    settle_time: float = 0.2,
+    model_bias: bool = False,
+    accel_feedforward: bool = True,
+    check_workspace: bool = True,
+    fps: float = 30.0,
+    slow_motion: float = 4.0,
+    mu: float = MU,
+) -> PancakeResult:
+    """Execute planar spatula states on the simulated MH3F-like arm with a pancake on the blade.
+
+    The command is ``q = [0.5, y, z + 0.35, θ, π/2, 0]`` (eq. 4.9; attitude convention in
+    :mod:`seqmotion.sim.kinematics`), fed at 1 ms with the states' velocities and accelerations
+    (``u[k] = (v[k+1] - v[k]) / dt``) forward; then ``decel_time`` of constant deceleration to
+    rest (§4.4.3) and ``hold_time`` held still (so a pancake thrown off can land).
+
+    Args:
+        states: ``(K, 6)`` ``[y, z, θ, v_y, v_z, v_θ]`` at 1 ms, starting anywhere in the workspace
+            (the pancake is placed at rest on the blade at the first pose).
+        gains: ``"ch2"``, ``"ch3"``, ``"ch4"`` or a :class:`~seqmotion.sim.control.Gains`.
+        video: write an MP4 here (``slow_motion`` × slower than real time, at ``fps``).
+        snapshots: write a PNG strip of ``n_snapshots`` frames over the motion here.
+        camera: ``"oblique"`` (default) or ``"front"`` (looks along -x at the y–z plane of the motion).
+        decel_time, hold_time, settle_time: [s]; ``settle_time`` is held at the first pose
+            before the motion so the pancake comes to rest.
+        model_bias: feed gravity/Coriolis forward instead of leaving them to the DOB.
+        accel_feedforward: feed the states' accelerations forward (default). Without it the PD
+            acts on position and velocity errors only; §4.4.1 is ambiguous on this, and the
+            acceleration then lags the plan (see ``benchmarks/RESULTS_sim.md``).
+        check_workspace: refuse (``ValueError``) commands the arm cannot reach.
+        fps, slow_motion: of the video.
+        mu: friction coefficient the executed motion's friction cone is judged with
+            (``executed_violation``, eq. 2.18; default the 2-D model's μ = 1). It does not change
+            the simulation: the simulated pancake–blade contact has μ = 1
+            (:data:`~seqmotion.sim.scene.MU_PANCAKE`). Judge a motion planned for a lower μ with it.
+
+    Returns:
+        A :class:`PancakeResult`.
+
+    Raises:
+        ValueError: bad states or times, ``mu`` not a positive number, or (``check_workspace``)
+            a command out of the arm's reach.
+    """
+    arr = single_trajectory(states, 6, "states")
+    check_times(decel_time=decel_time, hold_time=hold_time, settle_time=settle_time)
+    check_mu(mu)
+    gains = resolve_gains(gains)
+    ref = planar_reference(arr, decel_time=decel_time, hold_time=hold_time)
+    prepare_reference(ref, "pancake", accel_feedforward=accel_feedforward, check_workspace=check_workspace)
+    media = Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion, camera)
+    # The pancake is placed on the blade's centre, resting on the site (its resting centre).
+    log = execute("pancake", ref, gains, model_bias=model_bias, object_height=0.0, object_offset=np.zeros(2),
+                  object_mass=PANCAKE_MASS, settle_time=settle_time, media=media)
+    return _pancake_metrics(ref, log, arr, mu)
+
+
+def check_mu(mu: float) -> None:
+    """``ValueError`` unless ``mu`` is a positive, finite friction coefficient."""
+    if isinstance(mu, bool) or not isinstance(mu, int | float | np.floating) or not (0 < mu < np.inf):
+        raise ValueError(f"mu must be a positive friction coefficient, got {mu!r}")
+
+
+def _planar_command(ref: Reference) -> np.ndarray:
+    """The reference back in planar coordinates ``(N, 6)``."""
+    theta = np.unwrap(planar_tilt(quat_to_matrix(ref.quat)))
+    return np.stack(
+        [ref.pos[:, 1] - PANCAKE_ORIGIN[1], ref.pos[:, 2] - PANCAKE_ORIGIN[2], theta,
+         ref.vel[:, 1], ref.vel[:, 2], ref.omega[:, 0]], -1)
+
+
+def _pancake_metrics(ref: Reference, log: ExecutionLog, states: np.ndarray, mu: float) -> PancakeResult:
+    n, k_motion = log.steps, min(ref.n_motion, log.steps)
+    command = _planar_command(ref)[:n]
+    command[:, 2] += states[0, 2] - command[0, 2]  # unwrap relative to the input's own θ[0]
+    obj = log.object_in_tool()
+    rot = obj.rot
+    theta = np.unwrap(planar_tilt(rot))
+    theta += 2 * np.pi * np.round((command[0, 2] - theta[0]) / (2 * np.pi)) if n else 0.0
+    response = np.stack(
+        [log.tool_pos[:, 1] - PANCAKE_ORIGIN[1], log.tool_pos[:, 2] - PANCAKE_ORIGIN[2], theta,
+         log.tool_twist[:, 1], log.tool_twist[:, 2], log.tool_twist[:, 3]], -1)
+
+    # The pancake in the blade's frame: x = down normal, so -x is its height above the rest pose.
+    rel = obj.rel
+    slip = np.linalg.norm(rel[:, 1:] - log.body_rel_placed[1:], axis=1)
+    gap = np.maximum(0.0, -rel[:, 0])
+
+    lost = (slip > SLIP_LIMIT) | (gap > GAP_LIMIT)
+    first_lost = first_true(lost[:k_motion])
+    pos_err = log.tool_pos[:k_motion] - ref.pos[:k_motion]
+    att_err = rotation_angle(log.tool_quat[:k_motion], ref.quat[:k_motion])
+
+    # F_c of what the spatula actually did (accelerations from the measured velocities). Near free
+    # fall the specific force g - u is ~0 and its direction (hence ψ) is noise: no force, nothing
+    # to violate; such samples (|g - u| < FREE_FALL) count as 0. The cone is that of the μ asked for.
+    if k_motion >= 2:
+        acc = np.diff(response[:k_motion, 3:], axis=0) / ref.dt
+        executed = violation(response[:k_motion], acc, mu)
+        felt = np.hypot(acc[:, 0], GRAVITY + acc[:, 1])
+        executed = np.where(felt < FREE_FALL, 0.0, executed)
+    else:
+        executed = np.zeros(0)
+
+    end = n - 1
+    on_spatula = bool(
+        n and gap[end] < 0.01 and abs(rel[end, 1]) < BLADE_HALF[1] and abs(rel[end, 2]) < BLADE_HALF[2]
+    )
+    return PancakeResult(
+        time=np.arange(n) * ref.dt,
+        command=command,
+        response=response,
+        slip=slip,
+        gap=gap,
+        tilt=obj.tilt,
+        position_rmse=rmse(pos_err),
+        attitude_rmse=float(np.sqrt(np.mean(att_err**2))) if att_err.size else float("nan"),
+        max_slip=float(slip[:k_motion].max(initial=0.0)),
+        max_gap=float(gap[:k_motion].max(initial=0.0)),
+        contact_lost=first_lost is not None,
+        contact_lost_time=None if first_lost is None else first_lost * ref.dt,
+        contact_lost_in_tail=bool(lost[k_motion:].any()),
+        on_spatula=on_spatula,
+        turned_over=bool(n and obj.up[end, 2] < 0.0),
+        executed_violation=executed,
+        torque_peak=log.torque_peak,
+        realtime_factor=log.realtime_factor,
+        diverged=log.diverged,
+        n_motion=ref.n_motion,
+        mu=mu,
+    )
+
