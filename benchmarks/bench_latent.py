@@ -17,7 +17,7 @@ import json
 
 import seqmotion as sm
 from seqmotion.reproduce import ch4
-from seqmotion.training.trainer import machine_description
+from seqmotion.training.provenance import machine_description
 
 
 def main() -> None:

@@ -55,7 +55,7 @@ def main() -> int:
 
     torch.set_num_threads(1)
     from seqmotion.lfd import dataset, evaluate, train
-    from seqmotion.lfd.models import load_policy
+    from seqmotion.lfd.models import PushingPolicy
     from seqmotion.training.provenance import machine_record
 
     out = Path(args.out)
@@ -112,7 +112,7 @@ def main() -> int:
             progress=False,
         )
         parts["train_end_to_end_default"]["split_s"] = {k: round(v, 1) for k, v in e2e.seconds.items()}
-        policy = load_policy(report.policies["proposed_default"])
+        policy = PushingPolicy.from_pretrained(report.policies["proposed_default"])
         result = _timed(parts, "evaluate_30_trials", evaluate, policy, trials=5, seed=args.seed)
         parts["evaluate_30_trials"]["success_rate"] = result.success_rate
     total = sum(p["wall_s"] for k, p in parts.items() if not k.startswith("evaluate"))

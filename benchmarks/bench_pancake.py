@@ -17,7 +17,7 @@ import numpy as np
 import torch  # noqa: F401
 from common import time_training
 
-from seqmotion.training.trainer import machine_description
+from seqmotion.training.provenance import machine_description
 
 
 def bench_deform(model: str | None) -> None:

@@ -21,7 +21,7 @@ from common import time_training
 from seqmotion import tasks
 from seqmotion.reproduce.ch3 import eval_commands, speed
 from seqmotion.tasks.sliding import SlidingPlanner
-from seqmotion.training.trainer import machine_description
+from seqmotion.training.provenance import machine_description
 
 LENGTH = 1200
 

@@ -7,9 +7,9 @@ import shutil
 import tempfile
 import time
 
-from seqmotion.tasks.base import TrainConfig
+from seqmotion.tasks import train
+from seqmotion.training.config import TrainConfig
 from seqmotion.training.provenance import machine_description
-from seqmotion.training.trainer import train
 
 
 def time_training(config: TrainConfig, steps: int) -> dict:

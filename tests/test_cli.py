@@ -61,12 +61,38 @@ def test_bad_input_gives_a_message_not_a_traceback(runs, tmp_path, capsys):
     code = main(["deform", "--model", str(runs / "pancake"), "--input", str(tmp_path / "bad.csv"),
                  "--output", str(tmp_path / "x.npz")])
     assert code == 2 and "6 columns" in capsys.readouterr().err
-    code = main(["deform", "--model", str(runs / "sliding"), "--input", str(tmp_path / "bad.csv"),
+    # deform is task-generic: the sliding model reads 4 columns (object x, y, v_x, v_y) and refuses 6
+    np.savetxt(tmp_path / "six.csv", np.zeros((10, 6)), delimiter=",")
+    code = main(["deform", "--model", str(runs / "sliding"), "--input", str(tmp_path / "six.csv"),
                  "--output", str(tmp_path / "x.npz")])
-    assert code == 2 and "not 'pancake'" in capsys.readouterr().err
+    assert code == 2 and "4 columns" in capsys.readouterr().err
+    # objectives refuse another task's layout by name
+    code = main(["optimize", "--model", str(runs / "sliding"), "--preset", "j2", "--input", str(tmp_path / "bad.csv"),
+                 "--output", str(tmp_path / "x.npz")])
+    err = capsys.readouterr().err
+    assert code == 2 and "pancake state" in err and "'sliding' model" in err
+    assert main(["train", "pushing", "--config", "tiny"]) == 2
+    assert "seqmotion lfd train" in capsys.readouterr().err
     assert main(["train", "nosuchtask", "--config", "tiny"]) == 2
     assert "unknown task" in capsys.readouterr().err
     assert main(["train", "pancake", "--config", "huge"]) == 2
+
+
+def test_deform_csv_columns_are_named_by_the_task(runs, tmp_path):
+    sketch = gen.straight((0.1, 0.0, 2.0), 80)
+    np.savez(tmp_path / "in.npz", states=sketch)
+    assert main(["deform", "--model", str(runs / "pancake"), "--input", str(tmp_path / "in.npz"),
+                 "--output", str(tmp_path / "out.csv")]) == 0
+    header = (tmp_path / "out.csv").read_text().splitlines()[0].split(",")
+    assert header[:9] == ["y", "z", "theta", "v_y", "v_z", "v_theta", "a_y", "a_z", "a_theta"]
+    assert "violation" in header and "psi" in header
+
+
+def test_train_help_lists_the_tasks(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    out = capsys.readouterr().out
+    assert "pancake" in out and "sliding" in out
 
 
 def test_demo_runs_on_the_shipped_models(tmp_path, capsys):

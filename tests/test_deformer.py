@@ -7,8 +7,8 @@ import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.data import pancake as gen
 from seqmotion.physics import integrator, pancake
+from seqmotion.tasks import train
 from seqmotion.tasks.pancake import Deformer
-from seqmotion.training.trainer import train
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from seqmotion.data import pancake as gen
 from seqmotion.data import sliding as commands
 from seqmotion.latent.objectives import EndPose, Ranges
 from seqmotion.physics import integrator
-from seqmotion.training.trainer import train
+from seqmotion.tasks import train
 
 
 @pytest.fixture(scope="module")
@@ -177,6 +177,12 @@ def test_bad_arguments(deformer):
     with pytest.raises(ValueError, match="trained seqmotion model"):
         sm.optimize_latent("model", s, EndPose((0, 0, 0)))
     with pytest.raises(ValueError, match="target"):
-        EndPose((0, 0))
+        EndPose((np.nan, 0, 0))
+    with pytest.raises(ValueError, match="end pose is"):  # two values for the pancake's (y, z, theta)
+        sm.optimize_latent(deformer, s, EndPose((0, 0)), steps=1)
+    with pytest.raises(ValueError, match="alpha"):
+        EndPose((0, 0, 0), alpha=float("nan"))
+    with pytest.raises(ValueError, match="v_lim"):
+        Ranges(v_lim=(float("nan"), 1, 1))
     with pytest.raises(ValueError, match="columns"):
         sm.optimize_latent(deformer, np.zeros((60, 4)), EndPose((0, 0, 0)))

@@ -18,9 +18,7 @@ from seqmotion.lfd.models import (
     PushingPolicy,
     SeqAE,
     SeqAEConfig,
-    load_policy,
     motion_loss,
-    save_policy,
 )
 
 TINY = SeqAEConfig(layers=2, hidden=8)
@@ -98,7 +96,7 @@ def test_scaler_and_variance_scaled_loss():
 def test_save_load_round_trip(tmp_path):
     policy = _policy()
     policy.config.training = {"note": "round trip"}
-    save_policy(policy, tmp_path / "p")
+    policy.save_pretrained(tmp_path / "p")
     config = json.loads((tmp_path / "p" / "config.json").read_text())
     assert config["task"] == "pushing" and config["policy"]["kind"] == "proposed"
     assert {k: config["policy"]["seqae"][k] for k in ("layers", "hidden", "latent")} == {
@@ -106,7 +104,7 @@ def test_save_load_round_trip(tmp_path):
         "hidden": 8,
         "latent": 8,
     }
-    loaded = load_policy(tmp_path / "p")
+    loaded = PushingPolicy.from_pretrained(tmp_path / "p")
     assert loaded.config.training == {"note": "round trip"}
     for key, value in policy.state_dict().items():
         torch.testing.assert_close(loaded.state_dict()[key], value)
@@ -115,40 +113,40 @@ def test_save_load_round_trip(tmp_path):
     import seqmotion as sm
 
     assert isinstance(sm.load(tmp_path / "p"), PushingPolicy)
-    save_policy(_policy("end_to_end"), tmp_path / "e")
-    assert load_policy(tmp_path / "e").encoder is None
+    _policy("end_to_end").save_pretrained(tmp_path / "e")
+    assert PushingPolicy.from_pretrained(tmp_path / "e").encoder is None
 
 
 def test_corrupt_or_mismatched_checkpoints(tmp_path):
-    save_policy(_policy(), tmp_path / "p")
+    _policy().save_pretrained(tmp_path / "p")
     weights = tmp_path / "p" / "model.safetensors"
     blob = bytearray(weights.read_bytes())
     blob[-5] ^= 0xFF
     weights.write_bytes(bytes(blob))
     with pytest.raises(CheckpointError, match="hash mismatch"):
-        load_policy(tmp_path / "p")
+        PushingPolicy.from_pretrained(tmp_path / "p")
     weights.unlink()
     with pytest.raises(CheckpointError, match="no model.safetensors"):
-        load_policy(tmp_path / "p")
+        PushingPolicy.from_pretrained(tmp_path / "p")
 
-    save_policy(_policy(), tmp_path / "q")
+    _policy().save_pretrained(tmp_path / "q")
     cfg_path = tmp_path / "q" / "config.json"
     config = json.loads(cfg_path.read_text())
     config["policy"]["seqae"]["hidden"] = 9  # weights no longer fit
     cfg_path.write_text(json.dumps(config))
     with pytest.raises(CheckpointError, match="do not fit"):
-        load_policy(tmp_path / "q")
+        PushingPolicy.from_pretrained(tmp_path / "q")
     config["policy"]["kind"] = "telepathy"
     cfg_path.write_text(json.dumps(config))
     with pytest.raises(CheckpointError, match="does not describe a pushing policy"):
-        load_policy(tmp_path / "q")
+        PushingPolicy.from_pretrained(tmp_path / "q")
     config["task"] = "pancake"
     cfg_path.write_text(json.dumps(config))
     with pytest.raises(CheckpointError, match="not 'pushing'"):
-        load_policy(tmp_path / "q")
+        PushingPolicy.from_pretrained(tmp_path / "q")
     cfg_path.write_text("{not json")
     with pytest.raises(CheckpointError, match="not valid JSON"):
-        load_policy(tmp_path / "q")
+        PushingPolicy.from_pretrained(tmp_path / "q")
     assert issubclass(CheckpointError, ValueError)
 
 
@@ -237,3 +235,33 @@ def test_bad_arguments():
         policy.source(np.zeros(3))
     with pytest.raises(ValueError, match="no motion encoder"):
         _policy("end_to_end").encode(_motions(1, 5)[0])
+
+
+def test_policy_follows_the_model_contract(tmp_path):
+    """PushingPolicy is a PretrainedModel; the pushing task comes from seqmotion's own entry point."""
+    import seqmotion as sm
+    from seqmotion import tasks
+    from seqmotion.lfd.task import TASK
+    from seqmotion.training.pretrained import PretrainedModel
+
+    policy = _policy("end_to_end")
+    assert isinstance(policy, PretrainedModel) and PushingPolicy.task == "pushing"
+    assert PushingPolicy.config_class is PolicyConfig
+    expected = {"task": "pushing", "model": "PushingPolicy", "policy": dataclasses.asdict(policy.config)}
+    assert policy.config_json() == expected
+    policy.config.training = {
+        "command": "seqmotion lfd train --methods end_to_end",
+        "seed": 4,
+        "machine": {"processor": "Test CPU", "cpus": 3, "torch_threads": 1, "torch": "x", "platform": "Plan9"},
+        "end_to_end": {"settings": {"epochs": 2}, "pairs": 5, "of": 6, "dataset": "d.h5", "seconds": 12.0,
+                       "final_loss": 0.5},
+    }
+    card = policy.model_card("e2e-test", None, "", 1.25)
+    assert "kind `end_to_end`" in card and "every 20 ms" in card and "1.25 MB of weights" in card
+    assert "- End to end: CNN and decoder trained together on 5 of 6" in card
+    assert "- Machine: Test CPU, 3 cores, 1 torch threads; torch x (Plan9)" in card
+    assert tasks.get("pushing") is TASK and TASK.model_class is PushingPolicy
+    policy.save_pretrained(tmp_path / "e")
+    assert isinstance(sm.load(tmp_path / "e"), PushingPolicy)
+    with pytest.raises(ValueError, match="seqmotion lfd train"):
+        tasks.train(dataclasses.replace(tasks.get("pancake").train_config("tiny"), task="pushing"), tmp_path / "x")

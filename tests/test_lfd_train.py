@@ -12,7 +12,7 @@ import torch
 pushing = pytest.importorskip("seqmotion.sim.pushing")
 import seqmotion as sm  # noqa: E402
 from seqmotion.lfd import cli, dataset, evaluate, train  # noqa: E402
-from seqmotion.lfd.models import PushingPolicy, load_policy  # noqa: E402
+from seqmotion.lfd.models import PushingPolicy  # noqa: E402
 
 FAST = train.SeqAETraining(epochs=2, batch_size=4)
 
@@ -101,7 +101,7 @@ def test_train_writes_loadable_policies(trained, data_dir, tmp_path):
         progress=False,
         successful_only=False,
     )
-    p1 = load_policy(moved.policies["proposed_position1"])
+    p1 = PushingPolicy.from_pretrained(moved.policies["proposed_position1"])
     assert p1.config.camera == "position1" and "seqae" not in moved.seconds
     for key, value in proposed.state_dict().items():
         if not key.startswith("cnn."):
@@ -153,7 +153,7 @@ def test_mean_latent_per_position():
 
 def test_evaluate_structure_and_determinism(trained):
     _, report = trained
-    policy = load_policy(report.policies["proposed_default"])
+    policy = PushingPolicy.from_pretrained(report.policies["proposed_default"])
     result = evaluate(policy, positions=[0, 4], trials=2, seed=11, duration=0.3)
     assert result.n_trials == 4 and result.camera == "default" and result.seed == 11
     assert list(result.per_position) == ["left_4.5cm", "right_8cm"]
@@ -176,7 +176,7 @@ def test_evaluate_structure_and_determinism(trained):
 
 def test_evaluate_bad_arguments(trained):
     _, report = trained
-    policy = load_policy(report.policies["proposed_default"])
+    policy = PushingPolicy.from_pretrained(report.policies["proposed_default"])
     with pytest.raises(ValueError, match="unknown camera 'ceiling'"):
         evaluate(policy, camera="ceiling")
     with pytest.raises(ValueError, match="block position index"):
@@ -261,7 +261,7 @@ def test_cli_train_and_evaluate(data_dir, tmp_path, capsys):
 
 def test_export_writes_a_model_card(trained, tmp_path):
     _, report = trained
-    policy = load_policy(report.policies["proposed_default"])
+    policy = PushingPolicy.from_pretrained(report.policies["proposed_default"])
     result = evaluate(policy, positions=[1], trials=1, seed=2, duration=0.3)
     (tmp_path / "ev.json").write_text(json.dumps(result.as_dict()))
     target = sm.lfd.export_policy(
@@ -272,7 +272,14 @@ def test_export_writes_a_model_card(trained, tmp_path):
         root=tmp_path / "pretrained",
     )
     card = (target / "MODEL_CARD.md").read_text()
-    assert "2-core CPU container, no GPU" in card and "Seed: 3" in card and "a tiny test model" in card
+    assert "Seed: 3" in card and "a tiny test model" in card
+    # the machine line is what provenance recorded when the policy was trained, not a fixed string
+    from seqmotion.training.provenance import describe_machine
+
+    machine = policy.config.training["machine"]
+    assert f"- Machine: {describe_machine(machine)} ({machine['platform']})" in card
+    assert "2-core CPU container" not in card
+    assert json.loads((target / "evaluations.json").read_text())[0]["seed"] == 2
     assert "most typical demonstration without images at its block position" in card
     assert (
         f"proposed (tiny), default camera: **{result.success_rate:.1%}** ({result.successes}/1 trials, "
@@ -302,11 +309,11 @@ def test_shipped_policy_loads():
 def test_oracle_latents_bypass_the_cnn(trained, data_dir):
     """evaluate(latents=...) decodes the given z per position (the CNN's ẑ is not used)."""
     _, report = trained
-    policy = load_policy(report.policies["proposed_default"])
+    policy = PushingPolicy.from_pretrained(report.policies["proposed_default"])
     oracle = sm.lfd.position_latents(policy, data_dir / "motions.h5", successful_only=False)
     assert oracle.shape == (6, 8) and np.isfinite(oracle).all()
     medoids = sm.lfd.position_latents(policy, data_dir / "motions.h5", successful_only=False, medoid=True)
-    demonstrations = policy.encode(dataset.load_dataset(data_dir / "motions.h5").motion(train.EVERY))
+    demonstrations = policy.encode(dataset.load_dataset(data_dir / "motions.h5").motion())
     assert all(np.isclose(demonstrations, m).all(1).any() for m in medoids)  # each one a demonstration's z
     result = evaluate(policy, positions=[1, 3], trials=1, seed=2, duration=0.2, latents=oracle)
     for o in result.outcomes:
@@ -315,7 +322,7 @@ def test_oracle_latents_bypass_the_cnn(trained, data_dir):
     assert not np.allclose(cnn.outcomes[0].latent, oracle[1])
     with pytest.raises(ValueError, match="latents"):
         evaluate(policy, positions=[1], trials=1, duration=0.2, latents=oracle[:3])
-    e2e = load_policy(report.policies["end_to_end_default"])
+    e2e = PushingPolicy.from_pretrained(report.policies["end_to_end_default"])
     with pytest.raises(ValueError, match="no motion encoder"):
         sm.lfd.position_latents(e2e, data_dir / "motions.h5", successful_only=False)
 
@@ -345,6 +352,9 @@ def test_interrupted_training_resumes_exactly(tmp_path, monkeypatch):
     assert history["loss"] == straight_history["loss"]
     for key, value in straight.state_dict().items():
         torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)
+    # the per-epoch log holds every epoch once: the 3 before the kill kept, the last 2 appended
+    rows = (tmp_path / "ckpt" / "metrics.csv").read_text().splitlines()
+    assert rows[0].startswith("step,epoch,seconds,loss") and [r.split(",")[1] for r in rows[1:]] == list("12345")
     # a checkpoint of other settings is refused, not silently continued
     with pytest.raises(ValueError, match="another training"):
         train.train_seqae(motions, config, train.SeqAETraining(epochs=5, batch_size=2, seed=3),

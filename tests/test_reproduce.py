@@ -7,7 +7,7 @@ import pytest
 
 from seqmotion import tasks
 from seqmotion.reproduce import ch2, ch3, ch4
-from seqmotion.training.trainer import train
+from seqmotion.tasks import train
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +70,7 @@ def test_ch4_peer_rows(pancake_run, monkeypatch):
     """The peer table runs LM per target and times IPOPT beside it (IPOPT itself replaced here)."""
     from seqmotion.latent import transcription
 
-    def fake_ipopt(target, threshold):
+    def fake_ipopt(target, threshold, mu=1.0):
         return transcription.TranscriptionResult(
             states=np.zeros((500, 6)), accel=np.zeros((499, 3)), j1=0.5, max_fc=0.0, history=np.zeros((1, 2)),
             seconds_to_threshold=None, solve_seconds=1.0, build_seconds=0.1, status="Maximum_Iterations_Exceeded")

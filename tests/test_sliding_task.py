@@ -8,8 +8,8 @@ import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.data import sliding as commands
 from seqmotion.physics import sliding as contact
+from seqmotion.tasks import train
 from seqmotion.tasks.sliding import SlidingPlanner, chapter3_curriculum
-from seqmotion.training.trainer import train
 
 TASK = tasks.get("sliding")
 
@@ -179,5 +179,5 @@ def test_velocity_shaking_slides_as_often_but_lets_the_pan_drift():
     np.testing.assert_allclose(rel, drifting.states[0, :k], atol=1e-12)
     cfg = TASK.train_config("tiny")
     cfg.options["pan_shaking"] = "sideways"
-    with pytest.raises(ValueError, match="pan shaking"):
+    with pytest.raises(ValueError, match="pan_shaking"):
         TASK.sample(4, np.random.default_rng(0), {"loss_prime_prob": 1.0, "bspline_prob": 0.0}, cfg)

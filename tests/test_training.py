@@ -13,11 +13,12 @@ import torch
 
 import seqmotion as sm
 from seqmotion import tasks
+from seqmotion.tasks import train
 from seqmotion.tasks.pancake import chapter2_curriculum
 from seqmotion.training import checkpoint as ckpt
 from seqmotion.training.curriculum import Curriculum, Stage
+from seqmotion.training.loop import cosine_learning_rate
 from seqmotion.training.losses import gaussian_nll_1d, gaussian_nll_2d
-from seqmotion.training.trainer import learning_rate, train
 
 
 def test_chapter2_schedule_matches_the_dissertation():
@@ -84,9 +85,8 @@ def test_resume_continues_exactly(tmp_path, lr_final_fraction):
 
 def test_learning_rate_schedule():
     constant = tiny_config()
-    assert {learning_rate(constant, s, 100) for s in (0, 37, 99, 100)} == {constant.lr}
-    decayed = tiny_config(lr=1e-3, lr_final_fraction=0.1)
-    rates = [learning_rate(decayed, s, 100) for s in range(101)]
+    assert {cosine_learning_rate(constant.lr, 1.0, s, 100) for s in (0, 37, 99, 100, 150)} == {constant.lr}
+    rates = [cosine_learning_rate(1e-3, 0.1, s, 100) for s in range(101)]
     assert rates[0] == pytest.approx(1e-3) and rates[50] == pytest.approx(5.5e-4) and rates[100] == pytest.approx(1e-4)
     assert all(a >= b for a, b in zip(rates, rates[1:], strict=False))
     with pytest.raises(ValueError, match="lr_final_fraction"):
@@ -177,8 +177,8 @@ def test_torchrun_two_processes_matches_one(tmp_path):
     script = tmp_path / "run.py"
     script.write_text(
         "import json, sys\n"
-        "from seqmotion.tasks.base import TrainConfig\n"
-        "from seqmotion.training.trainer import learning_rate, train\n"
+        "from seqmotion.training.config import TrainConfig\n"
+        "from seqmotion.tasks import train\n"
         "train(TrainConfig.from_dict(json.load(open(sys.argv[1]))), sys.argv[2], progress=False)\n"
     )
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(sm.__file__).parents[1])}
@@ -190,3 +190,22 @@ def test_torchrun_two_processes_matches_one(tmp_path):
     _, b = ckpt.read_model(tmp_path / "single")
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=1e-4, atol=1e-5)
+
+
+def test_metrics_log_keeps_what_it_logged(tmp_path):
+    """On resume the rows up to the checkpoint are on disk at once (not after the next checkpoint),
+    and every new row is on disk as soon as it is written: a kill loses nothing already logged."""
+    from seqmotion.training.loop import MetricsLog
+
+    path = tmp_path / "metrics.csv"
+    path.write_text("step,epoch,loss\n" + "".join(f"{s},1,{s / 10}\n" for s in range(1, 6)))
+    log = MetricsLog(path, keep_before=3)  # resumed from the step-3 checkpoint
+    assert path.read_text().splitlines() == ["step,epoch,loss", "1,1,0.1", "2,1,0.2", "3,1,0.3"]
+    log.write({"step": 4, "epoch": 1, "loss": "0.45", "new_column": "ignored"})
+    assert path.read_text().splitlines()[-1] == "4,1,0.45"  # flushed, not waiting for close()
+    log.close()
+    fresh = MetricsLog(path, keep_before=0)  # a run started over replaces the old log
+    assert path.read_text() == ""
+    fresh.write({"step": 1, "loss": "1"})
+    fresh.close()
+    assert path.read_text().splitlines() == ["step,loss", "1,1"]

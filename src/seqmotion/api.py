@@ -1,37 +1,20 @@
-"""Loading trained models: ``sm.load(path)`` and ``sm.load_pretrained(name)``."""
+"""Loading trained models: ``sm.load(path)``, ``sm.load_pretrained(name)``, ``sm.pretrained_models()``.
+
+Shipped models are discovered from what is installed: every folder of a task package's
+``pretrained/`` (``seqmotion/pretrained/`` for the built-in tasks, the plug-in's own for a task
+from another package; see :func:`seqmotion.tasks.registry.pretrained_roots`) that holds a model
+directory is a pretrained model named after the folder.
+"""
 
 from __future__ import annotations
 
-from importlib import resources
+import json
 from pathlib import Path
 from typing import Any
 
 from . import tasks
 from .errors import CheckpointError
-from .models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from .training import checkpoint as ckpt
-
-PRETRAINED = {  # shipped model → its task
-    "pancake": "pancake",  # ch. 2/4: 2 × 64 LN-LSTM Deformer
-    "sliding": "sliding",  # ch. 3: model A (full curriculum, trained across 9 friction pairs), the SlidingPlanner
-    "sliding-A-nominal": "sliding",  # ch. 3: A trained at the nominal friction only (the dissertation's protocol)
-    "sliding-A-velocity": "sliding",  # ch. 3: A on the drifting (velocity-level) pan shaking B and C learn from
-    "sliding-B": "sliding",  # ch. 3 baselines on A's budget, for `seqmotion reproduce ch3`
-    "sliding-C": "sliding",
-    "pushing": "pushing",  # ch. 5: SeqAE + CNN policy
-}
-
-
-def load_model(path: str | Path, expected_task: str | None = None) -> tuple[ChunkedSeq2Seq, dict]:
-    """Load a chunked seq2seq model and its config from a model directory or a training run."""
-    directory = ckpt.resolve_model_dir(Path(path))
-    config, tensors = ckpt.read_model(directory, expected_task)
-    try:
-        model = ChunkedSeq2Seq(Seq2SeqConfig.from_dict(config["model"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{directory}/config.json does not describe a valid model: {exc}") from None
-    ckpt.load_state_dict_strict(model, tensors, str(directory))
-    return model.eval(), config
 
 
 def load(path: str | Path, expected_task: str | None = None) -> Any:
@@ -53,25 +36,57 @@ def load(path: str | Path, expected_task: str | None = None) -> Any:
     try:
         task = tasks.get(task_name)
     except ValueError as exc:
-        raise CheckpointError(f"{directory}: {exc}") from None
-    loader = getattr(task, "load", None)
-    if loader is not None:  # tasks with their own model class (e.g. learning from demonstration)
-        return loader(directory)
-    model, config = load_model(directory, task_name)
-    return task.wrap(model, config)
+        raise CheckpointError(f"{directory}: {exc} (is the package that defines it installed?)") from None
+    return task.load(directory)
+
+
+def pretrained_models() -> dict[str, Path]:
+    """Every shipped model this installation has: name → model directory (first root wins on a clash)."""
+    found: dict[str, Path] = {}
+    for root in tasks.pretrained_roots():
+        if not root.is_dir():
+            continue
+        for directory in sorted(root.iterdir()):
+            complete = (directory / ckpt.WEIGHTS).is_file() and (directory / ckpt.CONFIG).is_file()
+            if directory.name not in found and complete:
+                found[directory.name] = directory
+    return found
+
+
+def pretrained_task(name: str) -> str | None:
+    """The task of a shipped model (read from its config), or None if there is no such model."""
+    directory = pretrained_models().get(name)
+    if directory is None:
+        return None
+    try:
+        return json.loads((directory / ckpt.CONFIG).read_text()).get("task")
+    except (OSError, json.JSONDecodeError):
+        return None
 
 
 def pretrained_dir(name: str) -> Path:
-    """Where a shipped pretrained model lives inside the installed package."""
-    if name not in PRETRAINED:
-        raise ValueError(f"unknown pretrained model {name!r}; shipped models: {sorted(PRETRAINED)}")
-    path = Path(str(resources.files("seqmotion") / "pretrained" / name))
-    if not (path / ckpt.WEIGHTS).is_file():
-        raise CheckpointError(f"pretrained model {name!r} is not shipped in this installation ({path})")
-    return path
+    """Where a shipped pretrained model lives."""
+    models = pretrained_models()
+    if name not in models:
+        raise ValueError(f"unknown pretrained model {name!r}; shipped models: {sorted(models)}")
+    return models[name]
 
 
 def load_pretrained(name: str) -> Any:
-    """A model shipped with the package: ``"pancake"`` → Deformer, ``"sliding"`` → SlidingPlanner,
-    ``"pushing"`` → the learning-from-demonstration policy."""
-    return load(pretrained_dir(name), expected_task=PRETRAINED.get(name))
+    """A shipped model: ``"pancake"`` → Deformer, ``"sliding"`` → SlidingPlanner, ``"pushing"`` → the
+    learning-from-demonstration policy, and any model a plug-in task's package ships."""
+    return load(pretrained_dir(name))
+
+
+def resolve_model(value: str | Path, expected_task: str | None = None) -> Any:
+    """A shipped model's name or a path to a model/run directory (the CLI's ``--model``), of ``expected_task``
+    if given."""
+    path = Path(value)
+    if not path.exists() and str(value) in pretrained_models():
+        task = pretrained_task(str(value))
+        if expected_task is not None and task != expected_task:
+            raise ValueError(f"the shipped model {value!r} is a {task!r} model, not a {expected_task!r} model")
+        return load_pretrained(str(value))
+    if not path.exists():
+        raise ValueError(f"{value} is neither a shipped model ({sorted(pretrained_models())}) nor a directory")
+    return load(path, expected_task=expected_task)

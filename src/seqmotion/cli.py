@@ -19,61 +19,36 @@ import numpy as np
 PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli")
 
 
-def _model_arg(value: str, expected_task: str | None = None):  # noqa: ANN202 - the task's user-facing object
-    """A shipped model name (``pancake``...) or a path to a model/run directory, of ``expected_task`` if given."""
-    import seqmotion as sm
-    from seqmotion.api import PRETRAINED
+def _trained_model(value: str, expected_task: str | None = None):  # noqa: ANN202 - a task's TrainedModel
+    """``--model``: a shipped model's name or a model/run directory, a seq2seq model (of ``expected_task``)."""
+    from seqmotion.api import resolve_model
+    from seqmotion.tasks import TrainedModel
 
-    if value in PRETRAINED and not Path(value).exists():
-        if expected_task is not None and PRETRAINED[value] != expected_task:
-            raise ValueError(f"the shipped model {value!r} is not a {expected_task!r} model")
-        return sm.load_pretrained(value)
-    return sm.load(value, expected_task=expected_task)
-
-
-def read_trajectory(path: str | Path, key: str = "states") -> np.ndarray:
-    """Read ``(K, dim)`` samples from ``.npz`` (array ``key``) or ``.csv`` (one sample per row)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"{path} does not exist")
-    if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as data:
-            if key not in data:
-                raise ValueError(f"{path} has no array {key!r} (has {sorted(data.files)})")
-            return data[key]
-    if path.suffix == ".csv":
-        try:
-            return np.loadtxt(path, delimiter=",", ndmin=2)
-        except ValueError:  # a header row
-            return np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
-    raise ValueError(f"unsupported trajectory file {path} (use .npz or .csv)")
+    model = resolve_model(value, expected_task)
+    if not isinstance(model, TrainedModel):
+        raise ValueError(f"{value} is a {type(model).__name__}, not a sequence-to-sequence motion model")
+    return model
 
 
-def write_arrays(path: str | Path, columns: dict[str, np.ndarray]) -> None:
-    """Write named per-sample arrays to ``.npz``, or side by side to ``.csv`` (one row per sample).
+def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:  # noqa: ANN001
+    """A result dataclass's arrays and, for CSV headers, the task's column names of each.
 
-    In a CSV, arrays with one sample fewer (inputs ``u[0..K-2]``) get a NaN last row, and
-    arrays that are not per-sample (a latent) are left out: use ``.npz`` to keep them.
+    ``states`` get the task's state names (``y, z, theta, …``), inputs the accel names, other
+    per-sample arrays of a known layout ``<field>.<name>``.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix == ".npz":
-        np.savez(path, **columns)
-        return
-    if path.suffix != ".csv":
-        raise ValueError(f"unsupported output {path} (use .npz or .csv)")
-    rows = len(next(iter(columns.values())))
-    blocks, header = [], []
-    for name, value in columns.items():
-        value = np.asarray(value, dtype=np.float64)
-        if value.ndim == 0 or len(value) not in (rows, rows - 1):
+    from dataclasses import fields
+
+    columns = {f.name: getattr(result, f.name) for f in fields(result) if getattr(result, f.name) is not None}
+    names: dict[str, list[str]] = {}
+    layouts = (model.state_layout, model.accel_layout, model.input_layout)
+    for field, value in columns.items():
+        width = np.shape(value)[-1] if np.ndim(value) == 2 else None
+        layout = next((lay for lay in layouts if lay.dim == width), None)
+        if layout is None:
             continue
-        value = value.reshape(len(value), -1)
-        if len(value) == rows - 1:
-            value = np.vstack([value, np.full((1, value.shape[1]), np.nan)])
-        blocks.append(value)
-        header += [f"{name}{i}" if value.shape[1] > 1 else name for i in range(value.shape[1])]
-    np.savetxt(path, np.hstack(blocks), delimiter=",", header=",".join(header), comments="")
+        plain = field in ("states", "accel") or (field.endswith("accel") and layout is model.accel_layout)
+        names[field] = list(layout.names) if plain else [f"{field}.{n}" for n in layout.names]
+    return columns, names
 
 
 # --- subcommands ---------------------------------------------------------------------------------
@@ -81,56 +56,64 @@ def write_arrays(path: str | Path, columns: dict[str, np.ndarray]) -> None:
 
 def cmd_train(args: argparse.Namespace) -> int:
     from seqmotion import tasks
-    from seqmotion.training.trainer import train
+    from seqmotion.training.curriculum import Curriculum
 
     task = tasks.get(args.task)
+    if not isinstance(task, tasks.Task):
+        raise ValueError(
+            f"task {args.task!r} is not trained by `seqmotion train`"
+            + (f": {task.trained_by}" if getattr(task, "trained_by", None) else "")
+        )
     config = task.train_config(args.config)
     if args.variant:
         if not hasattr(task, "apply_variant"):
             raise ValueError(f"task {args.task} has no variants")
         config = task.apply_variant(config, args.variant)
     if args.epochs:
-        from seqmotion.training.curriculum import Curriculum
-
         config.curriculum = Curriculum.from_dict(config.curriculum).scaled(args.epochs).to_dict()
     for name in ("seed", "batch_size", "batches_per_epoch", "lr", "lr_final_fraction", "checkpoint_every"):
         value = getattr(args, name)
         if value is not None:
             setattr(config, name, value)
+    options = task.options(config)
+    changes = {}
     for item in args.set or []:
         key, equals, raw = item.partition("=")
         if not equals:
             raise ValueError(f"--set needs KEY=VALUE, got {item!r}")
-        if key not in config.options:
-            raise ValueError(f"unknown option {key!r}; options of {args.task}: {sorted(config.options)}")
-        try:
-            config.options[key] = json.loads(raw)
-        except json.JSONDecodeError:
-            if not isinstance(config.options[key], str):  # only text options take bare words
-                raise ValueError(f"--set {key}=...: {raw!r} is not a JSON value") from None
-            config.options[key] = raw  # --set pan_shaking=velocity
+        changes[key] = options.parse(key, raw)
+    config.options = options.replace(**changes).to_dict()  # checked: unknown keys and bad values refused by name
     variant = f"-{args.variant}" if args.variant else ""
     out = Path(args.out or f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
-    train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps)
+    tasks.train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, say it once
         print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
     return 0
 
 
 def cmd_deform(args: argparse.Namespace) -> int:
-    deformer = _model_arg(args.model, "pancake")
-    states = read_trajectory(args.input)
-    result = deformer.deform(states)
-    write_arrays(
-        args.output,
-        {"states": result.states, "accel": result.accel, "violation": result.violation, "psi": result.psi,
-         "latent": result.latent},
-    )
-    from seqmotion.physics import pancake
+    from seqmotion.physics.integrator import implied_accel
+    from seqmotion.training.files import read_trajectory, write_arrays
 
-    fc_in = pancake.violation_of_states(states).max()
-    print(f"deformed {len(states)} samples → {args.output}: max F_c {result.violation.max():.4f} rad "
-          f"(input: {fc_in:.4f} rad)")
+    model = _trained_model(args.model)
+    inputs = read_trajectory(args.input)
+    result = model.generate(inputs)
+    columns, names = result_columns(result, model)
+    write_arrays(args.output, columns, names)
+    message = f"{model.task_def.name}: generated {len(inputs)} samples → {args.output}"
+    violation = getattr(result, "violation", None)
+    if violation is not None:
+        what = "F_c" if model.task_def.name == "pancake" else "constraint violation"
+        at = f" at mu = {model.options.mu:g}" if "mu" in model.options.names() else ""
+        message += f": max {what} {np.max(violation):.4f}{at}"
+        if model.input_layout == model.state_layout:  # the input's own violation, inputs implied by its velocities
+            import torch
+
+            x = torch.from_numpy(np.asarray(inputs, dtype=np.float64))[None]
+            before = model.violation_torch(x, torch.from_numpy(implied_accel(x.numpy())))
+            if before is not None:
+                message += f" (input: {float(before.max()):.4f})"
+    print(message)
     return 0
 
 
@@ -138,18 +121,22 @@ def cmd_plan(args: argparse.Namespace) -> int:
     import numpy as np
 
     from seqmotion.data import sliding as commands
+    from seqmotion.training.files import read_trajectory, write_arrays
 
-    planner = _model_arg(args.model, "sliding")
+    planner = _trained_model(args.model, "sliding")
     if args.int8:
         planner = planner.quantized()
     command = commands.circle(args.circle, args.length) if args.circle else read_trajectory(args.command)
     plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
-    write_arrays(args.output, {"pan_states": plan.pan_states, "rel_states": plan.rel_states,
-                               "pan_accel": plan.pan_accel, "command": command, "latent": plan.latent})
+    mu = planner.options.mu if args.mu is None else args.mu
+    mu_dyn = planner.options.mu_dyn if args.mu_dyn is None else args.mu_dyn
+    columns, names = result_columns(plan, planner)
+    write_arrays(args.output, {**columns, "command": command}, {**names, "command": [f"command.{n}" for n in
+                                                                                      planner.input_layout.names]})
     rmse = 1000 * np.sqrt(((plan.rel_states[:, :2] - command[:, :2]) ** 2).sum(1).mean())
     reach = 1000 * np.linalg.norm(plan.pan_states[:, :2], axis=1).max()
     print(f"planned {len(command)} samples → {args.output}: object RMSE {rmse:.1f} mm against the command, "
-          f"pan within {reach:.0f} mm of its start (2-D physics, μ = {args.mu}, μ' = {args.mu_dyn})")
+          f"pan within {reach:.0f} mm of its start (2-D physics, μ = {mu:g}, μ' = {mu_dyn:g})")
     return 0
 
 
@@ -162,11 +149,23 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from seqmotion.training.export import export_pretrained
+    import seqmotion as sm
+    from seqmotion import tasks
+    from seqmotion.training.checkpoint import resolve_model_dir
+    from seqmotion.training.pretrained import export_pretrained
 
+    source = resolve_model_dir(Path(args.run))
+    model = sm.load(source)
+    if hasattr(model, "check_finished"):
+        model.check_finished()
+    task = tasks.get(model.config_json()["task"])
+    root = Path(args.to) if args.to else tasks.registry.home_package(task) / "pretrained"
     metrics = json.loads(Path(args.metrics).read_text()) if args.metrics else None
-    target = export_pretrained(Path(args.run), args.name, metrics, args.notes or "")
+    target = export_pretrained(model, source, args.name, root, metrics, args.notes or "")
     print(f"shipped {args.run} as {args.name!r} in {target} (with MODEL_CARD.md)")
+    if root not in tasks.pretrained_roots():
+        print(f"note: {root} is not where seqmotion looks for shipped models; add it to "
+              f"{tasks.registry.PRETRAINED_PATH_ENV} for sm.load_pretrained({args.name!r})")
     return 0
 
 
@@ -181,9 +180,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="seqmotion", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("train", help="train a task's model through its curriculum")
-    p.add_argument("task", help="task name (pancake, sliding, ...)")
-    p.add_argument("--config", default="small", help="preset: tiny | small | paper")
+    from seqmotion.tasks.registry import declared_names
+
+    known = ", ".join(declared_names())
+    p = sub.add_parser("train", help=f"train a task's model through its curriculum (tasks: {known})",
+                       description=f"Train a task's model. Tasks installed: {known} (plug-ins register through the "
+                                   "entry-point group seqmotion.tasks). Options: --set KEY=VALUE, checked against the "
+                                   "task's options dataclass.")
+    p.add_argument("task", help=f"task name: {known}")
+    p.add_argument("--config", default="small", help="preset: tiny | small | paper (or the task's own)")
     p.add_argument("--variant", help="task variant (sliding: A | B | C)")
     p.add_argument("--out", help="run directory (default runs/<task>-<config>-seed<seed>)")
     p.add_argument("--seed", type=int)
@@ -200,9 +205,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("deform", help="deform a pancake-turning motion so the pancake stays on")
-    p.add_argument("--model", default="pancake", help="shipped model name or model/run directory")
-    p.add_argument("--input", required=True, help=".npz (array 'states') or .csv: (K, 6) rows y,z,θ,vy,vz,vθ")
+    p = sub.add_parser("deform", help="encode a motion and regenerate it through the model (pancake: keep it on)")
+    p.add_argument("--model", default="pancake", help="shipped model name or model/run directory, of any task")
+    p.add_argument("--input", required=True,
+                   help=".npz (array 'states') or .csv: (K, input_dim) rows in the task's input layout "
+                        "(pancake: y,z,θ,vy,vz,vθ)")
     p.add_argument("--output", required=True, help=".npz or .csv")
     p.set_defaults(func=cmd_deform)
 
@@ -212,8 +219,8 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--command", help=".npz (array 'states') or .csv: (K, 4) object x, y, vx, vy relative to the pan")
     src.add_argument("--circle", type=float, metavar="RADIUS", help="a circle of this radius [m] as the command")
     p.add_argument("--length", type=int, default=1200, help="K of the --circle command")
-    p.add_argument("--mu", type=float, default=1.0, help="static friction of the 2-D physics")
-    p.add_argument("--mu-dyn", type=float, default=0.5, help="dynamic friction of the 2-D physics")
+    p.add_argument("--mu", type=float, help="static friction of the 2-D physics (default: the model's)")
+    p.add_argument("--mu-dyn", type=float, help="dynamic friction of the 2-D physics (default: the model's)")
     p.add_argument("--int8", action="store_true", help="int8 weights for the big layers (faster on CPU, wide models)")
     p.add_argument("--output", required=True, help=".npz or .csv")
     p.set_defaults(func=cmd_plan)
@@ -226,9 +233,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer samples (a smoke test of the pipeline)")
     p.set_defaults(func=cmd_reproduce)
 
-    p = sub.add_parser("export", help="ship a finished run inside the package, with a model card")
+    p = sub.add_parser("export", help="ship a finished run with its task's package, with a model card")
     p.add_argument("run", help="training run directory")
-    p.add_argument("--name", required=True, help="pretrained name (see seqmotion.api.PRETRAINED)")
+    p.add_argument("--name", required=True, help="pretrained name (sm.load_pretrained(NAME))")
+    p.add_argument("--to", help="folder of pretrained models (default: pretrained/ of the package defining the task)")
     p.add_argument("--metrics", help="JSON file of measured metrics for the card")
     p.add_argument("--notes", help="free text for the card")
     p.set_defaults(func=cmd_export)

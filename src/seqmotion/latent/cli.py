@@ -1,7 +1,8 @@
-"""``seqmotion optimize``: adjust a pancake motion through the latent space (ch. 4) from the shell.
+"""``seqmotion optimize``: adjust a motion through the latent space (ch. 4) from the shell, for any task.
 
-    seqmotion optimize --target 0.1 0.0 3.14 --output adjusted.npz          # J1, case 1
+    seqmotion optimize --target 0.1 0.0 3.14 --output adjusted.npz          # J1 (pancake: y, z, θ), case 1
     seqmotion optimize --preset j2 --output slow_turn.csv --plot slow_turn.png
+    seqmotion optimize --model runs/tray-tiny --target 0.1 0.05 --output tray.npz   # a plug-in task's end pose
 """
 
 from __future__ import annotations
@@ -15,11 +16,14 @@ import numpy as np
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("optimize", help="adjust a motion by gradient descent on its latent (ch. 4)")
-    p.add_argument("--model", default="pancake", help="shipped model name or model/run directory")
+    p.add_argument("--model", default="pancake", help="shipped model name or model/run directory, of any task")
     goal = p.add_mutually_exclusive_group(required=True)
-    goal.add_argument("--target", nargs=3, type=float, metavar=("Y", "Z", "THETA"), help="end pose for J1 [m, m, rad]")
-    goal.add_argument("--preset", choices=["j2"], help="j2: the velocity-limited turn of §4.4.2 (eq. 4.10)")
-    p.add_argument("--input", help="input motion (.npz 'states' or .csv, (K, 6)); default: S-curve to the target")
+    goal.add_argument("--target", nargs="+", type=float, metavar="VALUE",
+                      help="end pose for J1, one value per field of the task's end pose "
+                           "(pancake: Y Z THETA [m, m, rad])")
+    goal.add_argument("--preset", choices=["j2"], help="j2: the velocity-limited turn of §4.4.2 (eq. 4.10; pancake)")
+    p.add_argument("--input", help="input motion (.npz 'states' or .csv, (K, input_dim)); default: the task's sketch "
+                                   "to the target (pancake: an S-curve)")
     p.add_argument("--length", type=int, default=500, help="K of the default input (samples at 1 ms)")
     p.add_argument("--case", type=int, choices=[1, 2, 3], default=1, help="1 encoder z, 2 random z, 3 accelerations")
     p.add_argument("--steps", type=int, help="updates (default 100 for J1, 20 for J2)")
@@ -29,64 +33,91 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "(default for --target; J2 has no least-squares form, so sgd)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--output", required=True, help=".npz or .csv for the adjusted trajectory")
-    p.add_argument("--plot", help="PNG with the trajectory, ψ and the objective's progress")
+    p.add_argument("--plot", help="PNG with the trajectory, the constraint and the objective's progress")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..cli import _model_arg, read_trajectory, write_arrays
-    from ..data import pancake as inputs
-    from ..physics import pancake as physics
+    import torch
+
+    from ..api import resolve_model
+    from ..tasks import TrainedModel
+    from ..training.files import read_trajectory, write_arrays
     from . import optimize_latent, optimize_trajectory
     from .objectives import EndPose, Ranges
 
-    model = _model_arg(args.model, "pancake")  # J1/J2 are pancake objectives
+    model = resolve_model(args.model)
+    if not isinstance(model, TrainedModel):
+        raise ValueError(f"{args.model} is a {type(model).__name__}, not a sequence-to-sequence motion model")
+    task = model.task_def
     if args.preset == "j2":
         objective = Ranges()
-        default_input = inputs.straight((0.0, 0.0, -3 * math.pi / 4), args.length, timing="linear")
-        steps, lr = args.steps or 20, args.lr or "auto"
+        sketch_end = (0.0, 0.0, -3 * math.pi / 4)
+        steps = args.steps or 20
     else:
         objective = EndPose(args.target)
-        default_input = inputs.straight(args.target, args.length)
-        steps, lr = args.steps or 100, args.lr or "auto"
-    states = read_trajectory(args.input) if args.input else default_input
+        sketch_end = tuple(args.target)
+        steps = args.steps or 100
+    objective = objective.bind(model)  # refuses a model of another layout, an end pose of another size, by name
+    if args.input:
+        states = read_trajectory(args.input)
+    else:
+        states = task.sketch(sketch_end, args.length, timing="linear" if args.preset == "j2" else "s_curve")
     optimizer = args.optimizer or ("sgd" if args.preset == "j2" or args.lr else "lm")
-    method: dict = {"lr": lr} if optimizer == "sgd" else {"optimizer": "lm", "continuation": (1e-3, 4)}
+    method: dict = {"lr": args.lr or "auto"} if optimizer == "sgd" else {"optimizer": "lm", "continuation": (1e-3, 4)}
     if args.case == 3:
         res = optimize_trajectory(model, states, objective, steps=steps, **method)
     else:
         res = optimize_latent(model, states, objective, steps=steps, init="encoder" if args.case == 1 else "random",
                               seed=args.seed, **method)
-    fc = physics.violation(res.states[:-1], res.accel)
-    columns = {"states": res.states, "accel": res.accel, "violation": fc, "history": res.history}
+    violation = model.violation_torch(torch.from_numpy(res.states)[None], torch.from_numpy(res.accel)[None])
+    columns = {"states": res.states, "accel": res.accel, "history": res.history}
+    if violation is not None:
+        columns["violation"] = violation[0].numpy()
     if res.latent is not None:
         columns["latent"] = res.latent
-    write_arrays(args.output, columns)
-    print(f"{objective!r}: {res.history[0]:.3g} → {res.history[-1]:.3g} in {steps} updates "
-          f"({1000 * res.seconds_per_update:.1f} ms each); end pose {np.round(res.states[-1, :3], 4).tolist()}, "
-          f"max F_c {fc.max():.4f} rad → {args.output}")
+    write_arrays(args.output, columns, {"states": list(model.state_layout.names),
+                                        "accel": list(model.accel_layout.names)})
+    fields, _ = task.end_pose or ((), ())
+    end = {f: round(float(res.states[-1, model.state_layout.index(f)]), 4) for f in fields}
+    message = (f"{objective!r}: {res.history[0]:.3g} → {res.history[-1]:.3g} in {steps} updates "
+               f"({1000 * res.seconds_per_update:.1f} ms each); end {end}")
+    if violation is not None:
+        at = f" at mu = {model.options.mu:g}" if "mu" in model.options.names() else ""
+        message += f", max violation {float(violation.max()):.4f}{at}"
+    print(message + f" → {args.output}")
     if args.plot:
-        _plot(res, fc, Path(args.plot))
+        _plot(model, res, columns.get("violation"), Path(args.plot))
     return 0
 
 
-def _plot(res, fc: np.ndarray, path: Path) -> None:  # noqa: ANN001
+def _plot(model, res, violation: np.ndarray | None, path: Path) -> None:  # noqa: ANN001
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..physics import pancake as physics
-
+    layout = model.state_layout
     fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
     t = np.arange(len(res.states))
-    for j, name in enumerate(("y [m]", "z [m]", "θ [rad]")):
-        axes[0].plot(t, res.states[:, j], label=name)
+    half = layout.dim // 2  # positions first, then velocities (the double-integrator convention)
+    for j, label in enumerate(layout.labels()[:half]):
+        axes[0].plot(t, res.states[:, j], label=label)
     axes[0].set(xlabel="time [ms]", title="adjusted motion")
     axes[0].legend(fontsize=8)
-    axes[1].axhspan(-np.pi / 4, np.pi / 4, color="tab:blue", alpha=0.15)
-    axes[1].plot(t[:-1], physics.psi(res.states[:-1], res.accel))
-    axes[1].set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-np.pi, np.pi), title=f"cone (max F_c {fc.max():.3f} rad)")
+    if model.task_def.name == "pancake":  # ψ against the cone of the model's own μ
+        from ..physics import pancake as physics
+
+        cone = math.atan(model.options.mu)
+        axes[1].axhspan(-cone, cone, color="tab:blue", alpha=0.15, label=f"cone ±atan μ, μ = {model.options.mu:g}")
+        axes[1].plot(t[:-1], physics.psi(res.states[:-1], res.accel), label="ψ")
+        axes[1].set(ylabel="ψ [rad]", ylim=(-np.pi, np.pi))
+        axes[1].legend(fontsize=8)
+    elif violation is not None:
+        axes[1].plot(t[:-1], violation)
+        axes[1].set(ylabel="constraint violation")
+    title = "constraint" if violation is None else f"constraint (max {violation.max():.3f})"
+    axes[1].set(xlabel="time [ms]", title=title)
     axes[2].plot(res.history)
     axes[2].set(yscale="log", xlabel="update", ylabel="objective", title="progress")
     fig.tight_layout()

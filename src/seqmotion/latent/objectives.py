@@ -4,22 +4,32 @@ An objective maps a batch of decoded motions to one value per trajectory::
 
     J(states (B, K, S), accel (B, K-1, d)) -> (B,)
 
-:class:`EndPose` (J1) and :class:`Ranges` (J2) are the dissertation's, for the pancake task's
-states ``[y, z, θ, v_y, v_z, v_θ]``. Any differentiable callable with that signature is an
-objective too (returning ``(B,)`` or a scalar), and objectives compose with ``+`` and ``*``::
+:class:`EndPose` (J1) works for any task that declares an end pose (``Task.end_pose``: the
+fields it reaches for and their weights) and penalises the task's own constraint
+(``Task.violation``) at the model's options — the pancake's friction cone at the μ the model
+was trained with. :class:`Ranges` (J2) is the pancake's. Any differentiable callable with the
+signature above is an objective too (returning ``(B,)`` or a scalar); :class:`Function` with
+``residuals=`` gives least-squares form, which Levenberg–Marquardt (``optimizer="lm"``) needs.
+Objectives compose with ``+`` and ``*``::
 
     objective = 2 * EndPose((0.1, 0.0, math.pi)) + my_callable
+
+:func:`seqmotion.optimize_latent` *binds* an objective to the model first
+(:meth:`Objective.bind`): an objective that declares a state layout refuses a model of another
+layout (``ValueError`` naming both), and μ and the end-pose fields come from the model.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
-from ..physics.pancake import MU, violation_torch
+from ..physics.layout import StateLayout
+from ..physics.pancake import MU, STATE_LAYOUT, violation_torch
 
 D_WEIGHTS = (1.0, 1.0, 0.1)
 """D = diag(1, 1, 0.1): metres against radians (eqs. 2.25, 4.3)."""
@@ -27,21 +37,39 @@ D_WEIGHTS = (1.0, 1.0, 0.1)
 ObjectiveFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
+_NO_RESIDUALS = (
+    "{self!r} has no least-squares residuals; use optimizer='sgd' or 'adam', or give them: "
+    "sm.objectives.Function(residuals=f) with f(states, accel) -> (B, m) residuals r (J = |r|²), "
+    "optionally penalty=g with g -> (B,)"
+)
+
+
 class Objective:
     """Base class: callable on ``(states, accel)``, composable with ``+`` and ``*``.
 
     Objectives of least-squares form ``J = |r|² + p`` may also expose ``residuals`` (B, m) and
     ``penalty`` (B,); the Levenberg–Marquardt optimiser (``optimizer="lm"``) needs them.
+
+    ``layout``: the state layout the objective reads (None: any). :meth:`bind` returns the
+    objective set up for a trained model and refuses a model of another layout.
     """
+
+    layout: StateLayout | None = None
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
     def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
-        raise ValueError(f"{self!r} has no least-squares residuals; use optimizer='sgd' or 'adam'")
+        raise ValueError(_NO_RESIDUALS.format(self=self))
 
     def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
-        raise ValueError(f"{self!r} has no least-squares residuals; use optimizer='sgd' or 'adam'")
+        raise ValueError(_NO_RESIDUALS.format(self=self))
+
+    def bind(self, model: Any) -> Objective:
+        """This objective for ``model`` (a trained seqmotion model): checks the layout; subclasses
+        also take the model's options (μ) and task-declared fields."""
+        check_layout(self, model)
+        return self
 
     def __add__(self, other: object) -> Objective:
         return Sum([self, as_objective(other)])
@@ -63,6 +91,9 @@ class Sum(Objective):
     def __init__(self, parts: Sequence[Objective]) -> None:
         self.parts = list(parts)
 
+    def bind(self, model: Any) -> Objective:
+        return Sum([part.bind(model) for part in self.parts])
+
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return sum(part(states, accel) for part in self.parts)  # type: ignore[return-value]
 
@@ -78,7 +109,12 @@ class Sum(Objective):
 
 class Scaled(Objective):
     def __init__(self, weight: float, inner: Objective) -> None:
+        if not math.isfinite(weight):
+            raise ValueError(f"an objective's weight must be finite, got {weight}")
         self.weight, self.inner = weight, inner
+
+    def bind(self, model: Any) -> Objective:
+        return Scaled(self.weight, self.inner.bind(model))
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return self.weight * self.inner(states, accel)
@@ -96,12 +132,32 @@ class Scaled(Objective):
 
 
 class Function(Objective):
-    """Wraps a plain callable ``f(states, accel) -> scalar or (B,) tensor``."""
+    """A plain callable as an objective, optionally in least-squares form.
 
-    def __init__(self, fn: ObjectiveFn) -> None:
-        self.fn = fn
+    Args:
+        fn: ``f(states, accel) -> scalar or (B,)`` tensor, differentiable. Optional when
+            ``residuals`` is given (then ``J = |r|² + penalty``).
+        residuals: ``r(states, accel) -> (B, m)`` residuals: with them, ``optimizer="lm"``
+            (Levenberg–Marquardt) works on this objective.
+        penalty: ``p(states, accel) -> (B,)``, a non-negative term added to ``|r|²`` (LM takes
+            its gradient as is).
+        layout: the state layout ``fn`` reads (refuse models of another layout), or None.
+    """
+
+    def __init__(
+        self, fn: ObjectiveFn | None = None, *, residuals: ObjectiveFn | None = None,
+        penalty: ObjectiveFn | None = None, layout: StateLayout | None = None,
+    ) -> None:
+        if fn is None and residuals is None:
+            raise ValueError("Function needs fn, residuals, or both")
+        for name, value in (("fn", fn), ("residuals", residuals), ("penalty", penalty)):
+            if value is not None and not callable(value):
+                raise ValueError(f"Function's {name} must be callable, got {type(value).__name__}")
+        self.fn, self.residual_fn, self.penalty_fn, self.layout = fn, residuals, penalty, layout
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        if self.fn is None:
+            return (self.residuals(states, accel) ** 2).sum(-1) + self.penalty(states, accel)
         value = self.fn(states, accel)
         if not torch.is_tensor(value):
             raise ValueError(f"objective {self.fn!r} must return a torch tensor, got {type(value).__name__}")
@@ -110,8 +166,44 @@ class Function(Objective):
             raise ValueError(f"objective must return a scalar or one value per trajectory, got shape {shape}")
         return value
 
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        if self.residual_fn is None:
+            return super().residuals(states, accel)
+        r = self.residual_fn(states, accel)
+        if not torch.is_tensor(r) or r.ndim != 2 or r.shape[0] != states.shape[0]:
+            raise ValueError(f"residuals must return a (B, m) tensor with B = {states.shape[0]}, got "
+                             f"{tuple(r.shape) if torch.is_tensor(r) else type(r).__name__}")
+        return r
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        if self.residual_fn is None:
+            return super().penalty(states, accel)
+        if self.penalty_fn is None:
+            return torch.zeros(states.shape[0], dtype=states.dtype, device=states.device)
+        p = self.penalty_fn(states, accel)
+        if not torch.is_tensor(p) or p.shape != (states.shape[0],):
+            raise ValueError(f"penalty must return a (B,) tensor with B = {states.shape[0]}")
+        return p
+
     def __repr__(self) -> str:
-        return getattr(self.fn, "__name__", repr(self.fn))
+        fn = self.fn if self.fn is not None else self.residual_fn
+        return getattr(fn, "__name__", repr(fn))
+
+
+def Residuals(  # noqa: N802 - reads as the objective it builds
+    residuals: ObjectiveFn, penalty: ObjectiveFn | None = None, layout: StateLayout | None = None
+) -> Function:
+    """``J = |r(states, accel)|² (+ penalty)``: a least-squares objective from a residual function."""
+    return Function(residuals=residuals, penalty=penalty, layout=layout)
+
+
+def check_layout(objective: Objective, model: Any) -> None:
+    """``ValueError`` naming both when ``objective`` reads another state layout than ``model`` generates."""
+    layout = getattr(objective, "layout", None)
+    if layout is not None and model.state_layout != layout:
+        raise ValueError(
+            f"{objective!r} applies to {layout}, but the {model.task_def.name!r} model generates {model.state_layout}"
+        )
 
 
 def as_objective(value: object) -> Objective:
@@ -128,24 +220,78 @@ def dynamic_penalty(states: torch.Tensor, accel: torch.Tensor, mu: float = MU) -
 
 
 class EndPose(Objective):
-    """J1 (eqs. 4.3–4.4): ``|D (p[K-1] − p_end)|² + α Σ_k F_c[k]``.
+    """J1 (eqs. 4.3–4.4): ``|D (p[K-1] − p_end)|² + α Σ_k F[k]`` for any task with an end pose.
+
+    ``p`` are the task's end-pose fields and ``D`` their weights (``Task.end_pose``; pancake:
+    ``(y, z, θ)`` with D = diag(1, 1, 0.1)), ``F`` the task's constraint violation (pancake: the
+    friction cone F_c) at the model's options. Unbound (called directly), it reads pancake states.
 
     Args:
-        target: ``(y, z, θ)`` [m, m, rad], or ``(B, 3)`` one target per trajectory.
-        alpha: weight α of the friction-cone penalty.
+        target: one value per end-pose field (pancake ``(y, z, θ)`` [m, m, rad]), or ``(B, n)``
+            one target per trajectory.
+        alpha: weight α of the constraint penalty (≥ 0).
+        mu: judge the cone at this μ instead of the model's own (pancake; default: the model's).
+        fields, weights: reach for these state fields with these weights instead of the task's.
     """
 
-    def __init__(self, target: Sequence[float] | np.ndarray, alpha: float = 1.0, mu: float = MU) -> None:
+    def __init__(
+        self, target: Sequence[float] | np.ndarray, alpha: float = 1.0, mu: float | None = None,
+        fields: Sequence[str] | None = None, weights: Sequence[float] | None = None,
+    ) -> None:
         target_arr = np.asarray(target, dtype=np.float64)
-        if target_arr.shape[-1:] != (3,) or target_arr.ndim > 2 or not np.all(np.isfinite(target_arr)):
-            raise ValueError(f"target must be finite (y, z, theta) or (B, 3), got {np.shape(target)}")
-        self.target, self.alpha, self.mu = target_arr, float(alpha), float(mu)
+        if target_arr.ndim not in (1, 2) or target_arr.shape[-1] < 1 or not np.all(np.isfinite(target_arr)):
+            raise ValueError(f"target must be finite, one value per end-pose field or (B, n), got {np.shape(target)}")
+        _check_weight("alpha", alpha)
+        if mu is not None:
+            _check_weight("mu", mu, positive=True)
+        if weights is not None and (fields is None or len(weights) != len(fields)):
+            raise ValueError("weights need fields, one weight per field")
+        self.target, self.alpha, self.mu = target_arr, float(alpha), None if mu is None else float(mu)
+        self.fields = None if fields is None else tuple(fields)
+        self.weights = None if weights is None else tuple(float(w) for w in weights)
+        self._columns: list[int] | None = None
+        self._violation: Callable[[torch.Tensor, torch.Tensor], torch.Tensor | None] | None = None
+
+    def _bind_columns(self, layout: StateLayout, fields: Sequence[str], weights: Sequence[float], task: str) -> None:
+        if self.target.shape[-1] != len(fields):
+            raise ValueError(
+                f"EndPose target has {self.target.shape[-1]} values, but the {task!r} task's end pose is "
+                f"{list(fields)} in {layout}"
+            )
+        self._columns = [layout.index(f) for f in fields]
+        self.weights = tuple(float(w) for w in weights)
+        self._field_names = tuple(fields)
+
+    def bind(self, model: Any) -> EndPose:
+        task = model.task_def
+        if self.fields is not None:
+            fields, weights = self.fields, self.weights or (1.0,) * len(self.fields)
+        elif task.end_pose is not None:
+            fields, weights = task.end_pose
+        else:
+            raise ValueError(f"task {task.name!r} declares no end pose; give EndPose(target, fields=[...]) of "
+                             f"{model.state_layout}")
+        bound = EndPose(self.target, self.alpha, self.mu, fields, weights)
+        bound.layout = model.state_layout
+        bound._bind_columns(model.state_layout, fields, weights, task.name)
+        options = model.options
+        if self.mu is not None:
+            if "mu" not in options.names():
+                raise ValueError(f"EndPose(mu=...) needs a task with a friction option mu; {task.name!r} has none")
+            options = options.replace(mu=self.mu)
+        bound._violation = lambda states, accel: task.violation(states, accel, options)
+        return bound
 
     def end_error(self, states: torch.Tensor) -> torch.Tensor:
-        """``D (p[K-1] − p_end)`` per trajectory, ``(B, 3)``."""
+        """``D (p[K-1] − p_end)`` per trajectory, ``(B, n)``."""
+        if self._columns is None:
+            if self.fields is not None:
+                raise ValueError("EndPose with fields= must be bound to a model first (optimize_latent does)")
+            # called directly, unbound: the dissertation's J1 on pancake states
+            self._bind_columns(STATE_LAYOUT, ("y", "z", "theta"), D_WEIGHTS, "pancake")
         target = torch.as_tensor(self.target, dtype=states.dtype)
-        d = torch.tensor(D_WEIGHTS, dtype=states.dtype)
-        return d * (states[:, -1, :3] - target)
+        d = torch.tensor(self.weights, dtype=states.dtype)
+        return d * (states[:, -1, self._columns] - target)
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return (self.end_error(states) ** 2).sum(-1) + self.penalty(states, accel)
@@ -154,10 +300,22 @@ class EndPose(Objective):
         return self.end_error(states)
 
     def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
-        return self.alpha * dynamic_penalty(states, accel, self.mu)
+        if self._violation is None:  # unbound: the pancake's cone at the given μ (1 by default)
+            return self.alpha * dynamic_penalty(states, accel, MU if self.mu is None else self.mu)
+        violation = self._violation(states, accel)
+        if violation is None or self.alpha == 0:
+            return torch.zeros(states.shape[0], dtype=states.dtype, device=states.device)
+        return self.alpha * violation.sum(1)
 
     def __repr__(self) -> str:
         return f"EndPose(target={self.target.tolist()}, alpha={self.alpha:g})"
+
+
+def _check_weight(name: str, value: Any, positive: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.floating) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if value < 0 or (positive and value == 0):
+        raise ValueError(f"{name} must be {'>' if positive else '≥'} 0, got {value!r}")
 
 
 class Ranges(Objective):
@@ -170,6 +328,8 @@ class Ranges(Objective):
     β = 0.01, v_lim = (1.5 m/s, 1.5 m/s, 4.5 rad/s).
     """
 
+    layout = STATE_LAYOUT
+
     def __init__(
         self,
         p_lim: float = 0.2,
@@ -178,12 +338,26 @@ class Ranges(Objective):
         alpha: float = 1.0,
         beta: float = 0.01,
         v_lim: Sequence[float] = (1.5, 1.5, 4.5),
-        mu: float = MU,
+        mu: float | None = None,
     ) -> None:
-        if len(v_lim) != 3 or min(v_lim) < 0 or p_lim < 0 or theta_lim < 0:
-            raise ValueError("Ranges needs nonnegative p_lim, theta_lim and three velocity limits")
+        for name, value in (("p_lim", p_lim), ("theta_lim", theta_lim), ("alpha", alpha), ("beta", beta)):
+            _check_weight(name, value)
+        _check_weight("theta_end", abs(theta_end))
+        if mu is not None:
+            _check_weight("mu", mu, positive=True)
+        if len(v_lim) != 3:
+            raise ValueError(f"Ranges needs three velocity limits (v_y, v_z, v_theta), got {len(v_lim)}")
+        for value in v_lim:
+            _check_weight("v_lim", value)
         self.p_lim, self.theta_end, self.theta_lim = float(p_lim), float(theta_end), float(theta_lim)
-        self.alpha, self.beta, self.v_lim, self.mu = float(alpha), float(beta), tuple(map(float, v_lim)), float(mu)
+        self.alpha, self.beta, self.v_lim = float(alpha), float(beta), tuple(map(float, v_lim))
+        self.mu = None if mu is None else float(mu)
+
+    def bind(self, model: Any) -> Ranges:
+        """Checks the model generates pancake states; μ defaults to the model's."""
+        check_layout(self, model)
+        mu = self.mu if self.mu is not None else model.options.mu
+        return Ranges(self.p_lim, self.theta_end, self.theta_lim, self.alpha, self.beta, self.v_lim, mu)
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         end = states[:, -1]
@@ -193,7 +367,8 @@ class Ranges(Objective):
         v_lim = torch.tensor(self.v_lim, dtype=states.dtype)
         excess = torch.relu(d * (states[..., 3:].abs() - v_lim))
         velocity = self.beta / states.shape[1] * (excess**2).sum((1, 2))
-        return position_band + attitude_band + self.alpha * dynamic_penalty(states, accel, self.mu) + velocity
+        cone = dynamic_penalty(states, accel, MU if self.mu is None else self.mu)
+        return position_band + attitude_band + self.alpha * cone + velocity
 
     def __repr__(self) -> str:
         return f"Ranges(p_lim={self.p_lim}, theta_end={self.theta_end:.4f}, theta_lim={self.theta_lim})"

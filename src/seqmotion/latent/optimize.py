@@ -71,16 +71,18 @@ def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.o
 
 
 def _prepare(
-    model: object, states: object, objective: object, steps: int, lr: float | str
+    model: object, states: object, objective: object, steps: int, lr: float | str, physics: dict[str, Any]
 ) -> tuple[Any, torch.Tensor, torch.Tensor, int, bool]:
-    """Validate the arguments; return ``(objective, inputs (B, K, S), x0 (B, S'), K, was_single)``."""
+    """Validate the arguments; return ``(objective bound to the model, inputs (B, K, S), x0 (B, S'), K,
+    was_single)``."""
     if not isinstance(model, TrainedModel):
         raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
+    model.check_physics(physics)
     if steps < 0 or not (lr == "auto" or (isinstance(lr, (int, float)) and lr > 0)):
         raise ValueError(f"need steps >= 0 and lr > 0 or 'auto', got steps={steps}, lr={lr!r}")
     batch, single = as_trajectories(states, model.input_dim, "states")
     x = torch.from_numpy(batch)
-    return as_objective(objective), x, model.start_state(x), x.shape[1], single
+    return as_objective(objective).bind(model), x, model.start_state(x), x.shape[1], single
 
 
 def _descend(
@@ -252,9 +254,12 @@ def optimize_latent(
             update ``n`` and after. The end pose moves first, the penalty then pulls the motion
             back inside the constraint: this passes the penalty's ridges that stall plain descent.
             ``history`` always holds the true objective.
-        physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding).
+        physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding); a name the
+            task's dynamics do not take is refused (``ValueError``). The pancake's μ is an option
+            of the model (``model.options.mu``), used by its objectives; ``EndPose(..., mu=...)``
+            judges at another μ.
     """
-    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
+    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
     with torch.no_grad():
         if isinstance(init, str) and init == "encoder":
             z0 = model.encode_torch(x)
@@ -290,7 +295,7 @@ def optimize_trajectory(
     Starts from the motion the decoder generates for ``states``; ``lr`` is η (1000 in the
     dissertation) or ``"auto"``. Arguments as :func:`optimize_latent`.
     """
-    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr)
+    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
     with torch.no_grad():
         _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, **physics)
     with _frozen(model.model):

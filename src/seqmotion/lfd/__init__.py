@@ -5,11 +5,14 @@
   and the slave-only loop with a command source in the master's place (Fig. 5.7).
 * :mod:`seqmotion.lfd.operator` — the scripted human operator.
 * :mod:`seqmotion.lfd.dataset` — the HDF5 datasets (:func:`collect`, :func:`load_dataset`).
-* :mod:`seqmotion.lfd.models` — the SeqAE, the CNN and the combined :class:`PushingPolicy`.
+* :mod:`seqmotion.lfd.models` — the SeqAE, the CNN and the combined :class:`PushingPolicy`
+  (saved and loaded like every trained model: ``save_pretrained`` / ``PushingPolicy.from_pretrained``).
 * :mod:`seqmotion.lfd.train` — training (``train.train`` from a dataset directory;
   :func:`train_seqae`, :func:`train_cnn`, :func:`train_end_to_end`).
 * :mod:`seqmotion.lfd.evaluation` — closed-loop success rates (:func:`evaluate`).
 * :mod:`seqmotion.lfd.export` — shipping a policy with its model card (:func:`export_policy`).
+* :mod:`seqmotion.lfd.task` — the ``pushing`` task's registry entry (entry point ``seqmotion.tasks``).
+* :mod:`seqmotion.lfd.timing` — the decoder's period Δt_NN (:data:`COMMAND_INTERVAL`, 20 ms).
 
 Names are loaded lazily so that ``import seqmotion.lfd`` does not import MuJoCo, h5py or torch.
 """
@@ -44,8 +47,7 @@ _EXPORTS = {
     "PolicyConfig": "models",
     "PRESETS": "models",
     "motion_loss": "models",
-    "save_policy": "models",
-    "load_policy": "models",
+    "COMMAND_INTERVAL": "timing",
     "train_seqae": "train",
     "train_cnn": "train",
     "train_end_to_end": "train",
@@ -58,7 +60,7 @@ _EXPORTS = {
     "export_policy": "export",
 }
 
-_SUBMODULES = ("cli", "dataset", "evaluation", "export", "models", "operator", "teleop", "train")
+_SUBMODULES = ("cli", "dataset", "evaluation", "export", "models", "operator", "task", "teleop", "timing", "train")
 # No exported name equals a submodule's name: importing ``seqmotion.lfd.X`` sets the package's
 # attribute X to the module, which would shadow a function of the same name.
 

@@ -184,9 +184,9 @@ def _train(args: argparse.Namespace) -> int:
     _set_threads(args.threads)
     preset_name = args.preset
     if preset_name is None and args.seqae_from is not None:  # the reused SeqAE fixes the size
-        from .models import load_policy
+        from .models import PushingPolicy
 
-        preset_name = load_policy(args.seqae_from).config.preset
+        preset_name = PushingPolicy.from_pretrained(args.seqae_from).config.preset
     preset_name = preset_name or training.DEFAULT_PRESET
     seqae, e2e, cnn = training.default_settings(preset_name)
     for settings in (seqae, e2e):

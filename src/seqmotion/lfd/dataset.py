@@ -44,7 +44,7 @@ File layout (format ``seqmotion.lfd.pushing``, version 1). N episodes of K sampl
                                    taken just before the motion
     /cameras/<name>         attrs pos, target [m], fovy [deg] of every webcam pose
 
-Phase 2 reads 20 ms motions with :meth:`PushingDataset.motion` (``every=20``).
+Phase 2 reads 20 ms motions with :meth:`PushingDataset.motion` (by default every 20th sample).
 """
 
 from __future__ import annotations
@@ -349,12 +349,18 @@ class PushingDataset:
     def dt(self) -> float:
         return float(self.attrs["dt"])
 
-    def motion(self, every: int = 20, episodes: Sequence[int] | None = None) -> np.ndarray:
+    def motion(self, every: int | None = None, episodes: Sequence[int] | None = None) -> np.ndarray:
         """``(N, ceil(K / every), 18)``: master θ, θ̇, τ, slave θ, θ̇, τ, every ``every``-th sample.
 
-        ``every = 20`` gives the decoder's Δt_NN = 20 ms. Samples are picked, not averaged:
-        θ̇ and τ are already low-passed at 10 Hz by the pseudo-derivative and the RTOB.
+        The default ``every`` samples at the decoder's Δt_NN
+        (:data:`~seqmotion.lfd.timing.COMMAND_INTERVAL`, 20 ms: every 20th sample of a 1 ms
+        recording), what the networks train on. Samples are picked, not averaged: θ̇ and τ are
+        already low-passed at 10 Hz by the pseudo-derivative and the RTOB.
         """
+        if every is None:
+            from .timing import samples_per_command
+
+            every = samples_per_command(self.dt)
         if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
             raise ValueError(f"every must be a positive integer, got {every!r}")
         index = slice(None) if episodes is None else np.asarray(episodes)

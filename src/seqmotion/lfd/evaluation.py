@@ -242,10 +242,10 @@ def position_latents(policy: Any, dataset: Any, successful_only: bool = True, me
             (the CNN's default targets, see :class:`~seqmotion.lfd.train.CNNTraining`).
     """
     from .dataset import PushingDataset, load_dataset
-    from .train import EVERY, mean_latent_per_position
+    from .train import mean_latent_per_position
 
     data = dataset if isinstance(dataset, PushingDataset) else load_dataset(dataset)
     ok = data.episodes["success"].astype(bool) if successful_only else np.ones(len(data), bool)
     return mean_latent_per_position(
-        policy.encode(data.motion(EVERY)[ok]), data.episodes["position_index"][ok], medoid=medoid
+        policy.encode(data.motion()[ok]), data.episodes["position_index"][ok], medoid=medoid
     )

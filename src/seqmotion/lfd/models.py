@@ -28,12 +28,19 @@ dissertation gives 7 layers but no width; 64 sits between its ``smaller`` and ``
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 from torch import nn
+
+from ..errors import CheckpointError
+from ..training.checkpoint import load_state_dict_strict
+from ..training.pretrained import PretrainedModel
+from ..training.provenance import describe_machine
+from .timing import COMMAND_INTERVAL
 
 MOTION_DIM = 18
 """Columns per motion sample: master θ, θ̇, τ and slave θ, θ̇, τ (3 joints each)."""
@@ -322,6 +329,15 @@ class SeqAE(nn.Module):
 # ----------------------------------------------------------------------------------------------
 # The combined policy
 # ----------------------------------------------------------------------------------------------
+CNN_TARGET_TEXT = {
+    "pair": "each image's target the encoder's z of its own demonstration (eq. 5.2)",
+    "position_mean": "each image's target the mean encoder z of the demonstrations without images at its block "
+    "position (see `CNNTraining.targets`)",
+    "position_medoid": "each image's target the encoder z of the most typical demonstration without images at its "
+    "block position, the one nearest their mean (see `CNNTraining.targets`)",
+}
+"""How a model card describes each choice of :attr:`seqmotion.lfd.train.CNNTraining.targets`."""
+
 KINDS = ("proposed", "end_to_end")
 """``proposed``: SeqAE on motions, then CNN → z; ``end_to_end``: CNN + decoder trained on pairs."""
 
@@ -345,7 +361,7 @@ class PolicyConfig:
     seqae: dict = field(default_factory=lambda: asdict(PRESETS["original"]))
     cnn: dict = field(default_factory=lambda: asdict(CNNConfig()))
     camera: str = "default"
-    command_interval: float = 0.02
+    command_interval: float = COMMAND_INTERVAL
     training: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -353,7 +369,7 @@ class PolicyConfig:
             raise ValueError(f"unknown policy kind {self.kind!r}; choose one of {KINDS}")
 
 
-class PushingPolicy(nn.Module):
+class PushingPolicy(nn.Module, PretrainedModel):
     """Image → z → closed-loop command source: the combined model of Fig. 5.2 (or the E2E baseline).
 
     Typical use::
@@ -367,7 +383,16 @@ class PushingPolicy(nn.Module):
 
     Modules: ``scaler`` (motion statistics), ``encoder`` (the SeqAE's motion encoder; kept
     for ``kind == "proposed"``, absent in the end-to-end baseline), ``decoder``, ``cnn``.
+
+    Saved and loaded like every trained seqmotion model (:class:`~seqmotion.training.pretrained.PretrainedModel`):
+    ``policy.save_pretrained(directory)`` writes ``model.safetensors`` (tensor prefixes
+    ``scaler.``, ``encoder.``, ``decoder.``, ``cnn.``) and ``config.json`` (``"task": "pushing"``
+    and the whole :class:`PolicyConfig`); ``PushingPolicy.from_pretrained(directory)`` and
+    ``sm.load(directory)`` rebuild exactly this policy.
     """
+
+    task: ClassVar[str] = "pushing"
+    config_class: ClassVar[type] = PolicyConfig
 
     def __init__(self, config: PolicyConfig, seqae: SeqAE | None = None, cnn: ImageEncoder | None = None) -> None:
         super().__init__()
@@ -393,6 +418,103 @@ class PushingPolicy(nn.Module):
         model = SeqAE(self.seqae_config)
         model.scaler, model.encoder, model.decoder = self.scaler, self.encoder, self.decoder
         return model
+
+    # -- the model contract (save, load, model card) ---------------------------------------------
+    def weights(self) -> dict[str, torch.Tensor]:
+        return self.state_dict()
+
+    def config_json(self) -> dict[str, Any]:
+        return {"task": self.task, "model": type(self).__name__, "policy": asdict(self.config)}
+
+    @classmethod
+    def from_checkpoint(cls, config: dict[str, Any], tensors: dict[str, torch.Tensor], source: str) -> PushingPolicy:
+        """Rebuild a policy from ``config.json``'s ``"policy"`` (a :class:`PolicyConfig`) and its weights.
+
+        Raises:
+            seqmotion.CheckpointError: the config does not describe a policy, or the weights do not fit it.
+        """
+        try:
+            policy_config = PolicyConfig(**config["policy"])
+            policy_config.cnn["channels"] = tuple(policy_config.cnn["channels"])
+            policy = cls(policy_config)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CheckpointError(f"{source}/config.json does not describe a pushing policy: {exc}") from None
+        load_state_dict_strict(policy, tensors, source)
+        return policy.eval()
+
+    def card_summary(self) -> list[str]:
+        cfg = self.config
+        seq, cnn = cfg.seqae, cfg.cnn
+        encoder = (
+            "the SeqAE's motion encoder is kept"
+            if cfg.kind == "proposed"
+            else "CNN and decoder were trained together on image–motion pairs (the end-to-end baseline; no motion "
+            "encoder)"
+        )
+        return [
+            f"Task `pushing` (dissertation ch. 5) — the combined policy of Fig. 5.2, kind `{cfg.kind}`: a CNN "
+            f"(5 conv + ReLU + BatchNorm, channels {list(cnn['channels'])}, linear → z ∈ R^{seq['latent']}) in front "
+            f"of the SeqAE's decoder ({seq['layers']} × {seq['hidden']} LSTM, preset `{cfg.preset}`), which reads z "
+            f"and the slave state and emits the next master command every {cfg.command_interval * 1000:g} ms; "
+            f"{encoder}.",
+            "",
+            "```python",
+            "import seqmotion as sm",
+            "policy = sm.load_pretrained(NAME)               # NAME: this card's title; or sm.load(directory)",
+            "result = sm.lfd.evaluate(policy, trials=5)      # 30 closed-loop trials, 5 at each block position",
+            "```",
+            "",
+            f"Webcam pose: `{cfg.camera}`.",
+        ]
+
+    def card_training(self) -> list[str]:
+        training: dict[str, Any] = self.config.training
+        if not training:
+            return ["(no training record)"]
+        seqae, cnn, e2e = (training.get(part, {}) for part in ("seqae", "cnn", "end_to_end"))
+        lines = [
+            f"- Command: `{training.get('command') or 'unknown'}`",
+            f"- Seed: {training.get('seed')}; data `{training.get('data_dir')}` (written by `seqmotion lfd collect`)",
+        ]
+        if seqae:
+            reused = f"; reused from `{seqae['reused_from']}`" if seqae.get("reused_from") else ""
+            lines.append(
+                f"- SeqAE: {seqae.get('motions')} of {seqae.get('of')} demonstrations without images (failed ones "
+                f"left out){reused}; settings {json.dumps(seqae.get('settings', {}), sort_keys=True)}; final eq.-5.1 "
+                f"loss {seqae.get('final_loss', float('nan')):.4f}"
+            )
+        if cnn:
+            lines.append(
+                f"- CNN: {cnn.get('pairs')} of {cnn.get('of')} image–motion pairs (`{cnn.get('dataset')}`), "
+                f"{CNN_TARGET_TEXT.get(cnn.get('settings', {}).get('targets', 'pair'), '')}; "
+                f"settings {json.dumps(cnn.get('settings', {}), sort_keys=True)}"
+            )
+        if e2e:
+            settings = json.dumps(e2e.get("settings", {}), sort_keys=True)
+            lines.append(
+                f"- End to end: CNN and decoder trained together on {e2e.get('pairs')} of {e2e.get('of')} image–motion "
+                f"pairs (`{e2e.get('dataset')}`) with eq. 5.1; settings {settings}; final loss "
+                f"{e2e.get('final_loss', float('nan')):.4f}"
+            )
+        seconds = {
+            name: part["seconds"]
+            for name, part in (("SeqAE", seqae), ("CNN", cnn), ("end to end", e2e))
+            if part.get("seconds") is not None
+        }
+        if seconds:
+            lines.append(
+                "- Wall time: " + ", ".join(f"{name} {s:.0f} s" for name, s in seconds.items())
+                + f" (total {sum(seconds.values()) / 60:.1f} min)"
+            )
+        machine = training.get("machine")
+        if isinstance(machine, dict):  # provenance.machine_record() at training time
+            where = f" ({machine['platform']})" if machine.get("platform") else ""
+            load = machine.get("load_average")
+            load_text = f"; load average {[round(x, 2) for x in load]} when training started" if load else ""
+            lines.append(f"- Machine: {describe_machine(machine)}{where}{load_text}")
+        else:
+            lines.append(f"- Machine: {machine or 'not recorded'}")
+        return lines
 
     # -- inference -----------------------------------------------------------------------------
     @torch.no_grad()
@@ -489,42 +611,3 @@ class DecoderSource:
         out, self.state = p.decoder(self.z, slave_n, self.state)
         m = p.scaler.denormalize(out, MASTER)[0, 0].double().numpy()
         return ArmState(m[0:3], m[3:6], m[6:9])
-
-
-# ----------------------------------------------------------------------------------------------
-# Checkpoints
-# ----------------------------------------------------------------------------------------------
-TASK_NAME = "pushing"
-
-
-def save_policy(policy: PushingPolicy, directory: Any) -> None:
-    """Write ``model.safetensors`` (prefixes ``scaler.``, ``encoder.``, ``decoder.``, ``cnn.``) and ``config.json``.
-
-    The config carries ``"task": "pushing"`` and the whole :class:`PolicyConfig`, so
-    ``sm.load(directory)`` rebuilds exactly this policy.
-    """
-    from ..training.checkpoint import write_model
-
-    config = {"task": TASK_NAME, "model": "PushingPolicy", "policy": asdict(policy.config)}
-    write_model(directory, policy.state_dict(), config)
-
-
-def load_policy(directory: Any) -> PushingPolicy:
-    """Read a directory written by :func:`save_policy`.
-
-    Raises:
-        seqmotion.CheckpointError: missing or corrupt files, another task's model, a config
-            that does not describe a policy, or weights that do not fit it.
-    """
-    from ..errors import CheckpointError
-    from ..training.checkpoint import load_state_dict_strict, read_model
-
-    config, tensors = read_model(directory, expected_task=TASK_NAME)
-    try:
-        policy_config = PolicyConfig(**config["policy"])
-        policy_config.cnn["channels"] = tuple(policy_config.cnn["channels"])
-        policy = PushingPolicy(policy_config)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise CheckpointError(f"{directory}/config.json does not describe a pushing policy: {exc}") from None
-    load_state_dict_strict(policy, tensors, str(directory))
-    return policy.eval()

@@ -38,6 +38,7 @@ import numpy as np
 from ..sim import pushing
 from ..sim.observers import DisturbanceObserver, PseudoDerivative, ReactionTorqueObserver
 from ..sim.pushing import ArmSim, BlockPosition, MasterArm, PushingScene, SceneVariation
+from .timing import COMMAND_INTERVAL, samples_per_command
 
 
 @dataclass(frozen=True)
@@ -378,7 +379,7 @@ def run_autonomous(
     position: BlockPosition,
     duration: float = 4.0,
     variation: SceneVariation | None = None,
-    command_interval: float = 0.02,
+    command_interval: float = COMMAND_INTERVAL,
     gains: BilateralGains | None = None,
     reset: bool = True,
 ) -> AutonomousRun:
@@ -398,9 +399,7 @@ def run_autonomous(
     gains = gains or BilateralGains()
     steps = _check_duration(duration, gains.dt)
     _check_timestep(gains, scene)
-    every = round(command_interval / gains.dt)
-    if every < 1 or abs(every * gains.dt - command_interval) > 1e-9:
-        raise ValueError(f"command_interval must be a positive multiple of dt={gains.dt} s, got {command_interval!r}")
+    every = samples_per_command(gains.dt, command_interval)
     if reset:
         scene.reset(position, variation or SceneVariation())
     servo = ArmServo(scene, gains)
@@ -445,7 +444,7 @@ class ReplayMaster:
     a decoder is trained to predict (the next state, Δt_NN ahead).
     """
 
-    def __init__(self, demo: Demonstration, lookahead: float = 0.02) -> None:
+    def __init__(self, demo: Demonstration, lookahead: float = COMMAND_INTERVAL) -> None:
         self.demo, self.shift = demo, round(lookahead / demo.dt)
 
     def __call__(self, t: float, slave_state: ArmState) -> ArmState:

@@ -30,10 +30,16 @@ the end-to-end baseline gets the same settings, so the comparison stays like for
   pixel noise; never geometry).
 * Failed demonstrations (``success = False``, 3 of 90 in the default set) are left out.
 * Gradient-norm clipping at 1 and a cosine learning-rate decay to 10 % over the run.
+* Checkpoints and exact resume of the long trainings (SeqAE, end-to-end baseline).
 * Epochs per preset (:data:`SEQAE_EPOCHS`, :func:`default_settings`): the dissertation's 2000
   for the ``smaller`` SeqAE (5–9 min on one core of the project's shared 2-core CPU) and the
   ``original`` (~48 CPU-minutes), 1200 for ``larger`` (~1.5 h on two threads); 2000 for the
   end-to-end baseline of every size, as in the dissertation.
+
+All three run on the library's one optimisation loop,
+:class:`~seqmotion.training.loop.TrainingLoop` (Adam, the learning-rate schedule, clipping,
+checkpoints, resume, ``metrics.csv``); this module adds the epochs over the demonstrations,
+the losses and the noise.
 
 :data:`DEFAULT_PRESET` is the size ``seqmotion lfd train`` uses by default and the shipped
 policy's; see its docstring for why it is not the dissertation's 7-layer model.
@@ -45,7 +51,6 @@ import hashlib
 import json
 import math
 import sys
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,12 +59,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..training.checkpoint import (
-    latest_checkpoint,
-    load_state_dict_strict,
-    read_training_checkpoint,
-    write_training_checkpoint,
-)
+from ..training.checkpoint import atomic_write_bytes
+from ..training.loop import TrainingLoop
 from ..training.provenance import machine_record
 from .models import (
     MASTER,
@@ -74,11 +75,8 @@ from .models import (
     check_motions,
     motion_loss,
     preset,
-    save_policy,
 )
 
-EVERY = 20
-"""Samples of the 1 ms recordings per decoder step (Δt_NN = 20 ms)."""
 CHECKPOINT_EVERY = 50
 """Epochs between training checkpoints of the SeqAE and the end-to-end baseline."""
 
@@ -101,7 +99,7 @@ class SeqAETraining:
             this is a variational bottleneck (a VAE with a fixed posterior spread): the encoder
             cannot outgrow the noise, so z keeps what explains most of the motions (where the
             block is) before the operator's idiosyncrasies, which an image cannot predict.
-        grad_clip: global gradient-norm clip.
+        grad_clip: global gradient-norm clip (0: none).
         seed: seeds the weights, the batch order and the noise.
     """
 
@@ -232,11 +230,6 @@ def _seed(seed: Any) -> int:
     return int(seed)
 
 
-def _lr_factor(step: int, total: int, final: float) -> float:
-    """Cosine decay from 1 to ``final`` over ``total`` steps."""
-    return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * min(step, total) / max(total, 1)))
-
-
 # ----------------------------------------------------------------------------------------------
 # The three procedures
 # ----------------------------------------------------------------------------------------------
@@ -273,36 +266,40 @@ def train_seqae(
 
 
 def _fit(
-    module: torch.nn.Module, params: list, n: int, settings: SeqAETraining, gen: torch.Generator,
+    module: torch.nn.Module, params: list, n: int, settings: SeqAETraining | CNNTraining, gen: torch.Generator,
     batch_loss: Any, desc: str, progress: bool, min_batch: int = 1,
     checkpoint_dir: str | Path | None = None, data: tuple = (),
 ) -> dict[str, Any]:
-    """Adam over ``settings.epochs`` shuffled passes of ``n`` examples (cosine-decayed lr, clipped gradients).
+    """Adam over ``settings.epochs`` shuffled passes of ``n`` examples, on the shared :class:`TrainingLoop`.
 
     ``batch_loss(indices) -> loss`` is the mean loss of one mini-batch; mini-batches smaller
-    than ``min_batch`` are skipped. Returns ``{"loss": per-epoch mean, "seconds": wall time}``.
+    than ``min_batch`` are skipped. The learning rate follows the loop's cosine to
+    ``settings.lr_final_fraction`` and gradients are clipped to ``settings.grad_clip``; the
+    CNN's settings have neither (the dissertation's plain Adam: constant rate, no clipping).
+    Returns ``{"loss": per-epoch mean, "seconds": wall time}``.
 
     With ``checkpoint_dir``, everything the loop depends on (weights, Adam's moments, the random
     generator, the epoch, the loss history) is written there every :data:`CHECKPOINT_EVERY`
-    epochs and at the end, and a run finding a checkpoint of the same settings and ``data``
-    (arrays whose hash identifies the training set) there continues from it: an interrupted
-    run resumed ends with exactly the weights of an uninterrupted one.
+    epochs and at the end, with a ``metrics.csv`` of the per-epoch loss, and a run finding a
+    checkpoint of the same settings and ``data`` (arrays whose hash identifies the training
+    set) there continues from it: an interrupted run resumed ends with exactly the weights of
+    an uninterrupted one.
     """
-    checkpoint_dir = None if checkpoint_dir is None else Path(checkpoint_dir)
-    opt = torch.optim.Adam(params, lr=settings.lr)
     steps_per_epoch = math.ceil(n / settings.batch_size)
-    total_steps = settings.epochs * steps_per_epoch
-    history: dict[str, Any] = {"loss": []}
     digest = hashlib.sha256()
     for array in data:
         digest.update(np.ascontiguousarray(array).tobytes())
     shapes = {name: list(t.shape) for name, t in module.state_dict().items()}
     identity = {"task": "lfd-fit", "what": desc, "data_sha256": digest.hexdigest(), "settings": asdict(settings),
                 "shapes": shapes}
-    first_epoch, step, seconds_before = 0, 0, 0.0  # step: optimiser steps taken (sets the learning rate)
-    if checkpoint_dir is not None and latest_checkpoint(checkpoint_dir) is not None:
-        first_epoch, step, seconds_before = _resume(checkpoint_dir, module, opt, gen, identity, history)
-    start = time.perf_counter()
+    loop = TrainingLoop(
+        module, params, lr=settings.lr, total_steps=settings.epochs * steps_per_epoch,
+        lr_final_fraction=getattr(settings, "lr_final_fraction", 1.0), grad_clip=getattr(settings, "grad_clip", None),
+        run_dir=checkpoint_dir, identity=identity, generators={"rng": gen},
+    )
+    saved = loop.start()
+    history: dict[str, Any] = {"loss": list(saved.get("loss", []))}
+    first_epoch = int(saved.get("epoch", 0))
     module.train()
     bar = tqdm(range(first_epoch, settings.epochs), desc=desc, unit="epoch", disable=not progress, file=sys.stderr,
                initial=first_epoch, total=settings.epochs)
@@ -313,45 +310,18 @@ def _fit(
             idx = order[b * settings.batch_size : (b + 1) * settings.batch_size]
             if len(idx) < min_batch:
                 continue
-            for group in opt.param_groups:
-                group["lr"] = settings.lr * _lr_factor(step, total_steps, settings.lr_final_fraction)
             loss = batch_loss(idx)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(params, settings.grad_clip)
-            opt.step()
+            loop.step(loss)
             total += loss.item() * len(idx)
-            step += 1
         history["loss"].append(total / n)
         bar.set_postfix(loss=f"{history['loss'][-1]:.4f}")
         done = epoch + 1
+        loop.log({"loss": history["loss"][-1]}, epoch=done)
         if checkpoint_dir is not None and (done % CHECKPOINT_EVERY == 0 or done == settings.epochs):
-            elapsed = seconds_before + time.perf_counter() - start
-            write_training_checkpoint(
-                checkpoint_dir, f"epoch-{done:06d}", {**module.state_dict(), "rng": gen.get_state()},
-                opt.state_dict(), identity, {"epoch": done, "step": step, "loss": history["loss"], "seconds": elapsed},
-            )
-    history["seconds"] = seconds_before + time.perf_counter() - start
+            loop.checkpoint(extra={"epoch": done, "loss": history["loss"]})
+    loop.close()
+    history["seconds"] = loop.elapsed
     return history
-
-
-def _resume(
-    checkpoint_dir: Path, module: torch.nn.Module, opt: torch.optim.Optimizer, gen: torch.Generator,
-    identity: dict, history: dict,
-) -> tuple[int, int, float]:
-    """Load the latest checkpoint of ``checkpoint_dir`` into the loop's state; return (epoch, step, seconds)."""
-    config, tensors, opt_state, state = read_training_checkpoint(latest_checkpoint(checkpoint_dir))
-    saved = {k: config.get(k) for k in identity}
-    if saved != json.loads(json.dumps(identity)):
-        raise ValueError(
-            f"{checkpoint_dir} holds a checkpoint of another training ({saved['what']}: other data, layer "
-            f"sizes or settings {saved['settings']}); use another output directory, or start over (--no-resume)"
-        )
-    gen.set_state(tensors.pop("rng"))
-    load_state_dict_strict(module, tensors, str(checkpoint_dir))
-    opt.load_state_dict(opt_state)
-    history["loss"] = list(state["loss"])
-    return int(state["epoch"]), int(state["step"]), float(state["seconds"])
 
 
 def state_noise(shape: tuple[int, ...], settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor | None:
@@ -437,26 +407,13 @@ def train_cnn(
     gen = torch.Generator().manual_seed(settings.seed)
     cnn = ImageEncoder(config)
     x, y = torch.as_tensor(images), torch.as_tensor(targets, dtype=torch.float32)
-    opt = torch.optim.Adam(cnn.parameters(), lr=settings.lr)
-    history: dict[str, Any] = {"loss": []}
-    start = time.perf_counter()
-    cnn.train()
-    n = len(x)
-    for _ in tqdm(range(settings.epochs), desc="CNN", unit="epoch", disable=not progress, file=sys.stderr):
-        order = torch.randperm(n, generator=gen)
-        total = 0.0
-        for b in range(0, n, settings.batch_size):
-            idx = order[b : b + settings.batch_size]
-            if len(idx) < 2:  # BatchNorm cannot normalise a batch of one; fold it into the last step
-                continue
-            batch = augment_images(x[idx], gen) if settings.augment else x[idx]
-            loss = ((cnn(batch) - y[idx]) ** 2).sum(-1).mean()
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            total += loss.item() * len(idx)
-        history["loss"].append(total / n)
-    history["seconds"] = time.perf_counter() - start
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        batch = augment_images(x[idx], gen) if settings.augment else x[idx]
+        return ((cnn(batch) - y[idx]) ** 2).sum(-1).mean()
+
+    # BatchNorm cannot normalise a batch of one: a last mini-batch of one image is skipped
+    history = _fit(cnn, list(cnn.parameters()), len(x), settings, gen, batch_loss, "CNN", progress, min_batch=2)
     return cnn.eval(), history
 
 
@@ -614,26 +571,18 @@ def train(
     if "proposed" in methods:
         motions_data = load_dataset(data_dir / "motions.h5")
         keep_motions = _episodes(motions_data, successful_only)
-        motions = motions_data.motion(EVERY, keep_motions)  # trains the SeqAE and/or sets the CNN's targets
+        motions = motions_data.motion(episodes=keep_motions)  # trains the SeqAE and/or sets the CNN's targets
         if seqae_from is not None:
-            from .models import load_policy
-
-            donor = load_policy(seqae_from)
+            donor = PushingPolicy.from_pretrained(seqae_from)
             seqae = donor.seqae()
             if donor.config.preset and donor.config.preset != preset_name:
                 raise ValueError(f"{seqae_from} holds a {donor.config.preset!r} SeqAE, not {preset_name!r}")
             seqae_record = {"reused_from": str(seqae_from), **donor.config.training.get("seqae", {})}
         else:
             seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae")
-            report.seconds["seqae"] = history["seconds"]
-            report.final_loss["seqae"] = history["loss"][-1]
-            seqae_record = {
-                "settings": asdict(seqae_settings),
-                "motions": int(len(keep_motions)),
-                "of": len(motions_data),
-                "seconds": history["seconds"],
-                "final_loss": history["loss"][-1],
-            }
+            seqae_record = _record(
+                report, "seqae", seqae_settings, history, motions=int(len(keep_motions)), of=len(motions_data)
+            )
         if cnn_settings.targets != "pair":
             position_z = mean_latent_per_position(
                 encode_motions(seqae, motions),
@@ -643,26 +592,17 @@ def train(
         for camera, data in pairs.items():
             keep = _episodes(data, successful_only)
             if cnn_settings.targets == "pair":
-                targets = encode_motions(seqae, data.motion(EVERY, keep))
+                targets = encode_motions(seqae, data.motion(episodes=keep))
             else:
                 targets = position_z[data.episodes["position_index"][keep]]
             cnn, history = train_cnn(
                 data.images[keep], targets, CNNConfig(latent=config.latent), cnn_settings, progress
             )
-            report.seconds[f"cnn_{camera}"] = history["seconds"]
-            report.final_loss[f"cnn_{camera}"] = history["loss"][-1]
-            training = {
-                **record,
-                "seqae": seqae_record,
-                "cnn": {
-                    "settings": asdict(cnn_settings),
-                    "pairs": int(len(keep)),
-                    "of": len(data),
-                    "dataset": str(pair_paths[camera]),
-                    "seconds": history["seconds"],
-                    "final_loss": history["loss"][-1],
-                },
-            }
+            cnn_record = _record(
+                report, f"cnn_{camera}", cnn_settings, history, pairs=int(len(keep)), of=len(data),
+                dataset=str(pair_paths[camera]),
+            )
+            training = {**record, "seqae": seqae_record, "cnn": cnn_record}
             policy = PushingPolicy(
                 PolicyConfig(
                     "proposed",
@@ -675,14 +615,14 @@ def train(
                 seqae,
                 cnn,
             )
-            report.policies[f"proposed_{camera}"] = _save(policy, out / f"proposed_{camera}")
+            report.policies[f"proposed_{camera}"] = policy.save_pretrained(out / f"proposed_{camera}")
 
     if "end_to_end" in methods:
         for camera, data in pairs.items():
             keep = _episodes(data, successful_only)
             policy, history = train_end_to_end(
                 data.images[keep],
-                data.motion(EVERY, keep),
+                data.motion(episodes=keep),
                 config,
                 e2e_settings,
                 camera=camera,
@@ -690,20 +630,12 @@ def train(
                 progress=progress,
                 checkpoint_dir=checkpoints / f"end_to_end_{camera}",
             )
-            report.seconds[f"end_to_end_{camera}"] = history["seconds"]
-            report.final_loss[f"end_to_end_{camera}"] = history["loss"][-1]
-            policy.config.training = {
-                **record,
-                "end_to_end": {
-                    "settings": asdict(e2e_settings),
-                    "pairs": int(len(keep)),
-                    "of": len(data),
-                    "dataset": str(pair_paths[camera]),
-                    "seconds": history["seconds"],
-                    "final_loss": history["loss"][-1],
-                },
-            }
-            report.policies[f"end_to_end_{camera}"] = _save(policy, out / f"end_to_end_{camera}")
+            e2e_record = _record(
+                report, f"end_to_end_{camera}", e2e_settings, history, pairs=int(len(keep)), of=len(data),
+                dataset=str(pair_paths[camera]),
+            )
+            policy.config.training = {**record, "end_to_end": e2e_record}
+            report.policies[f"end_to_end_{camera}"] = policy.save_pretrained(out / f"end_to_end_{camera}")
 
     out.mkdir(parents=True, exist_ok=True)
     entry = {
@@ -718,15 +650,18 @@ def train(
         runs = json.loads(log_path.read_text())["runs"] if log_path.is_file() else []
     except (json.JSONDecodeError, KeyError, TypeError):
         runs = []
-    log_path.write_text(json.dumps({"runs": [*runs, entry]}, indent=2) + "\n")
+    atomic_write_bytes(log_path, (json.dumps({"runs": [*runs, entry]}, indent=2) + "\n").encode())
     return report
+
+
+def _record(report: TrainReport, part: str, settings: Any, history: dict, **counts: Any) -> dict[str, Any]:
+    """The training record of one part (settings, how much data, wall time, final loss); notes the
+    last two in ``report`` under ``part``."""
+    report.seconds[part] = history["seconds"]
+    report.final_loss[part] = history["loss"][-1]
+    return {"settings": asdict(settings), **counts, "seconds": history["seconds"], "final_loss": history["loss"][-1]}
 
 
 def _with_seed(settings: Any, seed: int) -> Any:
     settings.seed = seed
     return settings
-
-
-def _save(policy: PushingPolicy, directory: Path) -> Path:
-    save_policy(policy, directory)
-    return directory

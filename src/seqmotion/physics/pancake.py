@@ -19,13 +19,17 @@ import torch
 
 from ..errors import as_trajectories
 from .integrator import DT, implied_accel
+from .layout import StateLayout
 
 GRAVITY = 9.8
 """Magnitude of gravity [m/s²]; the vector is ``(0, -GRAVITY)`` in (y, z)."""
 MU = 1.0
 """Static friction coefficient between pancake and spatula (the dissertation's value)."""
-STATE_DIM = 6
-ACCEL_DIM = 3
+STATE_LAYOUT = StateLayout(("y", "z", "theta", "v_y", "v_z", "v_theta"), ("m", "m", "rad", "m/s", "m/s", "rad/s"),
+                           "pancake state")
+ACCEL_LAYOUT = StateLayout(("a_y", "a_z", "a_theta"), ("m/s²", "m/s²", "rad/s²"), "spatula acceleration")
+STATE_DIM = STATE_LAYOUT.dim
+ACCEL_DIM = ACCEL_LAYOUT.dim
 
 
 def wrap_angle(angle: torch.Tensor) -> torch.Tensor:

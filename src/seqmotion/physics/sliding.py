@@ -34,12 +34,19 @@ import torch
 
 from ..errors import as_trajectories
 from .integrator import DT, CovarianceCarry, integrate, propagate_covariance
+from .layout import StateLayout
 
 GRAVITY = 9.8
 MU = 1.0
 MU_DYN = 0.5
 STATE_DIM = 4  # [x, y, vx, vy]
 ACCEL_DIM = 2
+REL_LAYOUT = StateLayout(("x", "y", "v_x", "v_y"), ("m", "m", "m/s", "m/s"), "object state relative to the pan")
+PLAN_LAYOUT = StateLayout(
+    ("pan_x", "pan_y", "pan_v_x", "pan_v_y", "x", "y", "v_x", "v_y"), ("m", "m", "m/s", "m/s") * 2,
+    "pan and object state",
+)
+ACCEL_LAYOUT = StateLayout(("pan_a_x", "pan_a_y"), ("m/s²", "m/s²"), "pan acceleration")
 
 # Which case of eq. 3.9 a step took.
 STICK, BREAKAWAY, SLIDE, STOP = 0, 1, 2, 3

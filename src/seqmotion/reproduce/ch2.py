@@ -34,9 +34,10 @@ D_WEIGHTS = np.array([1.0, 1.0, THETA_WEIGHT])
 
 
 def load_deformer(model: str | None) -> Deformer:
-    import seqmotion as sm
+    """The shipped deformer, or the one at ``model`` (a shipped name or a model/run directory)."""
+    from ..api import resolve_model
 
-    return sm.load_pretrained("pancake") if model is None else sm.load(model, expected_task="pancake")
+    return resolve_model(model or "pancake", "pancake")
 
 
 def heldout_metrics(deformer: Deformer, n: int, seed: int) -> dict:
@@ -51,7 +52,8 @@ def heldout_metrics(deformer: Deformer, n: int, seed: int) -> dict:
         start = time.perf_counter()
         r = deformer.deform(x)
         seconds += time.perf_counter() - start
-        for name, states, fc in (("input", x, physics.violation_of_states(x)), ("output", r.states, r.violation)):
+        fc_in = physics.violation_of_states(x, deformer.options.mu)
+        for name, states, fc in (("input", x, fc_in), ("output", r.states, r.violation)):
             d_err = (states[:, :3] - x[:, :3]) * D_WEIGHTS
             rows[name].append(
                 {
@@ -132,7 +134,9 @@ def figures(deformer: Deformer, out: Path) -> dict:
     psi_in = physics.psi(x[:-1], implied_accel(x))
     fig, ax = plt.subplots(figsize=(7, 3.5))
     t = np.arange(FIG_LENGTH - 1)
-    ax.axhspan(-math.pi / 4, math.pi / 4, color="tab:blue", alpha=0.15, label="friction cone |ψ| < atan μ")
+    cone = deformer.options.cone_half_angle  # the μ this model was trained and is judged at
+    ax.axhspan(-cone, cone, color="tab:blue", alpha=0.15,
+               label=f"friction cone |ψ| < atan μ, μ = {deformer.options.mu:g}")
     ax.plot(t, psi_in, "--", color="gray", label="original")
     ax.plot(t, r.psi, "-", color="tab:red", label="deformed")
     ax.set(xlabel="time [ms]", ylabel="ψ = arg(g − u) − θ [rad]", ylim=(-math.pi, math.pi),

@@ -85,8 +85,9 @@ def _band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, half
 
 
-def figures_cases(runs: dict[str, dict], out: Path) -> None:
-    """Figs. 4.2–4.6 from ``runs[method][case]``: the first method is drawn with bands and paths."""
+def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
+    """Figs. 4.2–4.6 from ``runs[method][case]``: the first method is drawn with bands and paths;
+    the cone band is ±atan μ of the model's own μ."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -142,7 +143,7 @@ def figures_cases(runs: dict[str, dict], out: Path) -> None:
         axes[0].set(xlabel="time [ms]", ylabel="y, z [m] (–, --), θ [rad] (:)", title="(a) time–position")
         axes[1].set(xlabel="y [m]", ylabel="z [m]", title="(b) paths; × targets")
         axes[1].set_aspect("equal", adjustable="datalim")
-        axes[2].axhspan(-math.pi / 4, math.pi / 4, color="tab:blue", alpha=0.15)
+        axes[2].axhspan(-math.atan(mu), math.atan(mu), color="tab:blue", alpha=0.15, label=f"cone, μ = {mu:g}")
         axes[2].set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="(c) cone angle")
         fig.suptitle(f"Case 1 after 100 updates, final attitude {label}")
         fig.tight_layout()
@@ -185,7 +186,8 @@ def j2_study(deformer: Deformer, out: Path) -> dict:
     fig.suptitle("Fig. 4.8: optimising J2")
     fig.tight_layout()
     fig.savefig(out / "fig4_8_j2_velocity.png", dpi=120)
-    ax2.axhspan(-math.pi / 4, math.pi / 4, color="tab:blue", alpha=0.15)
+    cone = deformer.options.cone_half_angle
+    ax2.axhspan(-cone, cone, color="tab:blue", alpha=0.15, label=f"cone, μ = {deformer.options.mu:g}")
     ax2.set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="Fig. 4.9: ψ while optimising J2")
     ax2.legend(fontsize=8)
     fig2.tight_layout()
@@ -199,17 +201,17 @@ def j2_study(deformer: Deformer, out: Path) -> dict:
             "J2": float(r.history[-1]),
             "max_speed_yz": float(np.abs(r.states[:, 3:5]).max()),
             "max_speed_theta": float(np.abs(r.states[:, 5]).max()),
-            "max_fc": float(_fc(r.states, r.accel).max()),
+            "max_fc": float(_fc(r.states, r.accel, deformer.options.mu).max()),
             "end": r.states[-1, :3].tolist(),
         }
         for u, r in snapshots.items()
     } | {"final_states": final.states, "dissertation_eta_100_final_J2": float(fixed.history[-1])}
 
 
-def _fc(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
+def _fc(states: np.ndarray, accel: np.ndarray, mu: float) -> np.ndarray:
     from ..physics import pancake
 
-    return pancake.violation(states[..., :-1, :], accel)
+    return pancake.violation(states[..., :-1, :], accel, mu)
 
 
 def timing(deformer: Deformer) -> dict:
@@ -249,12 +251,12 @@ def peer(deformer: Deformer, targets: np.ndarray, threshold: float = 1e-3) -> li
             start = time.perf_counter()
             run_case(deformer, "case 1 (encoder z)", "lm", int(reached[0]), target[None])
             latent_time = time.perf_counter() - start
-        ipopt = solve_end_pose(tuple(target), threshold=threshold)
+        ipopt = solve_end_pose(tuple(target), threshold=threshold, mu=deformer.options.mu)
         rows.append({
             "target": target.tolist(),
             "latent_seconds_to_threshold": latent_time,
             "latent_final_j1": float(history[-1]),
-            "latent_max_fc": float(_fc(res.states, res.accel).max()),
+            "latent_max_fc": float(_fc(res.states, res.accel, deformer.options.mu).max()),
             "latent_total_seconds_100_updates": total,
             "ipopt_seconds_to_threshold": ipopt.seconds_to_threshold,
             "ipopt_final_j1": ipopt.j1,
@@ -306,7 +308,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
                 runs[method][name] = run_case(deformer, name, method, steps, seed=seed)
             except ValueError as exc:  # a fixed step blew the objective up to NaN/inf
                 diverged[f"{name}, {method}"] = str(exc)
-    figures_cases(runs, out)
+    figures_cases(runs, out, deformer.options.mu)
 
     summary: dict = {"methods": {}, "diverged": diverged, "continuation": CONTINUATION}
     lines = ["| case | method | mean J1 at update 5 | mean J1 at the end | end-position RMSE [mm] "
@@ -315,7 +317,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
         summary["methods"][method] = {}
         for name, res in results.items():
             pos, att = end_errors(res.states)
-            fc = _fc(res.states, res.accel).max(axis=1)
+            fc = _fc(res.states, res.accel, deformer.options.mu).max(axis=1)
             row = {
                 "mean_j1_by_update": res.history.mean(1).tolist(),
                 "end_position_rmse_mm": float(math.sqrt((pos**2).mean())),

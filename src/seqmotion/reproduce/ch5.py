@@ -156,7 +156,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
 
     from ..lfd.dataset import load_dataset
     from ..lfd.evaluation import evaluate
-    from ..lfd.models import load_policy
+    from ..lfd.models import PushingPolicy
     from ..sim import pushing
 
     torch.set_num_threads(1)  # the LSTMs are small: one thread is fastest and reproducible
@@ -172,7 +172,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     results: dict[str, dict] = {}
     try:
         for (preset_name, method, camera), path in paths.items():
-            policy = load_policy(path)
+            policy = PushingPolicy.from_pretrained(path)
             ev = evaluate(policy, camera=camera, trials=trials, seed=seed, progress=True, scene=scene)
             results[f"{preset_name}/{method}_{camera}"] = ev.as_dict()
         snapshots = _snapshots(out, paths, results, scene, seed)
@@ -310,7 +310,7 @@ def _plot_fig5_9(out: Path, table52: dict) -> None:
 def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
     """PCA (2 components) of ẑ of the unseen images, both methods of the main (default) size."""
     plt = _pyplot()
-    from ..lfd.models import load_policy
+    from ..lfd.models import PushingPolicy
     from ..sim.pushing import POSITIONS
 
     fig, axes = plt.subplots(1, 2, figsize=(8.4, 3.8))
@@ -318,7 +318,7 @@ def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
     colors = plt.get_cmap("tab10")
     points = {}
     for ax, method in zip(axes, ("end_to_end", "proposed"), strict=True):
-        z = load_policy(paths[(main_preset(), method, "default")]).latent(unseen.images)
+        z = PushingPolicy.from_pretrained(paths[(main_preset(), method, "default")]).latent(unseen.images)
         centred = z - z.mean(0)
         _, s, vt = np.linalg.svd(centred, full_matrices=False)
         pcs = centred @ vt[:2].T
@@ -345,34 +345,18 @@ def render_frames(
     """Frames ``(height, width, 3)`` of a recorded :class:`~seqmotion.lfd.teleop.AutonomousRun` at ``times`` [s].
 
     The recorded arm angles and block pose are written back into the scene (same variation,
-    so the lighting matches) and rendered from a free camera in front of the robot.
+    so the lighting matches) and rendered from the scene's overview camera in front of the
+    robot (:meth:`seqmotion.sim.pushing.PushingScene.render_states`).
     """
-    import mujoco
-
     scene.reset(run.position, variation)
-    model = scene.model
-    model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
-    model.vis.global_.offheight = max(model.vis.global_.offheight, height)
-    renderer = mujoco.Renderer(model, height, width)
-    camera = mujoco.MjvCamera()
-    camera.lookat[:] = (0.14, 0.0, 0.03)
-    camera.distance, camera.azimuth, camera.elevation = 0.5, 180.0, -35.0
-    frames = []
-    try:
-        for t in times:
-            k = min(round(t / run.dt), len(run.slave_theta) - 1)
-            scene.set_state(run.slave_theta[k], run.block_pose[k])
-            renderer.update_scene(scene.data, camera=camera)
-            frames.append(renderer.render().copy())
-    finally:
-        renderer.close()
-    return frames
+    steps = [min(round(t / run.dt), len(run.slave_theta) - 1) for t in times]
+    return scene.render_states(run.slave_theta[steps], run.block_pose[steps], width, height)
 
 
 def _snapshots(out: Path, paths: dict, results: dict, scene: Any, seed: int) -> dict:
     """Fig. 5.10: one trial per method at the same placement (a failed end-to-end one if there is any)."""
     from ..lfd.evaluation import trial_rng
-    from ..lfd.models import load_policy
+    from ..lfd.models import PushingPolicy
     from ..sim import pushing
     from ..sim.render import write_strip
 
@@ -384,7 +368,7 @@ def _snapshots(out: Path, paths: dict, results: dict, scene: Any, seed: int) -> 
     variation = pushing.SceneVariation.sample(trial_rng(seed, index, trial))
     chosen = {}
     for method in ("end_to_end", "proposed"):
-        policy = load_policy(paths[(main_preset(), method, "default")])
+        policy = PushingPolicy.from_pretrained(paths[(main_preset(), method, "default")])
         run, _, _ = policy.run(scene, position, variation)
         frames = render_frames(scene, run, variation, SNAPSHOT_TIMES)
         labels = [f"{method.replace('_', '-')} t={t:.1f} s" for t in SNAPSHOT_TIMES]

@@ -35,7 +35,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     parser.add_argument("--camera", help="scene camera (pancake: oblique | front; sliding: front | top)")
     parser.add_argument("--mu", type=float, default=None,
                         help="pancake: friction coefficient the executed motion's friction cone is judged with "
-                             "(default: the model's μ = 1; the simulated contact keeps μ = 1)")
+                             "(default: --model's μ, else 1; the simulated contact keeps μ = 1)")
+    parser.add_argument("--model", help="the model (shipped name or directory) that generated the motion: its "
+                                        "options (μ) judge the execution")
     parser.add_argument("--json", help="also write the metrics (and the logged paths) here as JSON")
     parser.set_defaults(func=run)
     return parser
@@ -79,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
         arrays = _read(path, ("states",), 6)
         if args.mu is not None:
             common["mu"] = args.mu
+        elif args.model:  # the μ the model was trained and is judged at
+            from ..api import resolve_model
+
+            common["mu"] = resolve_model(args.model, "pancake").options.mu
         result = run_pancake(arrays["states"], gains=args.gains or "ch2", **common)
         logged = {"time": result.time, "command": result.command, "response": result.response,
                   "slip": result.slip, "gap": result.gap}

@@ -115,6 +115,7 @@ class PancakeResult:
             "on_spatula": self.on_spatula,
             "turned_over": self.turned_over,
             "executed_max_violation_rad": float(self.executed_violation.max(initial=0.0)),
+            "mu": self.mu,  # the friction coefficient the executed cone was judged with
             "realtime_factor": self.realtime_factor,
             "diverged": self.diverged,
         }

@@ -1,45 +1,36 @@
-"""Task registry: every module in this package that defines ``TASK`` registers it.
+"""Tasks: the registry (seqmotion's own modules and the ``seqmotion.tasks`` entry-point group),
+the :class:`Task` base, typed options and the task-generic trained model.
 
-A ``TASK`` is normally a :class:`Task` (trained by the shared seq2seq trainer). Models that
-are trained otherwise (learning from demonstration) register an object with a ``name`` and a
-``load(directory)`` method, so ``sm.load`` and ``sm.load_pretrained`` still find them.
+>>> from seqmotion import tasks
+>>> tasks.names()                       # every task this installation knows, plug-ins included
+>>> tasks.train(tasks.get("pancake").train_config("tiny"), "runs/tiny")
 """
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
+from pathlib import Path
+from typing import Any
 
-from .base import Task, TrainConfig
-
-_REGISTRY: dict[str, Task] | None = None
-
-
-def _discover() -> dict[str, Task]:  # values: Task, or any object with .name and .load
-    global _REGISTRY
-    if _REGISTRY is None:
-        found: dict[str, Task] = {}
-        for info in pkgutil.iter_modules(__path__):
-            if info.name.startswith("_") or info.name == "base":
-                continue
-            module = importlib.import_module(f"{__name__}.{info.name}")
-            task = getattr(module, "TASK", None)
-            if isinstance(task, Task) or (hasattr(task, "name") and hasattr(task, "load")):
-                found[task.name] = task
-        _REGISTRY = found
-    return _REGISTRY
+from ..training.config import TrainConfig
+from .base import Motion, OnlineGenerator, Task, TrainedModel
+from .options import TaskOptions
+from .registry import ENTRY_POINT_GROUP, get, names, pretrained_roots, refresh, register
 
 
-def get(name: str) -> Task:
-    """The registered task called ``name``."""
-    tasks = _discover()
-    if name not in tasks:
-        raise ValueError(f"unknown task {name!r}; known tasks: {sorted(tasks)}")
-    return tasks[name]
+def train(config: TrainConfig, run_dir: str | Path, **kwargs: Any) -> Path:
+    """Train ``config`` with its registered task: :func:`seqmotion.training.trainer.train` (same keywords)."""
+    from ..training.trainer import train as run
+
+    task = get(config.task)
+    if not isinstance(task, Task):
+        raise ValueError(
+            f"task {config.task!r} is not trained by the seq2seq trainer"
+            + (f"; {task.trained_by}" if getattr(task, "trained_by", None) else "")
+        )
+    return run(task, config, run_dir, **kwargs)
 
 
-def names() -> list[str]:
-    return sorted(_discover())
-
-
-__all__ = ["Task", "TrainConfig", "get", "names"]
+__all__ = [
+    "ENTRY_POINT_GROUP", "Motion", "OnlineGenerator", "Task", "TaskOptions", "TrainConfig", "TrainedModel", "get",
+    "names", "pretrained_roots", "refresh", "register", "train",
+]

@@ -10,7 +10,7 @@ Losses (per trajectory, k = 1..K-1, normalised by K-1):
 
 * **L** (3.20–3.23): ``α1 NLL(p_d[k] | p̂_d[k], S_pd[k]) + α2 max(0, |p̂_p[k]| − p_lim)
   + α3 |û_p[k] − û_p[k−1]|`` with α1 = 1, α2 = 100 (the dissertation: 10; see
-  ``DEFAULT_OPTIONS``), α3 = 1, p_lim = 0.2 m. Its gradient
+  :class:`SlidingOptions`), α3 = 1, p_lim = 0.2 m. Its gradient
   passes through the contact model (and vanishes wherever the object sticks).
 * **L'** (3.24): ``NLL(p_p[k] | p̂_p[k], S_pp[k])`` against the pan trajectory that produced
   a physics-type command — supervised, and no gradient passes back through the contact model.
@@ -25,19 +25,22 @@ for 50 epochs), **C** stage 1 only (L' for 50 epochs).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 
 from ..data import sliding as commands
 from ..data.trajectories import TrajectoryBatch
-from ..errors import as_trajectories, check_finite_result
-from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig, rollout
+from ..errors import as_trajectories
+from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from ..physics import sliding as contact
 from ..physics.integrator import DT
+from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, Stage
-from ..training.losses import gaussian_nll_2d
-from .base import Task, TrainConfig, TrainedModel, first_of
+from ..training.losses import encode_and_rollout, gaussian_nll_2d, masked_mean, per_trajectory, sample_mask
+from .base import Motion, Task, TrainedModel
+from .options import TaskOptions, check_choice, check_length_range, check_positive
 
 PAN_LIMIT = 0.2  # p_lim [m]
 VARIANTS = {
@@ -74,48 +77,91 @@ def model_config(layers: int, hidden: int, head_hidden: int, chunk: int = 100) -
     )
 
 
-DEFAULT_OPTIONS = {
-    "length": [500, 1500],
-    "alpha_shape": 1.0,  # α1
-    # α2. The dissertation uses 10; with it our model A drove the pan up to 0.49 m from home on
-    # friction it had not seen (measured over the ch. 3 grid), far beyond p_lim = 0.2 m.
-    "alpha_range": 100.0,
-    "alpha_jerk": 1.0,  # α3
-    "pan_limit": PAN_LIMIT,
-    # (1 mm)²: the object's position only needs millimetres, and the 0.1 mm default made the
-    # NLL ~1e4 whenever the object lagged its command (badly conditioned gradients).
-    "variance_floor": 1e-6,
-    "mu": contact.MU,
-    "mu_dyn": contact.MU_DYN,
-    # Beyond the dissertation (off by default): draw each training trajectory's friction from
-    # [[μ_lo, μ_hi], [μ'_lo, μ'_hi]] (with μ' < μ) instead of training at (mu, mu_dyn) only.
-    "friction_range": None,
-    # Beyond the dissertation (off by default): draw each training trajectory's friction from
-    # this list of [μ, μ'] pairs, e.g. a few pairs none of which is on the ch. 3 evaluation grid.
-    "friction_pairs": None,
-    # How the physics-type commands' pans shake (data.sliding): "position" keeps the pan near
-    # home; "velocity" lets it random-walk, so L' alone (model C) learns a drifting pan.
-    "pan_shaking": "position",
-}
+def check_friction(mu: Any, mu_dyn: Any, what: str = "friction") -> None:
+    """``ValueError`` unless ``mu > 0`` and ``0 <= mu_dyn <= mu`` (finite numbers)."""
+    check_positive("mu", mu)
+    check_positive("mu_dyn", mu_dyn, allow_zero=True)
+    if mu_dyn > mu:
+        raise ValueError(f"{what} must satisfy mu > 0 and 0 <= mu_dyn <= mu, got {mu}, {mu_dyn}")
 
 
-def training_friction(n: int, rng: np.random.Generator, opt: dict) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class SlidingOptions(TaskOptions):
+    """Options of the sliding task (``--set KEY=VALUE`` on ``seqmotion train sliding``).
+
+    Attributes:
+        length: ``[K_min, K_max]`` of the training commands.
+        alpha_shape: α1, the weight of the object's likelihood.
+        alpha_range: α2. The dissertation uses 10; with it our model A drove the pan up to 0.49 m
+            from home on friction it had not seen (measured over the ch. 3 grid), far beyond p_lim.
+        alpha_jerk: α3.
+        pan_limit: p_lim [m].
+        variance_floor: (1 mm)²: the object's position only needs millimetres, and the 0.1 mm
+            default made the NLL ~1e4 whenever the object lagged its command.
+        mu, mu_dyn: the nominal static and dynamic friction (μ, μ'): what the model is trained at
+            (unless a range or pairs are given) and what ``plan`` rolls out at by default.
+        friction_range: beyond the dissertation (off by default): draw each training
+            trajectory's friction from ``[[μ_lo, μ_hi], [μ'_lo, μ'_hi]]`` (with μ' < μ).
+        friction_pairs: beyond the dissertation (off by default): draw each training trajectory's
+            friction from this list of ``[μ, μ']`` pairs.
+        pan_shaking: how the physics-type commands' pans shake (:mod:`seqmotion.data.sliding`):
+            ``"position"`` keeps the pan near home; ``"velocity"`` lets it random-walk.
+        variant: which of the dissertation's models A, B, C the schedule is (informational).
+    """
+
+    length: tuple[int, int] = (500, 1500)
+    alpha_shape: float = 1.0
+    alpha_range: float = 100.0
+    alpha_jerk: float = 1.0
+    pan_limit: float = PAN_LIMIT
+    variance_floor: float = 1e-6
+    mu: float = contact.MU
+    mu_dyn: float = contact.MU_DYN
+    friction_range: list | None = None
+    friction_pairs: list | None = None
+    pan_shaking: str = "position"
+    variant: str | None = None
+
+    def __post_init__(self) -> None:
+        check_length_range("length", self.length)
+        object.__setattr__(self, "length", tuple(self.length))
+        for name in ("alpha_shape", "alpha_range", "alpha_jerk"):
+            check_positive(name, getattr(self, name), allow_zero=True)
+        check_positive("pan_limit", self.pan_limit)
+        check_positive("variance_floor", self.variance_floor)
+        check_friction(self.mu, self.mu_dyn)
+        if self.friction_pairs is not None and self.friction_range is not None:
+            raise ValueError("set at most one of the options friction_range and friction_pairs")
+        if self.friction_pairs is not None:
+            pairs = np.asarray(self.friction_pairs, dtype=float)
+            if (
+                pairs.ndim != 2 or pairs.shape[1] != 2 or len(pairs) == 0 or not np.all(np.isfinite(pairs))
+                or not np.all((pairs[:, 1] >= 0) & (pairs[:, 1] <= pairs[:, 0]) & (pairs[:, 0] > 0))
+            ):
+                raise ValueError(
+                    f"friction_pairs must be a list of [mu, mu_dyn] with 0 <= mu_dyn <= mu, got {self.friction_pairs}"
+                )
+        if self.friction_range is not None:
+            rng = np.asarray(self.friction_range, dtype=float)
+            if rng.shape != (2, 2) or not np.all(np.isfinite(rng)) or np.any(rng[:, 0] > rng[:, 1]) or rng.min() < 0:
+                raise ValueError(f"friction_range must be [[mu_lo, mu_hi], [mu_dyn_lo, mu_dyn_hi]], got "
+                                 f"{self.friction_range}")
+        check_choice("pan_shaking", self.pan_shaking, commands.PAN_SHAKINGS)
+        if self.variant is not None:
+            check_choice("variant", self.variant, tuple(VARIANTS))
+
+
+def training_friction(n: int, rng: np.random.Generator, opt: SlidingOptions) -> tuple[np.ndarray, np.ndarray]:
     """Static and dynamic friction ``(μ, μ')`` for ``n`` training trajectories, each ``(n,)``."""
-    if opt.get("friction_pairs") is not None and opt.get("friction_range") is not None:
-        raise ValueError("set at most one of the options friction_range and friction_pairs")
-    if opt.get("friction_pairs") is not None:
-        pairs = np.asarray(opt["friction_pairs"], dtype=float)
-        if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.all((pairs[:, 1] >= 0) & (pairs[:, 1] <= pairs[:, 0])):
-            raise ValueError(
-                f"friction_pairs must be a list of [mu, mu_dyn] with 0 <= mu_dyn <= mu, got {opt['friction_pairs']}"
-            )
+    if opt.friction_pairs is not None:
+        pairs = np.asarray(opt.friction_pairs, dtype=float)
         pick = pairs[rng.integers(len(pairs), size=n)]
         return pick[:, 0], pick[:, 1]
-    if opt.get("friction_range") is not None:
-        (mu_lo, mu_hi), (mud_lo, mud_hi) = opt["friction_range"]
+    if opt.friction_range is not None:
+        (mu_lo, mu_hi), (mud_lo, mud_hi) = opt.friction_range
         mu = rng.uniform(mu_lo, mu_hi, size=n)
         return mu, rng.uniform(mud_lo, np.minimum(mud_hi, mu), size=n)  # μ' < μ
-    return np.full(n, opt["mu"]), np.full(n, opt["mu_dyn"])
+    return np.full(n, opt.mu), np.full(n, opt.mu_dyn)
 
 
 class SlidingTask(Task):
@@ -123,9 +169,15 @@ class SlidingTask(Task):
 
     name = "sliding"
     presets = ("tiny", "small", "paper")
+    options_class = SlidingOptions
+    input_layout = contact.REL_LAYOUT
+    state_layout = contact.PLAN_LAYOUT
+    accel_layout = contact.ACCEL_LAYOUT
+    physics_parameters = ("mu", "mu_dyn")
+    end_pose = (("x", "y"), (1.0, 1.0))
 
     def train_config(self, preset: str) -> TrainConfig:
-        options = dict(DEFAULT_OPTIONS)
+        options = SlidingOptions()
         curriculum = chapter3_curriculum()
         if preset == "paper":  # 2 × 1024 + 500-unit linear, C = 100, 50 epochs × 8192 trajectories
             model, bpe, batch = model_config(2, 1024, 500), 32, 256
@@ -134,7 +186,7 @@ class SlidingTask(Task):
         elif preset == "tiny":  # seconds: for tests
             model, bpe, batch = model_config(1, 16, 0, chunk=20), 2, 8
             curriculum = curriculum.scaled(10)
-            options["length"] = [60, 120]
+            options = SlidingOptions(length=(60, 120))
         else:
             raise ValueError(f"unknown preset {preset!r} for task sliding; choose from {self.presets}")
         return TrainConfig(
@@ -144,7 +196,7 @@ class SlidingTask(Task):
             curriculum=curriculum.to_dict(),
             batches_per_epoch=bpe,
             batch_size=batch,
-            options=options,
+            options=options.to_dict(),
         )
 
     def apply_variant(self, config: TrainConfig, variant: str) -> TrainConfig:
@@ -158,17 +210,13 @@ class SlidingTask(Task):
         config.options = {**config.options, "variant": variant}
         return config
 
-    def curriculum(self, config: TrainConfig) -> Curriculum:
-        return Curriculum.from_dict(config.curriculum)
-
     def sample(
         self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
     ) -> TrajectoryBatch:
-        opt = {**DEFAULT_OPTIONS, **config.options}
-        commands.check_shaking(opt["pan_shaking"])  # up front: B-spline-only stages never shake
+        opt = self.options(config)
         mu, mu_dyn = training_friction(n, rng, opt)
-        batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=tuple(opt["length"]),
-                                 mu=mu, mu_dyn=mu_dyn, shaking=opt["pan_shaking"])
+        batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=opt.length,
+                                 mu=mu, mu_dyn=mu_dyn, shaking=opt.pan_shaking)
         # which trajectories are scored with L' (only those with a pan trajectory behind them)
         use_prime = (rng.random(n) < params["loss_prime_prob"]) & batch.extras["has_pan"]
         batch.extras.update(loss_prime=use_prime, mu=mu, mu_dyn=mu_dyn)
@@ -182,53 +230,65 @@ class SlidingTask(Task):
         config: TrainConfig,
         generator: torch.Generator,
     ) -> tuple[torch.Tensor, dict[str, float]]:
-        opt = {**DEFAULT_OPTIONS, **config.options}
+        opt = self.options(config)
         command = torch.from_numpy(batch.states).float()
         pan_true = torch.from_numpy(batch.extras["pan_states"]).float()
         prime = torch.from_numpy(batch.extras["loss_prime"])
         lengths = torch.from_numpy(batch.lengths)
         b, k_max, _ = command.shape
 
-        z = model.encode(command, lengths)
         friction = (torch.from_numpy(batch.extras["mu"]), torch.from_numpy(batch.extras["mu_dyn"]))
         dynamics = contact.SlidingDynamics(*friction, DT, detach_contact=prime)
-        x0 = torch.zeros(b, 8)
-        out = rollout(model, z, x0, dynamics, model.num_chunks(k_max))
+        out = encode_and_rollout(model, command, lengths, torch.zeros(b, 8), dynamics)
         pan = out.states[:, 1:k_max, :4]  # states 1..K_max-1
         rel = out.states[:, 1:k_max, 4:]
         accel = out.accel[:, : k_max - 1]  # û_p[0..K_max-2]
-        floor = opt["variance_floor"]
-        valid = torch.arange(1, k_max).unsqueeze(0) < lengths.unsqueeze(1)
+        floor = opt.variance_floor
+        valid = sample_mask(lengths, k_max)
 
         # L': the pan against the pan that generated the command (supervised).
         nll_pan = gaussian_nll_2d(pan_true[:, 1:, :2] - pan[..., :2], out.outputs["pan_pos_cov"][:, : k_max - 1], floor)
-        loss_prime = (nll_pan * valid).sum(1)
         # L: the object against the command, through the contact model, plus range and jerk.
         nll_rel = gaussian_nll_2d(command[:, 1:, :2] - rel[..., :2], out.outputs["pos_cov"][:, : k_max - 1], floor)
-        over_range = torch.relu(pan[..., :2].norm(dim=-1) - opt["pan_limit"])
+        over_range = torch.relu(pan[..., :2].norm(dim=-1) - opt.pan_limit)
         jerk = torch.cat([torch.zeros(b, 1), (accel[:, 1:] - accel[:, :-1]).norm(dim=-1)], dim=1)
-        loss_main = (
-            (opt["alpha_shape"] * nll_rel + opt["alpha_range"] * over_range + opt["alpha_jerk"] * jerk) * valid
-        ).sum(1)
+        loss_main = opt.alpha_shape * nll_rel + opt.alpha_range * over_range + opt.alpha_jerk * jerk
 
-        per_traj = torch.where(prime, loss_prime, loss_main) / (lengths - 1)
+        per_traj = torch.where(
+            prime, per_trajectory(nll_pan, valid, lengths), per_trajectory(loss_main, valid, lengths)
+        )
         with torch.no_grad():
             n_valid = valid.sum(1).clamp_min(1)
             err = (command[:, 1:, :2] - rel[..., :2]).norm(dim=-1)
             rmse = torch.sqrt(((err**2) * valid).sum(1) / n_valid)
             terms = {
-                "L1": float((nll_rel * valid).sum() / valid.sum()),
-                "L2": float((over_range * valid).sum() / valid.sum()),
-                "L3": float((jerk * valid).sum() / valid.sum()),
-                "Lprime": float((nll_pan * valid).sum() / valid.sum()),
+                "L1": masked_mean(nll_rel, valid),
+                "L2": masked_mean(over_range, valid),
+                "L3": masked_mean(jerk, valid),
+                "Lprime": masked_mean(nll_pan, valid),
                 "rmse_mm": float(1000 * rmse.mean()),
                 "pan_max_m": float((pan[..., :2].norm(dim=-1) * valid).amax(1).mean()),
                 "loss_prime_share": float(prime.float().mean()),
             }
         return per_traj.mean(), terms
 
-    def wrap(self, model: ChunkedSeq2Seq, config: dict) -> SlidingPlanner:
-        return SlidingPlanner(model, config)
+    # --- physics at inference -------------------------------------------------------------------
+
+    def dynamics(
+        self, options: SlidingOptions, mu: float | None = None, mu_dyn: float | None = None
+    ) -> contact.SlidingDynamics:
+        """The pan + contact physics at the model's nominal friction unless ``mu``/``mu_dyn`` are given."""
+        mu = options.mu if mu is None else mu
+        mu_dyn = options.mu_dyn if mu_dyn is None else mu_dyn
+        check_friction(mu, mu_dyn)
+        return contact.SlidingDynamics(mu, mu_dyn, DT)
+
+    def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
+        """The pan at rest at 0; the object where the command starts."""
+        return torch.cat([torch.zeros_like(inputs[:, 0]), inputs[:, 0]], dim=1)
+
+    def make_result(self, motion: Motion, model: TrainedModel) -> SlidingPlan:
+        return SlidingPlan(motion.accel, motion.states[..., :4], motion.states[..., 4:], motion.latent)
 
 
 TASK = SlidingTask()
@@ -255,31 +315,20 @@ class SlidingPlanner(TrainedModel):
     """A trained chapter-3 model: commanded object path → pan motion (``sm.load_pretrained("sliding")``)."""
 
     task = "sliding"
-    input_dim = 4
 
-    def dynamics(self, mu: float = contact.MU, mu_dyn: float = contact.MU_DYN) -> contact.SlidingDynamics:
-        return contact.SlidingDynamics(mu, mu_dyn, DT)
-
-    def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
-        """The pan at rest at 0; the object where the command starts."""
-        return torch.cat([torch.zeros_like(inputs[:, 0]), inputs[:, 0]], dim=1)
-
-    def plan(self, command: object, mu: float = contact.MU, mu_dyn: float = contact.MU_DYN) -> SlidingPlan:
+    def plan(self, command: object, mu: float | None = None, mu_dyn: float | None = None) -> SlidingPlan:
         """Plan pan accelerations that make the object follow ``command``.
 
         Args:
             command: ``(K, 4)`` or ``(B, K, 4)`` object states relative to the pan, any K ≥ 2.
-            mu, mu_dyn: the friction of the 2-D physics the plan is rolled out in (the model
-                is never told them; it reacts to the object's simulated motion).
+            mu, mu_dyn: the friction of the 2-D physics the plan is rolled out in (default: the
+                model's nominal ``options.mu``, ``options.mu_dyn``; the model is never told them,
+                it reacts to the object's simulated motion).
         """
-        if not (mu > 0 and 0 <= mu_dyn <= mu):
-            raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got {mu}, {mu_dyn}")
-        batch, single = as_trajectories(command, 4, "command")
-        k = batch.shape[1]
-        with torch.inference_mode():
-            x = torch.from_numpy(batch)
-            z = self.encode_torch(x)
-            states, accel = self.decode_torch(z, self.start_state(x), k, mu=mu, mu_dyn=mu_dyn)
-        states = check_finite_result(states.numpy(), "planning")
-        plan = SlidingPlan(accel.numpy(), states[..., :4], states[..., 4:], z.numpy())
-        return first_of(plan) if single else plan
+        physics = {k: v for k, v in (("mu", mu), ("mu_dyn", mu_dyn)) if v is not None}
+        check_friction(physics.get("mu", self.options.mu), physics.get("mu_dyn", self.options.mu_dyn))
+        as_trajectories(command, 4, "command")  # the planner's own wording for a bad input
+        return self.generate(command, **physics)
+
+
+SlidingTask.model_class = SlidingPlanner

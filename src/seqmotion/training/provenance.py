@@ -32,10 +32,20 @@ def machine_record() -> dict:
 
 def machine_description() -> str:
     """:func:`machine_record` in one line: what a timing needs to be read against."""
-    m = machine_record()
-    gpu = f", GPU {m['gpu']}" if m["gpu"] else ""
-    return (f"{m['processor']}, {m['cpus']} cores, {m['torch_threads']} torch threads{gpu}; "
-            f"Python {m['python']}, torch {m['torch']}")
+    return describe_machine(machine_record())
+
+
+def describe_machine(record: dict) -> str:
+    """A :func:`machine_record` (possibly an older one, missing some fields) in one line.
+
+    A complete record gives ``"<cpu>, <n> cores, <t> torch threads[, GPU <name>]; Python <v>, torch <v>"``;
+    fields the record lacks are left out.
+    """
+    gpu = f", GPU {record['gpu']}" if record.get("gpu") else ""
+    versions = ", ".join(f"{name} {record[key]}" for name, key in (("Python", "python"), ("torch", "torch"))
+                         if record.get(key))
+    return (f"{record.get('processor', 'unknown CPU')}, {record.get('cpus', '?')} cores, "
+            f"{record.get('torch_threads', '?')} torch threads{gpu}" + (f"; {versions}" if versions else ""))
 
 
 def command_line(program: str = "seqmotion") -> str:

@@ -1,0 +1,139 @@
+"""One contract for every trained model: save, load, describe, ship.
+
+:class:`PretrainedModel` is the base of the seq2seq models' user-facing objects (``Deformer``,
+``SlidingPlanner``, a plug-in task's model) and of the learning-from-demonstration policy. A
+model directory is ``model.safetensors`` + ``config.json`` (:mod:`.checkpoint`: atomic writes,
+a hash tying config to weights, no pickle). A subclass says what its weights and config are
+(:meth:`weights`, :meth:`config_json`) and how to rebuild itself from them
+(:meth:`from_checkpoint`); ``save_pretrained``/``from_pretrained`` round-trip through that, and
+:meth:`model_card` writes the card every shipped model carries, reading the machine and
+command that :mod:`.provenance` recorded at training time.
+
+:func:`export_pretrained` is the one exporter: it copies a model directory to where a package
+ships its models and writes the card beside it.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any, ClassVar, TypeVar
+
+import torch
+
+from . import checkpoint as ckpt
+
+M = TypeVar("M", bound="PretrainedModel")
+CARD = "MODEL_CARD.md"
+
+
+class PretrainedModel:
+    """Base of every trained model (see the module docstring).
+
+    Class attributes:
+        task: the registered task the model belongs to (``None`` for a generic class whose
+            instances take the task from their config).
+        config_class: the dataclass describing the architecture (``Seq2SeqConfig``, ``PolicyConfig``).
+    """
+
+    task: ClassVar[str | None] = None
+    config_class: ClassVar[type]
+
+    # --- what a subclass provides ------------------------------------------------------------
+
+    def weights(self) -> dict[str, torch.Tensor]:
+        """The tensors written to ``model.safetensors``."""
+        raise NotImplementedError
+
+    def config_json(self) -> dict[str, Any]:
+        """What ``config.json`` holds (at least ``"task"``); format and hash are added on writing."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_checkpoint(cls: type[M], config: dict[str, Any], tensors: dict[str, torch.Tensor], source: str) -> M:
+        """Rebuild the model from a verified config and its weights.
+
+        Raises:
+            seqmotion.CheckpointError: the config does not describe such a model or the weights do not fit it.
+        """
+        raise NotImplementedError
+
+    def card_summary(self) -> list[str]:
+        """Markdown lines saying what the model is (architecture, size, how to use it)."""
+        return [f"Task `{self.config_json().get('task')}`."]
+
+    def card_training(self) -> list[str]:
+        """Markdown lines saying how it was trained (command, seed, data, wall time, machine)."""
+        return ["(no training record)"]
+
+    # --- the shared contract -------------------------------------------------------------------
+
+    @property
+    def name(self) -> str:
+        """The model's kind (its class name), as ``config.json`` records it."""
+        return type(self).__name__
+
+    def save_pretrained(self, directory: str | Path) -> Path:
+        """Write ``model.safetensors`` + ``config.json`` atomically; ``from_pretrained`` reads them back."""
+        if getattr(self, "is_quantized", False):
+            raise ValueError("a quantized copy is for inference only; save the float model it came from")
+        directory = Path(directory)
+        ckpt.write_model(directory, self.weights(), self.config_json())
+        return directory
+
+    @classmethod
+    def from_pretrained(cls: type[M], directory: str | Path) -> M:
+        """Load a model directory (or a training run's latest checkpoint) written for this class's task.
+
+        Raises:
+            seqmotion.CheckpointError: missing, corrupt or mismatched files, or another task's model.
+        """
+        directory = ckpt.resolve_model_dir(Path(directory))
+        config, tensors = ckpt.read_model(directory, expected_task=cls.task)
+        return cls.from_checkpoint(config, tensors, str(directory))
+
+    def model_card(self, name: str, metrics: dict | None = None, notes: str = "", size_mb: float | None = None) -> str:
+        """The Markdown model card shipped beside the weights."""
+        lines = [f"# Model card: `{name}`", ""]
+        summary = self.card_summary()
+        if size_mb is not None and summary:
+            summary[-1] += f" {size_mb:.2f} MB of weights."
+        lines += summary
+        lines += ["", "## How it was trained", ""] + self.card_training()
+        lines += ["", "## Measured", ""]
+        lines += ["```json", json.dumps(metrics, indent=2), "```"] if metrics else ["(no metrics given)"]
+        if notes:
+            lines += ["", "## Notes", "", notes]
+        return "\n".join(lines) + "\n"
+
+
+def export_pretrained(
+    model: PretrainedModel,
+    source: str | Path,
+    name: str,
+    root: str | Path,
+    metrics: dict | None = None,
+    notes: str = "",
+) -> Path:
+    """Ship ``model`` (loaded from the model directory ``source``) as ``root/name`` with its card.
+
+    The weights and config are copied byte for byte (so the hash in the config still holds),
+    each through a temporary name renamed into place; the card is written last.
+
+    Returns:
+        The target directory.
+    """
+    from .checkpoint import atomic_write_bytes
+
+    source, target = Path(source), Path(root) / name
+    if not name or "/" in name or name.startswith("."):
+        raise ValueError(f"a pretrained name is one plain folder name, got {name!r}")
+    target.mkdir(parents=True, exist_ok=True)
+    for file in (ckpt.WEIGHTS, ckpt.CONFIG):
+        tmp = target / f".{file}.tmp"
+        shutil.copyfile(source / file, tmp)
+        tmp.replace(target / file)
+    size_mb = (target / ckpt.WEIGHTS).stat().st_size / 1e6
+    atomic_write_bytes(target / CARD, model.model_card(name, metrics, notes, size_mb).encode())
+    return target
