@@ -257,7 +257,7 @@ def test_policy_follows_the_model_contract(tmp_path):
                        "final_loss": 0.5},
     }
     card = policy.model_card("e2e-test", None, "", 1.25)
-    assert "kind `end_to_end`" in card and "every 20 ms" in card and "1.25 MB of weights" in card
+    assert "kind `end_to_end`" in card and "every 20 ms" in card and "Weights: 1.25 MB" in card and "sm.load_pretrained('e2e-test')" in card
     assert "- End to end: CNN and decoder trained together on 5 of 6" in card
     assert "- Machine: Test CPU, 3 cores, 1 torch threads; torch x (Plan9)" in card
     assert tasks.get("pushing") is TASK and TASK.model_class is PushingPolicy

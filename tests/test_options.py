@@ -99,7 +99,7 @@ def test_the_simulator_judges_at_the_models_mu(run08, tmp_path, capsys):
     np.savez(tmp_path / "still.npz", states=still)
     result = sm.sim.run_pancake(still, mu=sm.load(run08).options.mu, decel_time=0.01, hold_time=0.01)
     assert result.mu == 0.8 and np.median(result.executed_violation) > 0.03
-    assert main(["simulate", "pancake", "--trajectory", str(tmp_path / "still.npz"), "--model", str(run08),
+    assert main(["simulate", "--trajectory", str(tmp_path / "still.npz"), "--model", str(run08),
                  "--json", str(tmp_path / "sim.json")]) == 0
     import json
 

@@ -119,6 +119,8 @@ def test_cli_deform_and_optimize_on_the_plug_in(installed, run, tmp_path):
                      "3", "--output", "opt.npz", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert np.load(tmp_path / "opt.npz")["states"].shape == (150, 4)
+    done = seqmotion(env, "simulate", "--model", str(run), "--trajectory", "out.csv", cwd=tmp_path)
+    assert done.returncode == 2 and "'tray' model's task has no simulated scene" in done.stderr
 
 
 def test_export_ships_the_model_with_the_plug_in(installed, run, tmp_path):

@@ -29,7 +29,7 @@ def test_ch2_quick(pancake_run, tmp_path, monkeypatch):
 
 
 def test_ch4_quick(pancake_run, tmp_path, monkeypatch):
-    monkeypatch.setattr(ch4, "robot", lambda states, out: {"robot": "not run in tests"})
+    monkeypatch.setattr(ch4, "robot", lambda states, out, mu: {"robot": "not run in tests"})
     zero = {"one_trajectory_s": 0.0, "batch_of_27_s": 0.0}
     monkeypatch.setattr(ch4, "timing", lambda deformer: {"case": {"lm": zero, "line search": zero}})
     summary = ch4.run(tmp_path, model=str(pancake_run), quick=True)

@@ -11,15 +11,15 @@
 import importlib
 from typing import Any
 
-from . import data, physics
-from .api import load, load_pretrained
+from . import data, physics, tasks
+from .api import load, load_pretrained, pretrained_models
 from .errors import CheckpointError
 from .latent import objectives, optimize_latent, optimize_trajectory
 
 __version__ = "0.1.0"
 __all__ = [
     "CheckpointError", "data", "lfd", "load", "load_pretrained", "objectives", "optimize_latent",
-    "optimize_trajectory", "physics", "sim",
+    "optimize_trajectory", "physics", "pretrained_models", "sim", "tasks",
 ]
 
 

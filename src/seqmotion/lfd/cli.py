@@ -240,12 +240,11 @@ def _oracle_latents(policy: PushingPolicy, dataset: str) -> np.ndarray:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    import seqmotion as sm
-
+    from ..api import resolve_model
     from .evaluation import evaluate
 
     _set_threads(args.threads)
-    policy = sm.load_pretrained("pushing") if args.model == "pushing" else sm.load(args.model, expected_task="pushing")
+    policy = resolve_model(args.model, "pushing")
     result = evaluate(
         policy,
         camera=args.camera,

@@ -79,9 +79,7 @@ def export_policy(
         key = f"{label}, evaluation seed {brief['seed']}"
         metrics[key if key not in metrics else f"{key} ({len(metrics) + 1})"] = brief
         lines.append(line)
-    success = "Success rates (closed-loop trials):\n\n" + "\n".join(lines) if lines else ""
-    card_notes = "\n\n".join(part for part in (success, notes) if part)
-    target = export_pretrained(policy, policy_dir, name, root, metrics or None, card_notes)
+    target = export_pretrained(policy, policy_dir, name, root, metrics or None, notes, measured=lines)
     if metrics:
         briefs = list(metrics.values())
         atomic_write_bytes(target / EVALUATIONS, (json.dumps(briefs, indent=1) + "\n").encode())

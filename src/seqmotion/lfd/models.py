@@ -442,7 +442,7 @@ class PushingPolicy(nn.Module, PretrainedModel):
         load_state_dict_strict(policy, tensors, source)
         return policy.eval()
 
-    def card_summary(self) -> list[str]:
+    def card_summary(self, name: str) -> list[str]:
         cfg = self.config
         seq, cnn = cfg.seqae, cfg.cnn
         encoder = (
@@ -460,7 +460,7 @@ class PushingPolicy(nn.Module, PretrainedModel):
             "",
             "```python",
             "import seqmotion as sm",
-            "policy = sm.load_pretrained(NAME)               # NAME: this card's title; or sm.load(directory)",
+            f"policy = sm.load_pretrained({name!r})",
             "result = sm.lfd.evaluate(policy, trials=5)      # 30 closed-loop trials, 5 at each block position",
             "```",
             "",

@@ -26,6 +26,7 @@ from ..data import pancake as inputs
 from ..physics import pancake as physics
 from ..physics.integrator import implied_accel
 from ..tasks.pancake import FEASIBLE_TOLERANCE, THETA_WEIGHT, Deformer
+from ..training.checkpoint import atomic_write_text
 
 FIG25_TARGETS = [(y, z, 2.5) for y in (-0.2, 0.0, 0.2) for z in (-0.2, 0.0, 0.2)]
 FIG26_TARGET = (0.2, 0.0, 2.5)
@@ -176,8 +177,9 @@ def robot(deformer: Deformer, out: Path) -> dict:
             break
     else:
         raise ValueError(f"no deformed Fig. 2.6-like motion fits the arm's workspace: {problem}")
-    original = sim.run_pancake(x, gains="ch2")
-    result = sim.run_pancake(r.states, gains="ch2", snapshots=out / "fig2_10_snapshots.png")
+    mu = deformer.options.mu  # the executed cone is judged at the model's μ
+    original = sim.run_pancake(x, gains="ch2", mu=mu)
+    result = sim.run_pancake(r.states, gains="ch2", snapshots=out / "fig2_10_snapshots.png", mu=mu)
     sim.plot_pancake_tracking(r.states, result, out / "fig2_8_tracking.png", original=x)
     sim.plot_pancake_psi(r, result, out / "fig2_9_psi_robot.png")
     return {"robot_target": list(target), "robot_deformed": result.summary(), "robot_original": original.summary()}
@@ -190,11 +192,11 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     results = figures(deformer, out)
     summary = heldout_metrics(deformer, 50 if quick else 500, seed)
     results["heldout"] = summary
-    (out / "table2_heldout.md").write_text(_table(summary))
+    atomic_write_text(out / "table2_heldout.md", _table(summary))
     try:
         results.update(robot(deformer, out))
     except (ImportError, ValueError) as exc:  # no MuJoCo, or a motion the arm cannot execute
         results["robot_skipped"] = str(exc)
-    (out / "results.json").write_text(json.dumps(results, indent=2))
+    atomic_write_text(out / "results.json", json.dumps(results, indent=2))
     print(_table(summary))
     return results

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..data import sliding as commands
 from ..tasks.sliding import PAN_LIMIT, SlidingPlanner
+from ..training.checkpoint import atomic_write_text
 
 FRICTION_GRID = [(mu, mud) for mu in (0.7, 0.9, 1.1, 1.3) for mud in (0.3, 0.4, 0.6, 0.7) if mud < mu]
 LENGTH = 1200
@@ -118,18 +119,18 @@ def _tables(study: dict, out: Path) -> None:
     for label, key in (("mean", "mean_rmse_mm"), ("worst / best", "worst_over_best")):
         lines.append(f"| {label} | | " + " | ".join(f"{study['models'][n][key]:.2f}" for n in names) + " |")
     lines += ["", f"Leaving the object where it starts (a still pan) gives {study['still_pan_rmse_mm']:.2f} mm."]
-    (out / "table3_friction.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "table3_friction.md", "\n".join(lines) + "\n")
     lines = ["| model | training trajectories | max pan excursion [m] | inside p_lim = 0.2 m? |", "|---|---|---|---|"]
     for n in names:
         m = study["models"][n]["pan_max_m"]
         lines.append(f"| {n} | {study['models'][n]['budget']:,} | {m:.3f} | {'yes' if m <= PAN_LIMIT else 'no'} |")
-    (out / "table3_range.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "table3_range.md", "\n".join(lines) + "\n")
     if "qualitative" in study:
         lines = ["| model | RMSE [mm] (still pan: {:.2f}) | object travel / command travel | max pan excursion [m] |"
                  .format(study["still_pan_rmse_mm"]), "|---|---|---|---|"]
         for n, q in study["qualitative"].items():
             lines.append(f"| {n} | {q['rmse_mm']:.2f} | {q['object_travel_share']:.2f} | {q['pan_max_m']:.3f} |")
-        (out / "table3_qualitative.md").write_text("\n".join(lines) + "\n")
+        atomic_write_text(out / "table3_qualitative.md", "\n".join(lines) + "\n")
 
 
 def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int) -> np.ndarray:
@@ -218,7 +219,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     command = figures(models, study, out, seed)
     study["speed_shipped_model"] = speed(models[next(iter(models))])
     s = study["speed_shipped_model"]
-    (out / "table3_speed.md").write_text(
+    atomic_write_text(out / "table3_speed.md",
         "| model | single trajectory, K = 1200 [samples/s] | batch of 64 [samples/s] |\n|---|---|---|\n"
         f"| shipped A | {s['single_samples_per_s']:.0f} | {s['batch64_samples_per_s']:.0f} |\n"
     )
@@ -226,6 +227,6 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
         study["robot"] = robot(models, command, out)
     except ImportError as exc:
         study["robot_skipped"] = str(exc)
-    (out / "results.json").write_text(json.dumps(study, indent=2))
+    atomic_write_text(out / "results.json", json.dumps(study, indent=2))
     print((out / "table3_friction.md").read_text())
     return study

@@ -29,6 +29,8 @@ from ..data import pancake as inputs
 from ..latent import optimize_latent, optimize_trajectory
 from ..latent.objectives import EndPose, Ranges
 from ..tasks.pancake import FEASIBLE_TOLERANCE, Deformer
+from ..training.checkpoint import atomic_write_text
+from ..training.files import write_arrays
 from .ch2 import load_deformer
 
 TARGETS = np.array([(y, z, t) for y in (-0.1, 0.0, 0.1) for z in (-0.1, 0.0, 0.1) for t in (-math.pi, 0.0, math.pi)])
@@ -195,7 +197,8 @@ def j2_study(deformer: Deformer, out: Path) -> dict:
     plt.close(fig)
     plt.close(fig2)
     final = snapshots[20]
-    np.savez(out / "j2_trajectory.npz", states=final.states, accel=final.accel, latent=final.latent)
+    write_arrays(out / "j2_trajectory.npz",
+                 {"states": final.states, "accel": final.accel, "latent": final.latent})
     return {
         f"update_{u}": {
             "J2": float(r.history[-1]),
@@ -286,11 +289,11 @@ def _peer_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def robot(final_states: np.ndarray, out: Path) -> dict:
-    """Figs. 4.10–4.11: the J2 motion on the simulated arm (PD + DOB, ch. 4 gains, 2 Hz DOB)."""
+def robot(final_states: np.ndarray, out: Path, mu: float) -> dict:
+    """Figs. 4.10–4.11: the J2 motion on the simulated arm (PD + DOB, ch. 4 gains, 2 Hz DOB), judged at ``mu``."""
     from .. import sim
 
-    result = sim.run_pancake(final_states, gains="ch4", snapshots=out / "fig4_11_snapshots.png")
+    result = sim.run_pancake(final_states, gains="ch4", snapshots=out / "fig4_11_snapshots.png", mu=mu)
     sim.plot_pancake_tracking(final_states, result, out / "fig4_10_robot.png")
     return result.summary()
 
@@ -332,7 +335,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
                 f"| {row['end_position_rmse_mm']:.3f} | {row['end_attitude_rmse_deg']:.3f} "
                 f"| {100 * row['feasible_share']:.0f} % |"
             )
-    (out / "table4_end_rmse.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "table4_end_rmse.md", "\n".join(lines) + "\n")
 
     j2 = j2_study(deformer, out)
     final_states = j2.pop("final_states")
@@ -343,7 +346,7 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     for name, rows in summary["timing"].items():
         for label, t in rows.items():
             timing_lines.append(f"| {name} | {label} | {t['one_trajectory_s']:.4f} | {t['batch_of_27_s']:.4f} |")
-    (out / "table4_timing.md").write_text("\n".join(timing_lines) + "\n")
+    atomic_write_text(out / "table4_timing.md", "\n".join(timing_lines) + "\n")
 
     if quick:  # IPOPT needs minutes per hard target: the quick smoke test leaves it out
         summary["peer_skipped"] = "quick mode"
@@ -351,12 +354,12 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
         summary["peer_skipped"] = "CasADi is not installed (pip install 'seqmotion[peer]')"
     else:
         summary["peer"] = rows = peer(deformer, TARGETS)
-        (out / "table4_peer.md").write_text(_peer_table(rows))
+        atomic_write_text(out / "table4_peer.md", _peer_table(rows))
     try:
-        summary["robot_j2"] = robot(final_states, out)
+        summary["robot_j2"] = robot(final_states, out, deformer.options.mu)
     except (ImportError, ValueError) as exc:  # no MuJoCo, or a motion the arm cannot execute
         summary["robot_skipped"] = str(exc)
-    (out / "results.json").write_text(json.dumps(summary, indent=2))
+    atomic_write_text(out / "results.json", json.dumps(summary, indent=2))
     print((out / "table4_end_rmse.md").read_text())
     print((out / "table4_timing.md").read_text())
     return summary

@@ -37,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from ..training.checkpoint import atomic_write_text
+
 PRESET_NAMES = ("original", "larger", "smaller")
 CAMERA_NAMES = ("default", "position1", "position2")
 DISSERTATION_TABLE_5_2 = {
@@ -196,8 +198,8 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
         "snapshots": snapshots,
         "seconds": time.perf_counter() - start,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    (out / "evaluations.json").write_text(json.dumps(results, indent=1) + "\n")
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    atomic_write_text(out / "evaluations.json", json.dumps(results, indent=1) + "\n")
     return summary
 
 
@@ -229,8 +231,8 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
         for p in PRESET_NAMES:
             cells = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in row[p]["per_position"].items())
             lines.append(f"* {method} {p}: {cells}")
-    (out / "table5_2.md").write_text("\n".join(lines) + "\n")
-    (out / "table5_2.json").write_text(
+    atomic_write_text(out / "table5_2.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "table5_2.json",
         json.dumps(
             {
                 "measured": {m: {p: _brief(r) for p, r in row.items()} for m, row in table52.items()},
@@ -255,8 +257,8 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
     lines += ["", "Per position (successes/trials):", ""]
     for camera, result in table53.items():
         lines.append(f"* {camera}: " + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in result["per_position"].items()))
-    (out / "table5_3.md").write_text("\n".join(lines) + "\n")
-    (out / "table5_3.json").write_text(
+    atomic_write_text(out / "table5_3.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "table5_3.json",
         json.dumps(
             {"measured": {c: _brief(r) for c, r in table53.items()}, "dissertation": DISSERTATION_TABLE_5_3}, indent=2
         )
@@ -335,7 +337,7 @@ def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
     fig.tight_layout()
     fig.savefig(out / "fig5_11_latent_pca.png", dpi=150)
     plt.close(fig)
-    (out / "fig5_11_latent_pca.json").write_text(json.dumps({"explained_variance": explained, **points}) + "\n")
+    atomic_write_text(out / "fig5_11_latent_pca.json", json.dumps({"explained_variance": explained, **points}) + "\n")
     return explained
 
 

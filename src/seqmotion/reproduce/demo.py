@@ -77,13 +77,13 @@ def _robot(out: Path) -> None:
 
     deformer = sm.load_pretrained("pancake")
     x = inputs.straight((0.2, 0.1, 2.5), 500)  # its deformed version stays inside the 0.53 m arm's workspace
-    original = sim.run_pancake(x, gains="ch2")
+    original = sim.run_pancake(x, gains="ch2", mu=deformer.options.mu)
     snapshots = out / "robot_snapshots.png"
     try:
-        deformed = sim.run_pancake(deformer.deform(x).states, gains="ch2", snapshots=snapshots)
+        deformed = sim.run_pancake(deformer.deform(x).states, gains="ch2", snapshots=snapshots, mu=deformer.options.mu)
     except Exception as exc:  # noqa: BLE001 - no offscreen OpenGL here: run the arm without pictures
         print(f"  (no snapshots: offscreen rendering failed: {exc})")
-        deformed, snapshots = sim.run_pancake(deformer.deform(x).states, gains="ch2"), None
+        deformed, snapshots = sim.run_pancake(deformer.deform(x).states, gains="ch2", mu=deformer.options.mu), None
     print("\nMuJoCo arm (PD + disturbance observer, 1 ms) turning the pancake to (y, z, θ) = (0.2 m, 0.1 m, 2.5 rad)")
     for name, result in (("sketch", original), ("deformed", deformed)):
         print(f"  {name:8s}: {result.describe()}")

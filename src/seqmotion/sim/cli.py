@@ -22,11 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
+SCENES = ("pancake", "sliding")
+"""The simulated scenes, named after the task whose motions they execute."""
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add ``simulate`` (with ``pancake`` and ``sliding``) to the main parser's subcommands."""
     parser = subparsers.add_parser("simulate", help="execute a motion on the simulated MuJoCo arm")
-    parser.add_argument("scene", choices=["pancake", "sliding"], help="spatula + pancake, or frying pan + object")
+    parser.add_argument("scene", nargs="?", choices=SCENES,
+                        help="spatula + pancake, or frying pan + object (default: the scene of --model's task)")
     parser.add_argument("--trajectory", required=True, help=".npz or .csv at 1 ms (see `seqmotion.sim.cli`)")
     parser.add_argument("--video", help="write an MP4 here")
     parser.add_argument("--snapshots", help="write a PNG strip of snapshots here")
@@ -73,6 +77,19 @@ def run(args: argparse.Namespace) -> int:
     from .pancake import run_pancake
     from .sliding import run_sliding
 
+    model = None
+    if args.model:
+        from ..api import resolve_model
+
+        model = resolve_model(args.model)
+        task = model.config_json().get("task")
+        if args.scene is None and task not in SCENES:
+            raise ValueError(f"the {task!r} model's task has no simulated scene (scenes: {', '.join(SCENES)})")
+        if args.scene is not None and args.scene != task:
+            raise ValueError(f"--model is a {task!r} model, but the scene is {args.scene!r}")
+        args.scene = args.scene or task
+    if args.scene is None:
+        raise ValueError(f"name the scene ({' | '.join(SCENES)}) or give --model")
     path = Path(args.trajectory)
     common = {"video": args.video, "snapshots": args.snapshots}
     if args.camera:
@@ -81,10 +98,8 @@ def run(args: argparse.Namespace) -> int:
         arrays = _read(path, ("states",), 6)
         if args.mu is not None:
             common["mu"] = args.mu
-        elif args.model:  # the μ the model was trained and is judged at
-            from ..api import resolve_model
-
-            common["mu"] = resolve_model(args.model, "pancake").options.mu
+        elif model is not None:  # the μ the model was trained and is judged at
+            common["mu"] = model.options.mu
         result = run_pancake(arrays["states"], gains=args.gains or "ch2", **common)
         logged = {"time": result.time, "command": result.command, "response": result.response,
                   "slip": result.slip, "gap": result.gap}

@@ -226,13 +226,20 @@ class TrainedModel(PretrainedModel):
         except ValueError as exc:  # options the task refuses
             raise CheckpointError(f"{source}/config.json: {exc}") from None
 
-    def card_summary(self) -> list[str]:
+    def card_summary(self, name: str) -> list[str]:
         m = self.config["model"]
         head = f" + {m['head_hidden']}-unit linear" if m.get("head_hidden") else ""
         return [
             f"Task `{self.task_def.name}` — chunked seq2seq, {m['layers']} × {m['hidden']} LN-LSTM encoder and decoder"
             f"{head}, C = {m['chunk']}, latent {m['layers'] * m['hidden']} numbers. Reads {self.input_layout}; "
-            f"generates {self.state_layout} through {self.accel_layout}."
+            f"generates {self.state_layout} through {self.accel_layout}.",
+            "",
+            "```python",
+            "import seqmotion as sm",
+            f"model = sm.load_pretrained({name!r})   # a {type(self).__name__}",
+            "result = model.generate(motion)        # (K, "
+            f"{self.input_layout.dim}) {', '.join(self.input_layout.names)} at 1 ms",
+            "```",
         ]
 
     def card_training(self) -> list[str]:

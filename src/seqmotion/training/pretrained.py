@@ -59,9 +59,9 @@ class PretrainedModel:
         """
         raise NotImplementedError
 
-    def card_summary(self) -> list[str]:
-        """Markdown lines saying what the model is (architecture, size, how to use it)."""
-        return [f"Task `{self.config_json().get('task')}`."]
+    def card_summary(self, name: str) -> list[str]:
+        """Markdown lines saying what the model is and how to use it (``name``: what it ships as)."""
+        return [f"Task `{self.config_json().get('task')}`.", "", f"Load it with `sm.load_pretrained({name!r})`."]
 
     def card_training(self) -> list[str]:
         """Markdown lines saying how it was trained (command, seed, data, wall time, machine)."""
@@ -93,16 +93,30 @@ class PretrainedModel:
         config, tensors = ckpt.read_model(directory, expected_task=cls.task)
         return cls.from_checkpoint(config, tensors, str(directory))
 
-    def model_card(self, name: str, metrics: dict | None = None, notes: str = "", size_mb: float | None = None) -> str:
-        """The Markdown model card shipped beside the weights."""
-        lines = [f"# Model card: `{name}`", ""]
-        summary = self.card_summary()
-        if size_mb is not None and summary:
-            summary[-1] += f" {size_mb:.2f} MB of weights."
-        lines += summary
+    def model_card(
+        self, name: str, metrics: dict | None = None, notes: str = "", size_mb: float | None = None,
+        measured: list[str] | None = None,
+    ) -> str:
+        """The Markdown model card shipped beside the weights.
+
+        Args:
+            name: the name the model ships as (the card's title).
+            metrics: measured numbers, shown as JSON.
+            notes: free text for a Notes section.
+            size_mb: size of the weights file [MB].
+            measured: Markdown lines that state the measurements for people (before the JSON).
+        """
+        lines = [f"# Model card: `{name}`", ""] + self.card_summary(name)
+        if size_mb is not None:
+            lines += ["", f"Weights: {size_mb:.2f} MB (`model.safetensors`, no pickle)."]
         lines += ["", "## How it was trained", ""] + self.card_training()
         lines += ["", "## Measured", ""]
-        lines += ["```json", json.dumps(metrics, indent=2), "```"] if metrics else ["(no metrics given)"]
+        if measured:
+            lines += [*measured, ""]
+        if metrics:
+            lines += ["```json", json.dumps(metrics, indent=2), "```"]
+        elif not measured:
+            lines.append("(no metrics given)")
         if notes:
             lines += ["", "## Notes", "", notes]
         return "\n".join(lines) + "\n"
@@ -115,6 +129,7 @@ def export_pretrained(
     root: str | Path,
     metrics: dict | None = None,
     notes: str = "",
+    measured: list[str] | None = None,
 ) -> Path:
     """Ship ``model`` (loaded from the model directory ``source``) as ``root/name`` with its card.
 
@@ -135,5 +150,5 @@ def export_pretrained(
         shutil.copyfile(source / file, tmp)
         tmp.replace(target / file)
     size_mb = (target / ckpt.WEIGHTS).stat().st_size / 1e6
-    atomic_write_bytes(target / CARD, model.model_card(name, metrics, notes, size_mb).encode())
+    atomic_write_bytes(target / CARD, model.model_card(name, metrics, notes, size_mb, measured).encode())
     return target
