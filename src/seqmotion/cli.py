@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli")
+PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli", "seqmotion.deploy.cli")
 
 
 def _trained_model(value: str, expected_task: str | None = None):  # noqa: ANN202 - a task's TrainedModel
@@ -248,7 +248,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     # Subcommands that live beside their subsystem (simulate, lfd, plan, optimize).
     for module_name in PLUGIN_COMMANDS:
-        if importlib.util.find_spec(module_name) is not None:
+        try:
+            found = importlib.util.find_spec(module_name) is not None
+        except ModuleNotFoundError:  # its package is not there either
+            found = False
+        if found:
             importlib.import_module(module_name).add_parser(sub)
     return parser
 
