@@ -1,0 +1,44 @@
+"""Registers seqmotion's Gymnasium environments under the ``seqmotion/`` namespace.
+
+``import seqmotion`` calls :func:`register_envs`, so afterwards
+
+>>> import gymnasium as gym
+>>> import seqmotion
+>>> env = gym.make("seqmotion/PancakeArm-v0")
+
+works (``gym.register_envs(seqmotion)`` keeps linters from removing the import). The ids point
+at string entry points, so registering imports neither MuJoCo nor the environments: only
+Gymnasium's registry (a few milliseconds); :mod:`seqmotion.sim.envs` is imported by the first
+``gym.make``.
+
+Gymnasium 0.26–0.29 also discovers the ids through the plug-in entry point that seqmotion's
+``pyproject.toml`` declares (group ``gymnasium.envs``, name ``seqmotion``, the namespace, value
+``seqmotion.sim.registration:register_envs``) on ``import gymnasium``; Gymnasium ≥ 1.0 no
+longer loads plug-ins, so there ``import seqmotion`` is what registers them.
+"""
+
+from __future__ import annotations
+
+ENV_IDS = {
+    "seqmotion/PancakeArm-v0": "seqmotion.sim.envs:PancakeArmEnv",
+    "seqmotion/SlidingArm-v0": "seqmotion.sim.envs:SlidingArmEnv",
+}
+"""Environment id → the string entry point ``gymnasium.make`` imports."""
+
+
+def register_envs() -> None:
+    """Register every id of :data:`ENV_IDS` that is not registered yet (safe to call again).
+
+    Episodes end by the environments' own time limit (``time_limit`` seconds, whatever the
+    ``frame_skip``), so no ``max_episode_steps`` is registered.
+    """
+    try:
+        from gymnasium.envs.registration import register, registry
+    except ImportError:  # gymnasium is a dependency; a broken install must not break `import seqmotion`
+        return
+    for env_id, entry_point in ENV_IDS.items():
+        if env_id not in registry:
+            register(id=env_id, entry_point=entry_point)
+
+
+__all__ = ["ENV_IDS", "register_envs"]
