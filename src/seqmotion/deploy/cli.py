@@ -1,0 +1,41 @@
+"""``seqmotion export-onnx MODEL OUT/``: the encoder, decoder step and contract for deployment.
+
+    seqmotion export-onnx pancake pancake-onnx/            # a shipped model by name
+    seqmotion export-onnx runs/tray-tiny tray-onnx/ --int8  # a run folder, plus an int8 decoder step
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("export-onnx", help="export a model's encoder and decoder step as ONNX with a JSON "
+                                                  "contract and a NumPy + onnxruntime runner")
+    p.add_argument("model", help="shipped model name or model/run directory")
+    p.add_argument("out", help="output folder (created; its files are replaced)")
+    p.add_argument("--int8", action="store_true",
+                   help="also write an int8 decoder step (layers >= 256 wide, like TrainedModel.quantized)")
+    p.add_argument("--no-check", action="store_true", help="skip the parity check against PyTorch")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..api import resolve_model
+    from .export import check_parity, export_onnx
+
+    model = resolve_model(args.model)
+    contract = export_onnx(model, args.out, int8=args.int8, source=args.model)
+    files = ", ".join(v for v in contract["files"].values() if v)
+    print(f"wrote {args.out}: {files}, contract.json, onnx_stepper.py (+ stepper.py, numpy_physics.py)")
+    print(f"task {contract['task']}: C = {contract['chunk']}, state {', '.join(contract['state_layout']['names'])}; "
+          f"outputs {', '.join(contract['accel_layout']['names'])}; dt = {contract['dt']} s")
+    if not args.no_check:
+        import numpy as np
+
+        k = contract["chunk"] * 2 + 7
+        rng = np.random.default_rng(0)
+        motion = np.cumsum(rng.normal(scale=1e-4, size=(k, len(contract["input_layout"]["names"]))), axis=0)
+        print(f"parity with PyTorch on a random motion of K = {k}: max |accel difference| "
+              f"{check_parity(model, args.out, motion):.2e}")
+    return 0

@@ -1,0 +1,334 @@
+"""Export a trained model for deployment: ONNX graphs, the stepper's contract as JSON, and a NumPy runner.
+
+``export_onnx(model, OUT)`` (``seqmotion export-onnx MODEL OUT/``) writes:
+
+* ``encoder.onnx`` — any K: input ``chunks`` ``(B, n, C·input_dim)`` float64, the motion padded to
+  whole chunks by repeating its last sample and reshaped (sample-major within a chunk); outputs
+  ``z`` ``(B, L·H)`` float32 (the latent) and ``x0`` ``(B, S)`` float64 (the task's start state). The
+  chunk loop is an ONNX ``Scan`` over the encoder's LN-LSTM step, so one call encodes any length.
+* ``decoder_step.onnx`` — one decoder step: inputs ``h``, ``c`` ``(L, B, H)`` and ``window``
+  ``(B, C, S)`` float32 (C states in physical units; the task's decoder-input map and the scales are
+  inside); outputs ``h_out``, ``c_out`` and ``accel`` ``(B, C, d)`` (the Gaussian head's means).
+* ``violation.onnx`` (tasks with a constraint) — ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)``
+  float32 → ``violation`` ``(B, N)``: the task's constraint at the model's options.
+* ``contract.json`` — :func:`seqmotion.tasks.stepper.stepper_contract` (layouts, units, chunk, dt,
+  how z initialises the decoder, the stop, the dynamics) plus the graphs' files and tensors.
+* ``onnx_stepper.py``, ``stepper.py``, ``numpy_physics.py`` — the runner: NumPy + onnxruntime only
+  (``from onnx_stepper import OnnxStepper`` with OUT/ on the path).
+* with ``int8=True`` also ``decoder_step.int8.onnx``: onnxruntime's dynamic quantisation (int8
+  weights per output channel) of the layers ≥ 256 wide, like ``TrainedModel.quantized()``.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..tasks.base import TrainedModel
+from ..tasks.stepper import stepper_contract
+from ..training.checkpoint import atomic_write_bytes, atomic_write_json, check_writable_dir
+
+OPSET = 17
+INT8_MIN_FEATURES = 256
+RUNNER_FILES = ("onnx_stepper.py", "numpy_physics.py")
+
+
+class EncoderInput(nn.Module):
+    """Chunked motion ``(B, n, C·in)`` → start state, the encoder's projected chunks and zero states."""
+
+    def __init__(self, trained: TrainedModel) -> None:
+        super().__init__()
+        self.trained, self.model = trained, trained.model
+        cfg = self.model.cfg
+        self.layers, self.chunk, self.input_dim = cfg.layers, cfg.chunk, cfg.encoder_input_dim
+
+    def forward(self, chunks: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        b = chunks.shape[0]
+        motion = chunks.reshape(b, -1, self.input_dim)
+        x0 = self.trained.start_state(motion)
+        scaled = (motion.float() / self.model.encoder_scale).reshape(b, -1, self.chunk * self.input_dim)
+        proj = self.model.encoder_in(scaled)
+        zeros = torch.zeros_like(proj[:, 0]).unsqueeze(0).repeat(self.layers, 1, 1)
+        return x0, proj, zeros, zeros.clone()
+
+
+class EncoderStep(nn.Module):
+    """One encoder step over all layers: ``(h, c)`` ``(L, B, H)`` and a projected chunk ``(B, H)``."""
+
+    def __init__(self, trained: TrainedModel) -> None:
+        super().__init__()
+        self.cells = trained.model.encoder.cells
+
+    def forward(self, h: torch.Tensor, c: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        hs, cs = [], []
+        for layer, cell in enumerate(self.cells):
+            h_l, c_l = cell(x, (h[layer], c[layer]))
+            hs.append(h_l)
+            cs.append(c_l)
+            x = h_l
+        return torch.stack(hs), torch.stack(cs)
+
+
+class DecoderStep(nn.Module):
+    """One decoder step with the state flattened: ``(h, c, window)`` → ``(h_out, c_out, accel)``."""
+
+    def __init__(self, trained: TrainedModel, dynamics: Any) -> None:
+        super().__init__()
+        self.model, self.dynamics = trained.model, dynamics
+
+    def forward(self, h: torch.Tensor, c: torch.Tensor, window: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        state = tuple((h[i], c[i]) for i in range(h.shape[0]))
+        state, mean, _ = self.model.decode_step(state, self.dynamics.decoder_input(window), need_cov=False)
+        return torch.stack([s[0] for s in state]), torch.stack([s[1] for s in state]), mean
+
+
+class Violation(nn.Module):
+    """The task's constraint at the model's options, for ``(states (B, N+1, S), accel (B, N, d))``."""
+
+    def __init__(self, trained: TrainedModel) -> None:
+        super().__init__()
+        self.trained = trained
+
+    def forward(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return self.trained.violation_torch(states, accel)
+
+
+def to_onnx(module: nn.Module, args: tuple, inputs: list[str], outputs: list[str],
+            dynamic: dict[str, dict[int, str]]) -> Any:
+    """``module`` traced into an ONNX ModelProto (TorchScript exporter, opset :data:`OPSET`)."""
+    import onnx
+
+    buffer = io.BytesIO()
+    with warnings.catch_warnings(), torch.inference_mode(False), torch.no_grad():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(module.eval(), args, buffer, dynamo=False, opset_version=OPSET, input_names=inputs,
+                          output_names=outputs, dynamic_axes=dynamic, do_constant_folding=True)
+    return onnx.load_from_string(buffer.getvalue())
+
+
+def _prefixed(graph: Any, prefix: str) -> Any:
+    """A copy of ``graph`` with every value, initializer and node name prefixed (a subgraph's own namespace)."""
+    import onnx
+
+    g = onnx.GraphProto()
+    g.CopyFrom(graph)
+
+    def name(value: str) -> str:
+        return prefix + value if value else value
+
+    for node in g.node:
+        node.name = name(node.name)
+        node.input[:] = [name(v) for v in node.input]
+        node.output[:] = [name(v) for v in node.output]
+    for collection in (g.input, g.output, g.value_info):
+        for value in collection:
+            value.name = name(value.name)
+    for init in g.initializer:
+        init.name = name(init.name)
+    return g
+
+
+def encoder_graph(trained: TrainedModel) -> Any:
+    """The encoder for any number of chunks: the input stage, then a ``Scan`` over :class:`EncoderStep`."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    cfg = trained.model.cfg
+    c, width, layers, hidden = cfg.chunk, cfg.chunk * cfg.encoder_input_dim, cfg.layers, cfg.hidden
+    chunks = torch.zeros(1, 2, width, dtype=torch.float64)
+    front = to_onnx(EncoderInput(trained), (chunks,), ["chunks"], ["x0", "proj", "h0", "c0"],
+                    {"chunks": {0: "B", 1: "n"}, "x0": {0: "B"}, "proj": {0: "B", 1: "n"}, "h0": {1: "B"},
+                     "c0": {1: "B"}})
+    step = to_onnx(EncoderStep(trained), (torch.zeros(layers, 1, hidden), torch.zeros(layers, 1, hidden),
+                                          torch.zeros(1, hidden)),
+                   ["h", "c", "x"], ["h_out", "c_out"], {"h": {1: "B"}, "c": {1: "B"}, "x": {0: "B"},
+                                                         "h_out": {1: "B"}, "c_out": {1: "B"}})
+    body = _prefixed(step.graph, "step/")
+    graph = front.graph
+    graph.node.extend([
+        helper.make_node("Scan", ["h0", "c0", "proj"], ["h_last", "c_last"], name="chunk_loop", body=body,
+                         num_scan_inputs=1, scan_input_axes=[1]),
+        helper.make_node("Transpose", ["c_last"], ["c_by_batch"], name="latent_transpose", perm=[1, 0, 2]),
+        helper.make_node("Constant", [], ["latent_shape"], name="latent_shape",
+                         value=helper.make_tensor("latent_shape_value", TensorProto.INT64, [2], [0, -1])),
+        helper.make_node("Reshape", ["c_by_batch", "latent_shape"], ["z"], name="latent"),
+    ])
+    x0 = next(v for v in graph.output if v.name == "x0")
+    del graph.output[:]
+    graph.output.extend([helper.make_tensor_value_info("z", TensorProto.FLOAT, ["B", layers * hidden]), x0])
+    graph.name = f"seqmotion encoder (C = {c}, any number of chunks)"
+    onnx.checker.check_model(front)
+    return front
+
+
+def gemm_as_matmul(proto: Any) -> Any:
+    """A copy of ``proto`` with each ``Gemm(x, W, b)`` of a constant weight (alpha = beta = 1, x not
+    transposed) written as ``MatMul(x, Wᵀ) + b``: the same numbers, in a form dynamic quantisation takes."""
+    import onnx
+    from onnx import helper, numpy_helper
+
+    model = onnx.ModelProto()
+    model.CopyFrom(proto)
+    graph = model.graph
+    inits = {init.name: init for init in graph.initializer}
+    nodes = []
+    for node in graph.node:
+        attrs = {a.name: helper.get_attribute_value(a) for a in node.attribute}
+        plain = attrs.get("alpha", 1.0) == 1.0 and attrs.get("beta", 1.0) == 1.0 and not attrs.get("transA", 0)
+        if node.op_type != "Gemm" or not plain or node.input[1] not in inits:
+            nodes.append(node)
+            continue
+        weight = numpy_helper.to_array(inits[node.input[1]])
+        name = node.input[1] + ".matmul"
+        graph.initializer.append(numpy_helper.from_array(weight.T.copy() if attrs.get("transB", 0) else weight, name))
+        product = node.output[0] + ".product" if len(node.input) > 2 else node.output[0]
+        nodes.append(helper.make_node("MatMul", [node.input[0], name], [product], name=node.name))
+        if len(node.input) > 2:
+            nodes.append(helper.make_node("Add", [product, node.input[2]], [node.output[0]], name=node.name + ".bias"))
+    del graph.node[:]
+    graph.node.extend(nodes)
+    used = {name for node in nodes for name in node.input}
+    kept = [init for init in graph.initializer if init.name in used]
+    del graph.initializer[:]
+    graph.initializer.extend(kept)
+    return model
+
+
+def quantized(proto: Any, workdir: Path, min_features: int = INT8_MIN_FEATURES) -> bytes:
+    """``proto`` with the weights of its MatMul/Gemm layers of ≥ ``min_features`` inputs and outputs in int8
+    (onnxruntime's dynamic quantisation, per output channel); narrow layers stay float32, as in
+    :meth:`~seqmotion.tasks.TrainedModel.quantized`."""
+    import logging
+
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    original, proto = proto, gemm_as_matmul(proto)  # dynamic quantisation covers MatMul, not Gemm
+    weights = {init.name: tuple(init.dims) for init in proto.graph.initializer}
+    nodes = [node.name for node in proto.graph.node if node.op_type == "MatMul"
+             and len(weights.get(node.input[1], ())) == 2 and min(weights[node.input[1]]) >= min_features]
+    if not nodes:
+        return original.SerializeToString()  # nothing wide enough: the float graph
+    source, target = workdir / ".float.tmp.onnx", workdir / ".int8.tmp.onnx"
+    source.write_bytes(proto.SerializeToString())
+    level = logging.getLogger().level
+    logging.getLogger().setLevel(logging.ERROR)  # quantize_dynamic's advice to pre-process is for CNNs
+    try:
+        quantize_dynamic(source, target, weight_type=QuantType.QInt8, per_channel=True, nodes_to_quantize=nodes)
+        return target.read_bytes()
+    finally:
+        logging.getLogger().setLevel(level)
+        for path in (source, target):
+            path.unlink(missing_ok=True)
+
+
+def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, source: str | None = None,
+                **physics: Any) -> dict[str, Any]:
+    """Write ``model``'s encoder, decoder step, constraint, contract and NumPy runner into ``out``.
+
+    Args:
+        model: a trained seq2seq model of any task whose dynamics have a NumPy implementation
+            (double integrator, sliding).
+        out: the output folder (created; files in it are replaced).
+        int8: also write a dynamically quantised int8 decoder step.
+        source: how the model was named (recorded in the contract).
+        physics: the task's physics parameters (e.g. sliding ``mu``) the contract records.
+
+    Returns:
+        The contract written to ``contract.json``.
+
+    Raises:
+        ValueError: a model that is not a seq2seq ``TrainedModel``, dynamics without a NumPy
+            implementation, an unwritable folder.
+    """
+    import importlib.util
+
+    if importlib.util.find_spec("onnx") is None:
+        raise ValueError("export-onnx needs the onnx package: pip install 'seqmotion[deploy]'")
+    if not isinstance(model, TrainedModel):
+        raise ValueError(f"export-onnx exports sequence-to-sequence motion models, not a {type(model).__name__}")
+    if getattr(model, "is_quantized", False):
+        raise ValueError("export the float model: its int8 copy runs on a PyTorch kernel; export_onnx(int8=True) "
+                         "(--int8) writes an int8 decoder step for onnxruntime")
+    out = check_writable_dir(out)
+    dynamics = model.dynamics(**physics)
+    contract = stepper_contract(model, dynamics)
+    if contract["dynamics"]["kind"] == "custom":
+        raise ValueError(f"the {model.task_def.name!r} task's dynamics ({contract['dynamics']['class']}) have no NumPy "
+                         "implementation for the deployed stepper (known: double integrator, sliding)")
+    cfg = model.model.cfg
+    layers, hidden, c, s, d = cfg.layers, cfg.hidden, cfg.chunk, model.state_layout.dim, model.accel_layout.dim
+    graphs = {
+        "encoder.onnx": encoder_graph(model),
+        "decoder_step.onnx": to_onnx(
+            DecoderStep(model, dynamics), (torch.zeros(layers, 1, hidden), torch.zeros(layers, 1, hidden),
+                                           torch.zeros(1, c, s)),
+            ["h", "c", "window"], ["h_out", "c_out", "accel"],
+            {"h": {1: "B"}, "c": {1: "B"}, "window": {0: "B"}, "h_out": {1: "B"}, "c_out": {1: "B"},
+             "accel": {0: "B"}}),
+    }
+    if contract["constraint"]:
+        graphs["violation.onnx"] = to_onnx(
+            Violation(model), (torch.zeros(1, 3, s), torch.zeros(1, 2, d)), ["states", "accel"], ["violation"],
+            {"states": {0: "B", 1: "N1"}, "accel": {0: "B", 1: "N"}, "violation": {0: "B", 1: "N"}})
+    out.mkdir(parents=True, exist_ok=True)
+    for name, proto in graphs.items():
+        atomic_write_bytes(out / name, proto.SerializeToString())
+    files = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx",
+             "violation": "violation.onnx" if contract["constraint"] else None}
+    if int8:
+        atomic_write_bytes(out / "decoder_step.int8.onnx", quantized(graphs["decoder_step.onnx"], out))
+        files["decoder_step_int8"] = "decoder_step.int8.onnx"
+    here = Path(__file__).resolve().parent
+    for name in RUNNER_FILES:
+        atomic_write_bytes(out / name, (here / name).read_bytes())
+    atomic_write_bytes(out / "stepper.py", (here.parent / "tasks" / "stepper.py").read_bytes())
+    contract = {
+        **contract,
+        "source": source,
+        "opset": OPSET,
+        "model": cfg.to_dict(),
+        "files": files,
+        "graphs": {
+            "encoder": {
+                "inputs": {"chunks": "(B, n, C*input_dim) float64: the motion (input_layout) padded to whole chunks "
+                                     "by repeating its last sample, reshaped sample-major within each chunk"},
+                "outputs": {"z": "(B, L*H) float32: the latent (the encoder's final cell states, layer-major)",
+                            "x0": "(B, S) float64: the task's start state for the motion (state_layout)"},
+            },
+            "decoder_step": {
+                "inputs": {"h": "(L, B, H) float32", "c": "(L, B, H) float32",
+                           "window": "(B, C, S) float32: C states of state_layout in its units"},
+                "outputs": {"h_out": "(L, B, H) float32", "c_out": "(L, B, H) float32",
+                            "accel": "(B, C, d) float32: the next C outputs (accel_layout means)"},
+            },
+            "violation": None if not contract["constraint"] else {
+                "inputs": {"states": "(B, N+1, S) float32", "accel": "(B, N, d) float32"},
+                "outputs": {"violation": "(B, N) float32: >= 0, 0 where the constraint holds"},
+            },
+        },
+        "runner": "python: sys.path.insert(0, OUT); from onnx_stepper import OnnxStepper; "
+                  "gen = OnnxStepper(OUT, motion); u = gen.step(); u = gen.step(measured)  (numpy + onnxruntime)",
+    }
+    atomic_write_json(out / "contract.json", contract)
+    return contract
+
+
+def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, **physics: Any) -> float:
+    """Largest |difference| of accelerations between PyTorch ``generate`` and the exported graphs on ``inputs``."""
+    from .onnx_stepper import OnnxModel
+
+    ref = model.generate(inputs, **physics)
+    accel = getattr(ref, "accel", None)
+    if accel is None:
+        accel = ref.pan_accel
+    mine = OnnxModel(out).generate(inputs, **physics)
+    return float(np.max(np.abs(mine["accel"] - accel)))
+
+
+__all__ = ["OPSET", "check_parity", "encoder_graph", "export_onnx", "to_onnx"]

@@ -1,0 +1,222 @@
+"""Run an exported model with onnxruntime and NumPy only: the same stepper as ``model.generator``.
+
+``seqmotion export-onnx MODEL OUT/`` writes the graphs, ``contract.json`` and this file (with
+``stepper.py`` and ``numpy_physics.py``) into OUT/. On a robot computer that has only NumPy and
+onnxruntime::
+
+    import sys; sys.path.insert(0, "OUT")
+    from onnx_stepper import OnnxModel, OnnxStepper
+    gen = OnnxStepper("OUT", motion)                 # or OnnxStepper("OUT", latent=z, x0=x0, length=K)
+    u = gen.step()                                   # u[0..C-1]
+    u = gen.step(measured)                           # 1..len(u) measured states → the next outputs
+
+Inside seqmotion the same classes are ``sm.deploy.OnnxModel`` / ``sm.deploy.OnnxStepper``. The
+semantics of ``step``, ``set_latent``, ``reset`` and the end of the motion are the module
+docstring of ``stepper.py`` (:mod:`seqmotion.tasks.stepper`), shared by both backends.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+try:  # inside the seqmotion package
+    from ..tasks.stepper import CONTRACT_FORMAT, StepperCore, check_vectors
+    from .numpy_physics import NumpyDynamics
+except ImportError:  # the standalone copy that export-onnx writes beside the graphs
+    from numpy_physics import NumpyDynamics  # type: ignore[no-redef]
+    from stepper import CONTRACT_FORMAT, StepperCore, check_vectors  # type: ignore[no-redef]
+
+
+class OnnxModel:
+    """An exported model: encoder, decoder step and constraint in onnxruntime sessions.
+
+    Args:
+        directory: the folder ``export-onnx`` wrote.
+        int8: use the int8 decoder step (exported with ``--int8``).
+        threads: onnxruntime intra-op threads per session (1: lowest latency for small models).
+    """
+
+    def __init__(self, directory: str | Path, *, int8: bool = False, threads: int = 1) -> None:
+        try:
+            import onnxruntime as ort
+        except ImportError:
+            raise ValueError("running exported models needs onnxruntime: pip install 'seqmotion[deploy]'") from None
+        self.directory = Path(directory)
+        path = self.directory / "contract.json"
+        try:
+            self.contract: dict[str, Any] = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"{self.directory} holds no exported model (no contract.json)") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path} is not valid JSON: {exc}") from None
+        if self.contract.get("format") != CONTRACT_FORMAT:
+            raise ValueError(f"{path} has format {self.contract.get('format')!r}; this runner reads "
+                             f"{CONTRACT_FORMAT!r}")
+        files = self.contract["files"]
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = options.inter_op_num_threads = int(threads)
+        options.log_severity_level = 3
+
+        def session(key: str) -> Any:
+            name = files.get(f"{key}_int8") if int8 and key == "decoder_step" else files.get(key)
+            if name is None:
+                raise ValueError(f"{self.directory} has no {'int8 ' if int8 else ''}{key} graph"
+                                 + (" (export with --int8)" if int8 else ""))
+            return ort.InferenceSession(str(self.directory / name), options, providers=["CPUExecutionProvider"])
+
+        self.encoder, self.decoder = session("encoder"), session("decoder_step")
+        self.violation_session = session("violation") if files.get("violation") else None
+        # a constraint that reads only the accelerations (tray) has no states input in its graph
+        self._violation_inputs = [i.name for i in self.violation_session.get_inputs()] if self.violation_session else []
+        c = self.contract
+        self.chunk, self.layers, self.hidden = int(c["chunk"]), int(c["layers"]), int(c["hidden"])
+        self.input_dim = len(c["input_layout"]["names"])
+        self.state_dim = len(c["state_layout"]["names"])
+
+    def __repr__(self) -> str:
+        c = self.contract
+        return f"OnnxModel({str(self.directory)!r}, task={c['task']!r}, {c['layers']}x{c['hidden']}, C={c['chunk']})"
+
+    # --- the graphs ----------------------------------------------------------------------------------
+
+    def encode(self, inputs: object) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Motions ``(K, input_dim)``/``(B, K, input_dim)`` (any K ≥ 2) → latents ``(B, L·H)`` float32,
+        start states ``(B, S)`` float64 and whether a single motion was given."""
+        layout = self.contract["input_layout"]
+        try:
+            arr = np.asarray(inputs, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"inputs must be a numeric array, got {type(inputs).__name__}: {exc}") from None
+        if arr.ndim not in (2, 3) or arr.shape[-1] != self.input_dim:
+            raise ValueError(f"inputs must have shape (K, {self.input_dim}) or (B, K, {self.input_dim}) of "
+                             f"{layout['kind']} ({', '.join(layout['names'])}), got shape {arr.shape}")
+        if arr.shape[-2] < 2:
+            raise ValueError(f"inputs need at least K = 2 samples, got K = {arr.shape[-2]}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError("inputs contain NaN or inf")
+        single = arr.ndim == 2
+        x = arr[None] if single else arr
+        b, k, _ = x.shape
+        n = math.ceil(k / self.chunk)
+        if n * self.chunk != k:
+            x = np.concatenate([x, np.repeat(x[:, -1:], n * self.chunk - k, axis=1)], axis=1)
+        z, x0 = self.encoder.run(None, {"chunks": np.ascontiguousarray(x.reshape(b, n, -1))})
+        return z, x0.astype(np.float64), single
+
+    def initial_state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(h, c)`` ``(L, B, H)`` from latents ``(B, L·H)``: c = z (layer-major), h = 0."""
+        b = z.shape[0]
+        c = np.asarray(z, dtype=np.float32).reshape(b, self.layers, self.hidden).transpose(1, 0, 2)
+        c = np.ascontiguousarray(c)
+        return np.zeros_like(c), c
+
+    def decode_step(self, state: tuple[np.ndarray, np.ndarray], window: np.ndarray) -> tuple[tuple, np.ndarray]:
+        """One decoder step: ``window`` ``(B, C, S)`` → new ``(h, c)`` and the means ``(B, C, d)`` float64."""
+        h, c, mean = self.decoder.run(None, {"h": state[0], "c": state[1],
+                                             "window": np.ascontiguousarray(window, dtype=np.float32)})
+        return (h, c), mean.astype(np.float64)
+
+    def violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray | None:
+        """The violation ``(B, N)`` of ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)`` (None: no constraint)."""
+        if self.violation_session is None:
+            return None
+        feeds = {"states": states, "accel": accel}
+        (out,) = self.violation_session.run(None, {name: np.ascontiguousarray(feeds[name], dtype=np.float32)
+                                                   for name in self._violation_inputs})
+        return out.astype(np.float64)
+
+    # --- whole motions ---------------------------------------------------------------------------------
+
+    def generate(self, inputs: object, **physics: float) -> dict[str, np.ndarray | None]:
+        """Encode and decode in closed loop through the NumPy dynamics, like PyTorch ``generate``.
+
+        Returns a dict: ``states`` ``(K, S)``, ``accel`` ``(K-1, d)``, ``violation`` ``(K-1,)`` or None,
+        ``latent`` (a leading B axis for a batch).
+        """
+        z, x0, single = self.encode(inputs)
+        k = np.shape(inputs)[-2]
+        out = self._rollout(z, x0, k, NumpyDynamics(self.contract["dynamics"], **physics))
+        return {key: v if v is None else (v[0] if single else v) for key, v in out.items()}
+
+    def decode(self, latent: object, x0: object, length: int, **physics: float) -> dict[str, np.ndarray | None]:
+        """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples."""
+        z, single = check_vectors(latent, int(self.contract["latent_dim"]), "latent", "L·H numbers")
+        x, _ = check_vectors(x0, self.state_dim, "x0", self.contract["state_layout"]["kind"], z.shape[0])
+        if int(length) < 2:
+            raise ValueError(f"length must be at least 2, got {length}")
+        out = self._rollout(z.astype(np.float32), x, int(length), NumpyDynamics(self.contract["dynamics"], **physics))
+        return {key: v if v is None else (v[0] if single else v) for key, v in out.items()}
+
+    def _rollout(self, z: np.ndarray, x0: np.ndarray, length: int, dynamics: NumpyDynamics) -> dict[str, Any]:
+        steps = max(1, math.ceil((length - 1) / self.chunk))
+        state = self.initial_state(z)
+        window = np.repeat(x0[:, None], self.chunk, axis=1)
+        x, states, accels = x0, [x0[:, None]], []
+        for _ in range(steps):
+            state, mean = self.decode_step(state, window)
+            window = dynamics.predict(x, mean)
+            x = window[:, -1]
+            states.append(window)
+            accels.append(mean)
+        all_states = np.concatenate(states, axis=1)[:, :length]
+        accel = np.concatenate(accels, axis=1)[:, : length - 1]
+        return {"states": all_states, "accel": accel, "violation": self.violation(all_states, accel), "latent": z}
+
+    def generator(self, inputs: object | None = None, **kwargs: Any) -> OnnxStepper:
+        """An :class:`OnnxStepper` on this model (arguments as ``OnnxStepper``'s after ``model``)."""
+        return OnnxStepper(self, inputs, **kwargs)
+
+
+class OnnxStepper(StepperCore):
+    """The online motion generator on onnxruntime: ``step``, ``set_latent``, ``reset``, ``contract``
+    exactly as PyTorch ``model.generator(...)`` (semantics: ``stepper.py``'s docstring).
+
+    Args:
+        model: an :class:`OnnxModel` or the folder ``export-onnx`` wrote.
+        inputs: a motion to encode (x0 = the task's start state for it, K = its length); or
+        latent, x0: a latent ``(L·H,)``/``(B, L·H)`` and start state(s) of the state layout,
+        length: K (default: the input's length, else the longest motion the model trained on).
+        replan: correct the plan between chunk boundaries from the latest measured states.
+        int8: with a folder, use its int8 decoder step.
+        physics: the task's physics parameters (sliding: ``mu``, ``mu_dyn``).
+    """
+
+    def __init__(self, model: OnnxModel | str | Path, inputs: object | None = None, *, latent: object | None = None,
+                 x0: object | None = None, length: int | None = None, replan: bool = True, int8: bool = False,
+                 **physics: float) -> None:
+        self.onnx = model if isinstance(model, OnnxModel) else OnnxModel(model, int8=int8)
+        contract = self.onnx.contract
+        self.dynamics = NumpyDynamics(contract["dynamics"], **physics)
+        if inputs is not None:
+            if latent is not None or x0 is not None:
+                raise ValueError("give either the input motion, or latent and x0 — not both")
+            z, start, single = self.onnx.encode(inputs)
+            length = np.shape(inputs)[-2] if length is None else length
+        elif latent is not None and x0 is not None:
+            z, single = check_vectors(latent, int(contract["latent_dim"]), "latent", "L·H numbers")
+            start = x0
+        else:
+            raise ValueError("give either the input motion, or both latent and x0")
+        super().__init__(contract, z, start, single, length, replan)
+
+    def _initial_state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.onnx.initial_state(z)
+
+    def _decode(self, state: Any, windows: np.ndarray, repeat: int = 1) -> tuple[Any, np.ndarray]:
+        if repeat > 1:
+            state = (np.concatenate((state[0],) * repeat, axis=1), np.concatenate((state[1],) * repeat, axis=1))
+        return self.onnx.decode_step(state, windows)
+
+    def _predict(self, x: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        return self.dynamics.predict(x, accel)
+
+    def _violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        return self.onnx.violation(states, accel)
+
+
+__all__ = ["OnnxModel", "OnnxStepper"]

@@ -1,0 +1,174 @@
+"""Deployment: every shipped seq2seq model exported to ONNX (``seqmotion export-onnx``) runs in onnxruntime
+within 1e-4 of PyTorch, behind the PyTorch stepper's interface, and the exported folder runs without torch."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+import seqmotion as sm
+from seqmotion.cli import main as cli_main
+from seqmotion.tasks import TrainedModel
+
+pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+from seqmotion.deploy import OnnxModel, OnnxStepper, export_onnx  # noqa: E402
+from seqmotion.deploy.export import gemm_as_matmul, quantized  # noqa: E402
+from seqmotion.deploy.numpy_physics import NumpyDynamics  # noqa: E402
+
+SEQ2SEQ = [name for name in sm.pretrained_models() if isinstance(sm.load_pretrained(name), TrainedModel)]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """Every shipped seq2seq model, exported once (pancake through the command line)."""
+    root = tmp_path_factory.mktemp("onnx")
+    out = {}
+    for name in SEQ2SEQ:
+        if name == "pancake":
+            assert cli_main(["export-onnx", name, str(root / name)]) == 0  # with its parity check
+        else:
+            export_onnx(sm.load_pretrained(name), root / name, source=name)
+        out[name] = root / name
+    return out
+
+
+def motions(task: str, rng: np.random.Generator, k: int) -> np.ndarray:
+    if task == "pancake":
+        return sm.data.pancake.straight((rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(-2, 2)), k)
+    return sm.data.sliding.circle(rng.uniform(0.02, 0.06), k)
+
+
+def test_every_shipped_seq2seq_model_is_covered():
+    assert "pancake" in SEQ2SEQ and {"sliding", "sliding-A-nominal", "sliding-A-velocity", "sliding-B",
+                                     "sliding-C"} <= set(SEQ2SEQ)
+
+
+@pytest.mark.parametrize("name", SEQ2SEQ)
+def test_closed_loop_parity_with_pytorch_at_any_length(exported, name):
+    model, onnx_model = sm.load_pretrained(name), OnnxModel(exported[name])
+    task = model.task_def.name
+    rng = np.random.default_rng(sum(map(ord, name)))
+    c, scale = model.model.chunk, np.asarray(model.model.cfg.output_scale)
+    for k in (2, c, 3 * c + 17) if task == "pancake" else (2, c + 1, 7 * c + 31):  # the export traced 2 chunks
+        batch = np.stack([motions(task, rng, k) for _ in range(2)])
+        ref, mine = model.generate(batch), onnx_model.generate(batch)
+        accel = ref.accel if task == "pancake" else ref.pan_accel
+        states = ref.states if task == "pancake" else np.concatenate([ref.pan_states, ref.rel_states], axis=-1)
+        # float32 in two runtimes: outputs agree to ~1e-6 of the model's output scale (pancake a_θ: 100 rad/s²,
+        # where 1e-4 rad/s² is 8 float32 steps); the motions they produce to ~1e-6 m
+        assert (np.abs(mine["accel"] - accel) / scale).max() <= 1e-5
+        assert np.abs(mine["states"] - states).max() <= 1e-4
+        np.testing.assert_allclose(mine["latent"], ref.latent, atol=1e-5)
+        if task == "pancake":
+            assert np.abs(mine["violation"] - ref.violation).max() <= 1e-4
+
+
+@pytest.mark.parametrize("name", ["pancake", "sliding"])
+def test_the_onnx_stepper_steps_like_the_pytorch_one(exported, name):
+    """Pieces of every size, measurement noise, a latent swap, a restart and the end: the same outputs."""
+    model = sm.load_pretrained(name)
+    task = model.task_def.name
+    rng = np.random.default_rng(3)
+    k = 2 * model.model.chunk + 30
+    first, second = motions(task, rng, k), motions(task, rng, k)
+    other = model.generate(second).latent
+    dynamics = NumpyDynamics(json.loads((exported[name] / "contract.json").read_text())["dynamics"])
+    runs = []
+    for gen in (model.generator(first), OnnxStepper(exported[name], first)):
+        noise, x = np.random.default_rng(5), gen._x0[0]
+        u, applied = gen.step(), []
+        for i, n in enumerate([1, 17, 5, 40, 1, 1, 60, 33, 9] * 6):
+            n = min(n, len(u))
+            states = dynamics.predict(x[None], u[None, :n])[0]
+            applied.append(u[:n])
+            measured = states + 1e-4 * noise.standard_normal(states.shape)
+            x = states[-1]
+            if i == 4:
+                gen.set_latent(other)
+            if i == 30:
+                gen.set_latent(other, restart=True, length=k // 2)
+            u = gen.step(measured)
+        runs.append((np.concatenate(applied), gen.done, gen.time))
+    (a, done_a, t_a), (b, done_b, t_b) = runs
+    assert (done_a, t_a) == (done_b, t_b) and done_a
+    assert (np.abs(a - b) / np.asarray(model.model.cfg.output_scale)).max() <= 1e-5
+
+
+def test_the_contract_is_the_steppers(exported):
+    contract = json.loads((exported["pancake"] / "contract.json").read_text())
+    gen = sm.load_pretrained("pancake").generator(sm.data.pancake.straight((0.1, 0.0, 0.5), 100))
+    same = {k: v for k, v in gen.contract().items() if k not in ("length", "batch", "replan")}
+    assert {k: contract[k] for k in same} == same
+    assert contract["files"]["encoder"] == "encoder.onnx" and contract["opset"] >= 17
+    assert set(contract["graphs"]["decoder_step"]["inputs"]) == {"h", "c", "window"}
+
+
+def test_the_exported_folder_runs_with_numpy_and_onnxruntime_only(exported):
+    folder = exported["pancake"]
+    code = f"""
+import sys
+sys.modules["torch"] = None  # importing torch (or seqmotion) fails
+sys.modules["seqmotion"] = None
+sys.path.insert(0, {str(folder)!r})
+import numpy as np
+from onnx_stepper import OnnxStepper
+motion = np.zeros((120, 6)); motion[:, 1] = np.linspace(0.0, 0.05, 120)
+gen = OnnxStepper({str(folder)!r}, motion)
+u = gen.step()
+u = gen.step(np.repeat(motion[:1], 3, axis=0))
+print(u.shape, gen.contract()["task"])
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=folder.parent)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["(47,", "3)", "pancake"]
+
+
+def test_int8_graphs(exported, tmp_path):
+    import onnx
+    import onnxruntime as ort
+
+    proto = onnx.load(str(exported["pancake"] / "decoder_step.onnx"))
+    feeds = {"h": np.zeros((2, 1, 64), np.float32), "c": np.full((2, 1, 64), 0.1, np.float32),
+             "window": np.full((1, 50, 6), 0.01, np.float32)}
+    run = [ort.InferenceSession(p.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, feeds)[2]
+           for p in (proto, gemm_as_matmul(proto))]
+    np.testing.assert_allclose(run[0], run[1], atol=1e-4)  # the rewrite quantisation needs changes nothing
+    assert quantized(proto, tmp_path) == proto.SerializeToString()  # nothing 256 wide: stays float (like PyTorch)
+    small = onnx.load_from_string(quantized(proto, tmp_path, min_features=64))
+    assert sum(n.op_type == "MatMulInteger" for n in small.graph.node) >= 4
+
+
+def test_named_errors(exported, tmp_path):
+    with pytest.raises(ValueError, match="no exported model"):
+        OnnxModel(tmp_path)
+    with pytest.raises(ValueError, match="int8"):
+        OnnxModel(exported["pancake"], int8=True)
+    gen = OnnxStepper(exported["pancake"], latent=np.zeros(128), x0=np.zeros(6), length=80)
+    gen.step()
+    with pytest.raises(ValueError, match=r"6 columns.*pancake state"):
+        gen.step(np.zeros((2, 8)))
+    with pytest.raises(ValueError, match="NaN"):
+        gen.step(np.full((2, 6), np.nan))
+    with pytest.raises(ValueError, match="inputs must have shape"):
+        OnnxStepper(exported["pancake"], np.zeros((10, 4)))
+    with pytest.raises(ValueError, match="no parameter"):
+        OnnxStepper(exported["pancake"], np.zeros((10, 6)), mu=0.5)
+    with pytest.raises(ValueError, match="sequence-to-sequence"):
+        export_onnx(sm.load_pretrained("pushing"), tmp_path / "x")
+    with pytest.raises(ValueError, match="float model"):
+        export_onnx(sm.load_pretrained("pancake").quantized(), tmp_path / "x")
