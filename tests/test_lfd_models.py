@@ -134,6 +134,10 @@ def test_corrupt_or_mismatched_checkpoints(tmp_path):
     config = json.loads(cfg_path.read_text())
     config["policy"]["seqae"]["hidden"] = 9  # weights no longer fit
     cfg_path.write_text(json.dumps(config))
+    with pytest.raises(CheckpointError, match="config_sha256"):  # an edited config no longer matches its hash
+        PushingPolicy.from_pretrained(tmp_path / "q")
+    config.pop("config_sha256")  # without the hash, the shapes are what refuses it
+    cfg_path.write_text(json.dumps(config))
     with pytest.raises(CheckpointError, match="do not fit"):
         PushingPolicy.from_pretrained(tmp_path / "q")
     config["policy"]["kind"] = "telepathy"
@@ -257,7 +261,8 @@ def test_policy_follows_the_model_contract(tmp_path):
                        "final_loss": 0.5},
     }
     card = policy.model_card("e2e-test", None, "", 1.25)
-    assert "kind `end_to_end`" in card and "every 20 ms" in card and "Weights: 1.25 MB" in card and "sm.load_pretrained('e2e-test')" in card
+    assert "kind `end_to_end`" in card and "every 20 ms" in card and "Weights: 1.25 MB" in card
+    assert "sm.load_pretrained('e2e-test')" in card
     assert "- End to end: CNN and decoder trained together on 5 of 6" in card
     assert "- Machine: Test CPU, 3 cores, 1 torch threads; torch x (Plan9)" in card
     assert tasks.get("pushing") is TASK and TASK.model_class is PushingPolicy

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -76,7 +77,11 @@ def test_a_model_trained_at_mu_08_is_judged_at_08_everywhere(run08, tmp_path, ca
     import matplotlib.figure
 
     saved = []
-    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: saved.append(fig))
+    def savefig(fig, path, *args, **kwargs):  # keep the figure; write a placeholder (outputs are renamed into place)
+        saved.append(fig)
+        Path(path).write_bytes(b"")
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
     assert main(["optimize", "--model", str(run08), "--target", "0.05", "0", "1.0", "--steps", "1", "--length", "120",
                  "--output", str(tmp_path / "opt.npz"), "--plot", str(tmp_path / "opt.png")]) == 0
     assert "at mu = 0.8" in capsys.readouterr().out

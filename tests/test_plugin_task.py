@@ -91,6 +91,25 @@ def test_load_deform_and_step_online_with_the_tasks_own_state(run):
         gen.step(np.zeros((c, 6)))
 
 
+def test_the_plug_in_exports_to_onnx_and_steps_past_its_end(run, tmp_path):
+    pytest.importorskip("onnxruntime")
+    from seqmotion.deploy import OnnxModel, OnnxStepper, export_onnx
+
+    model = sm.load(run)
+    export_onnx(model, tmp_path / "onnx")  # its constraint (atan(|a|/g) under 15°) goes into violation.onnx
+    sketch = model.task_def.sketch((0.02, 0.01), 150)
+    ref, mine = model.generate(sketch), OnnxModel(tmp_path / "onnx").generate(sketch)
+    assert np.abs(mine["states"] - ref.states).max() <= 1e-4
+    assert np.abs(mine["violation"] - ref.violation).max() <= 1e-4
+    for gen in (model.generator(sketch), OnnxStepper(tmp_path / "onnx", sketch)):
+        u, x = gen.step(), sketch[0]
+        while gen.time < 150 + 400:  # past K: brought to rest within the tilt limit
+            states = integrate_numpy(x, u)
+            x = states[-1]
+            u = gen.step(states[1:])
+        assert gen.done and np.abs(x[2:]).max() < 1e-4 and np.degrees(np.arctan(np.abs(u).max() / 9.8)) < 15
+
+
 def test_lm_reaches_an_end_point_on_a_residual_objective(run):
     model = sm.load(run)
     sketch = model.task_def.sketch((0.02, 0.01), 200)

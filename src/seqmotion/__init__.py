@@ -15,6 +15,9 @@ from . import data, physics, tasks
 from .api import load, load_pretrained, pretrained_models
 from .errors import CheckpointError
 from .latent import objectives, optimize_latent, optimize_trajectory
+from .sim.registration import register_envs
+
+register_envs()  # gymnasium.make("seqmotion/PancakeArm-v0") (string entry points: MuJoCo is not imported)
 
 __version__ = "0.1.0"
 __all__ = [
@@ -24,6 +27,6 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    if name in ("sim", "lfd"):  # heavy (MuJoCo): imported only when used
+    if name in ("sim", "lfd", "deploy"):  # heavy (MuJoCo, ONNX export): imported only when used
         return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module 'seqmotion' has no attribute {name!r}")

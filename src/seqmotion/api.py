@@ -28,7 +28,19 @@ def load(path: str | Path, expected_task: str | None = None) -> Any:
     Raises:
         CheckpointError: missing, corrupt or mismatched files, or another task's model.
     """
-    directory = ckpt.resolve_model_dir(Path(path))
+    path = _as_path(path, "path")
+    for attempt in range(3):
+        directory = ckpt.resolve_model_dir(path)
+        try:
+            return _load_directory(directory, expected_task)
+        except CheckpointError:
+            # a training writing this run may have replaced `latest` and pruned the checkpoint just resolved
+            if attempt == 2 or directory == path or directory.exists():
+                raise
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _load_directory(directory: Path, expected_task: str | None) -> Any:
     config = ckpt.read_config(directory)
     task_name = config.get("task")
     if expected_task is not None and task_name != expected_task:
@@ -64,8 +76,16 @@ def pretrained_task(name: str) -> str | None:
         return None
 
 
+def _as_path(value: object, what: str) -> Path:
+    if not isinstance(value, str | Path) or not str(value) or "\x00" in str(value):
+        raise ValueError(f"{what} must be a path (str or Path), got {value!r}")
+    return Path(value)
+
+
 def pretrained_dir(name: str) -> Path:
     """Where a shipped pretrained model lives."""
+    if not isinstance(name, str):
+        raise ValueError(f"a pretrained model's name is a string, got {type(name).__name__} {name!r}")
     models = pretrained_models()
     if name not in models:
         raise ValueError(f"unknown pretrained model {name!r}; shipped models: {sorted(models)}")
@@ -81,7 +101,7 @@ def load_pretrained(name: str) -> Any:
 def resolve_model(value: str | Path, expected_task: str | None = None) -> Any:
     """A shipped model's name or a path to a model/run directory (the CLI's ``--model``), of ``expected_task``
     if given."""
-    path = Path(value)
+    path = _as_path(value, "model")
     if not path.exists() and str(value) in pretrained_models():
         task = pretrained_task(str(value))
         if expected_task is not None and task != expected_task:

@@ -64,17 +64,27 @@ def cmd_train(args: argparse.Namespace) -> int:
             f"task {args.task!r} is not trained by `seqmotion train`"
             + (f": {task.trained_by}" if getattr(task, "trained_by", None) else "")
         )
+    if args.max_steps is not None and args.max_steps < 1:
+        raise ValueError(f"--max-steps must be at least 1, got {args.max_steps}")
+    if args.epochs is not None and args.epochs < 1:
+        raise ValueError(f"--epochs must be at least 1, got {args.epochs}")
     config = task.train_config(args.config)
     if args.variant:
         if not hasattr(task, "apply_variant"):
             raise ValueError(f"task {args.task} has no variants")
         config = task.apply_variant(config, args.variant)
-    if args.epochs:
+    if args.epochs is not None:
         config.curriculum = Curriculum.from_dict(config.curriculum).scaled(args.epochs).to_dict()
     for name in ("seed", "batch_size", "batches_per_epoch", "lr", "lr_final_fraction", "checkpoint_every"):
         value = getattr(args, name)
         if value is not None:
             setattr(config, name, value)
+    try:
+        config.validate()  # the overrides, checked like the preset's values
+    except ValueError as exc:
+        setting = str(exc).split()[0]
+        flag = f" (--{setting.replace('_', '-')})" if getattr(args, setting, None) is not None else ""
+        raise ValueError(f"{exc}{flag}") from None
     options = task.options(config)
     changes = {}
     for item in args.set or []:
@@ -84,7 +94,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         changes[key] = options.parse(key, raw)
     config.options = options.replace(**changes).to_dict()  # checked: unknown keys and bad values refused by name
     variant = f"-{args.variant}" if args.variant else ""
-    out = Path(args.out or f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
+    out = Path(args.out if args.out is not None else f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
+    check_writable_dir(out, "--out")
     tasks.train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, say it once
         print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
@@ -93,8 +104,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_deform(args: argparse.Namespace) -> int:
     from seqmotion.physics.integrator import implied_accel
-    from seqmotion.training.files import read_trajectory, write_arrays
+    from seqmotion.training.files import check_output, read_trajectory, write_arrays
 
+    check_output(args.output)
     model = _trained_model(args.model)
     inputs = read_trajectory(args.input)
     result = model.generate(inputs)
@@ -121,12 +133,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
     import numpy as np
 
     from seqmotion.data import sliding as commands
-    from seqmotion.training.files import read_trajectory, write_arrays
+    from seqmotion.errors import check_number
+    from seqmotion.training.files import check_output, read_trajectory, write_arrays
 
+    check_output(args.output)
+    if args.circle is not None:
+        check_number("--circle (radius [m])", args.circle, minimum=0, strict_minimum=True, maximum=10.0)
+        check_number("--length", args.length, minimum=2, maximum=1_000_000, integer=True)
     planner = _trained_model(args.model, "sliding")
     if args.int8:
         planner = planner.quantized()
-    command = commands.circle(args.circle, args.length) if args.circle else read_trajectory(args.command)
+    if args.circle is not None:
+        command = commands.circle(args.circle, args.length)
+    else:
+        command = read_trajectory(args.command_file)
     plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
     mu = planner.options.mu if args.mu is None else args.mu
     mu_dyn = planner.options.mu_dyn if args.mu_dyn is None else args.mu_dyn
@@ -141,8 +161,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
+    out = Path(args.out if args.out is not None else f"reproduce/{args.chapter}")
+    check_writable_dir(out, "--out")
     module = importlib.import_module(f"seqmotion.reproduce.{args.chapter}")
-    out = Path(args.out or f"reproduce/{args.chapter}")
     module.run(out, model=args.model, quick=args.quick, seed=args.seed)
     print(f"figures and tables written to {out}/")
     return 0
@@ -152,15 +173,18 @@ def cmd_export(args: argparse.Namespace) -> int:
     import seqmotion as sm
     from seqmotion import tasks
     from seqmotion.training.checkpoint import resolve_model_dir
-    from seqmotion.training.pretrained import export_pretrained
+    from seqmotion.training.pretrained import check_pretrained_name, export_pretrained
 
+    check_pretrained_name(args.name)
+    if args.to is not None:
+        check_writable_dir(Path(args.to), "--to")
+    metrics = read_json(args.metrics, "--metrics") if args.metrics is not None else None
     source = resolve_model_dir(Path(args.run))
     model = sm.load(source)
     if hasattr(model, "check_finished"):
         model.check_finished()
     task = tasks.get(model.config_json()["task"])
-    root = Path(args.to) if args.to else tasks.registry.home_package(task) / "pretrained"
-    metrics = json.loads(Path(args.metrics).read_text()) if args.metrics else None
+    root = Path(args.to) if args.to is not None else tasks.registry.home_package(task) / "pretrained"
     target = export_pretrained(model, source, args.name, root, metrics, args.notes or "")
     print(f"shipped {args.run} as {args.name!r} in {target} (with MODEL_CARD.md)")
     if root not in tasks.pretrained_roots():
@@ -172,6 +196,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from seqmotion.reproduce.demo import run
 
+    check_writable_dir(Path(args.out), "--out")
     run(Path(args.out), simulate=not args.no_sim)
     return 0
 
@@ -216,7 +241,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="plan pan shaking that slides an object along a command (ch. 3)")
     p.add_argument("--model", default="sliding", help="shipped model name or model/run directory")
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--command", help=".npz (array 'states') or .csv: (K, 4) object x, y, vx, vy relative to the pan")
+    src.add_argument("--command", dest="command_file",  # not `command`: that is the subcommand's name
+                     help=".npz (array 'states') or .csv: (K, 4) object x, y, vx, vy relative to the pan")
     src.add_argument("--circle", type=float, metavar="RADIUS", help="a circle of this radius [m] as the command")
     p.add_argument("--length", type=int, default=1200, help="K of the --circle command")
     p.add_argument("--mu", type=float, help="static friction of the 2-D physics (default: the model's)")
@@ -257,14 +283,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_writable_dir(path: Path, what: str) -> Path:
+    """An output folder that can be created and written (checked before the work; nothing is created)."""
+    from seqmotion.training.checkpoint import check_writable_dir as check
+
+    return check(path, what)
+
+
+def read_json(path: str | Path, what: str) -> object:
+    """A JSON input file; ``ValueError`` naming ``what`` when it is missing or not JSON."""
+    try:
+        return json.loads(Path(path).read_text())
+    except OSError as exc:
+        raise ValueError(f"{what} {path}: {exc.strerror or exc}") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{what} {path} is not JSON: {exc}") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run a subcommand. Exit codes: 0 done; 2 bad input (a ``ValueError``/``CheckpointError``: one line
+    ``seqmotion <command>: error: …`` on stderr, never a traceback); 1 the work failed (an ``OSError``
+    such as a full disk, a diverged training); 130 interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    name = getattr(args, "command", None) or "?"
     try:
         return int(args.func(args) or 0)
     except ValueError as exc:  # bad input: a clear message, no traceback
-        print(f"seqmotion {args.command}: error: {exc}", file=sys.stderr)
+        print(f"seqmotion {name}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except (OSError, FloatingPointError) as exc:  # the work failed: say so in one line
+        print(f"seqmotion {name}: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"seqmotion {name}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -14,6 +14,10 @@ class CheckpointError(ValueError):
     """A checkpoint is missing, corrupt, mismatched, or belongs to another task."""
 
 
+class RunInUseError(CheckpointError):
+    """A training run directory is locked by another training writing into it."""
+
+
 def as_trajectories(
     array: object,
     dim: int,
@@ -32,10 +36,7 @@ def as_trajectories(
         ``(batch, was_single)`` where ``was_single`` tells whether a leading batch axis
         was added (so callers can strip it again).
     """
-    try:
-        arr = np.asarray(array, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a numeric array, got {type(array).__name__}: {exc}") from None
+    arr = as_float_array(array, name)
     if arr.ndim not in (2, 3):
         raise ValueError(f"{name} must have shape (K, {dim}) or (B, K, {dim}), got shape {arr.shape}")
     if arr.shape[-1] != dim:
@@ -49,6 +50,38 @@ def as_trajectories(
         raise ValueError(f"{name} contains NaN or inf (first at index {bad})")
     single = arr.ndim == 2
     return (arr[None] if single else arr), single
+
+
+def as_float_array(array: object, name: str) -> np.ndarray:
+    """``array`` as a float64 ndarray; ``ValueError`` naming ``name`` for anything that is not real numbers
+    (strings, objects, complex numbers, ragged lists)."""
+    if isinstance(array, (str, bytes)):
+        raise ValueError(f"{name} must be a numeric array, got {type(array).__name__}")
+    try:
+        raw = np.asarray(array)
+        if raw.dtype.kind not in "biuf":
+            raise TypeError(f"dtype {raw.dtype} is not real numbers")
+        return np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError, RuntimeError) as exc:
+        raise ValueError(f"{name} must be a numeric array, got {type(array).__name__}: {exc}") from None
+
+
+def check_number(
+    name: str, value: object, *, minimum: float | None = None, maximum: float | None = None,
+    strict_minimum: bool = False, integer: bool = False,
+) -> float | int:
+    """A finite real number (an integer with ``integer``) within the bounds, or ``ValueError`` naming ``name``."""
+    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds):
+        raise ValueError(f"{name} must be {'an integer' if integer else 'a number'}, got {value!r}")
+    number = int(value) if integer else float(value)
+    if not np.isfinite(number):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if minimum is not None and (number < minimum or (strict_minimum and number == minimum)):
+        raise ValueError(f"{name} must be {'>' if strict_minimum else '≥'} {minimum:g}, got {value!r}")
+    if maximum is not None and number > maximum:
+        raise ValueError(f"{name} must be ≤ {maximum:g}, got {value!r}")
+    return number
 
 
 def check_finite_result(value: np.ndarray, what: str) -> np.ndarray:

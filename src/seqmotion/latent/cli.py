@@ -13,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+"""What ``--plot`` writes (matplotlib picks the format from the suffix)."""
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("optimize", help="adjust a motion by gradient descent on its latent (ch. 4)")
@@ -41,11 +44,22 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..api import resolve_model
+    from ..errors import check_number
     from ..tasks import TrainedModel
-    from ..training.files import read_trajectory, write_arrays
+    from ..training.checkpoint import check_writable
+    from ..training.files import check_output, read_trajectory, write_arrays
     from . import optimize_latent, optimize_trajectory
     from .objectives import EndPose, Ranges
 
+    check_output(args.output)
+    if args.plot is not None:
+        check_writable(args.plot, FIGURE_SUFFIXES, "--plot")
+    if args.steps is not None and args.steps < 0:
+        raise ValueError(f"--steps must be ≥ 0 (0: no update, the input's own motion), got {args.steps}")
+    if args.lr is not None:
+        check_number("--lr", args.lr, minimum=0, strict_minimum=True)
+    check_number("--length", args.length, minimum=2, maximum=1_000_000, integer=True)
+    check_number("--seed", args.seed, minimum=0, integer=True)
     model = resolve_model(args.model)
     if not isinstance(model, TrainedModel):
         raise ValueError(f"{args.model} is a {type(model).__name__}, not a sequence-to-sequence motion model")
@@ -53,18 +67,23 @@ def run(args: argparse.Namespace) -> int:
     if args.preset == "j2":
         objective = Ranges()
         sketch_end = (0.0, 0.0, -3 * math.pi / 4)
-        steps = args.steps or 20
+        steps = args.steps if args.steps is not None else 20
     else:
         objective = EndPose(args.target)
         sketch_end = tuple(args.target)
-        steps = args.steps or 100
+        steps = args.steps if args.steps is not None else 100
     objective = objective.bind(model)  # refuses a model of another layout, an end pose of another size, by name
     if args.input:
         states = read_trajectory(args.input)
     else:
         states = task.sketch(sketch_end, args.length, timing="linear" if args.preset == "j2" else "s_curve")
-    optimizer = args.optimizer or ("sgd" if args.preset == "j2" or args.lr else "lm")
-    method: dict = {"lr": args.lr or "auto"} if optimizer == "sgd" else {"optimizer": "lm", "continuation": (1e-3, 4)}
+    optimizer = args.optimizer or ("sgd" if args.preset == "j2" or args.lr is not None else "lm")
+    if optimizer == "lm" and args.lr is not None:
+        raise ValueError("--lr is the step size of gradient descent; Levenberg–Marquardt (--optimizer lm) takes none")
+    method: dict = (
+        {"lr": args.lr if args.lr is not None else "auto"} if optimizer == "sgd"
+        else {"optimizer": "lm", "continuation": (1e-3, 4)}
+    )
     if args.case == 3:
         res = optimize_trajectory(model, states, objective, steps=steps, **method)
     else:
@@ -97,6 +116,8 @@ def _plot(model, res, violation: np.ndarray | None, path: Path) -> None:  # noqa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..training.checkpoint import atomic_path
+
     layout = model.state_layout
     fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
     t = np.arange(len(res.states))
@@ -121,6 +142,6 @@ def _plot(model, res, violation: np.ndarray | None, path: Path) -> None:  # noqa
     axes[2].plot(res.history)
     axes[2].set(yscale="log", xlabel="update", ylabel="objective", title="progress")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..errors import as_float_array, check_number
 from ..physics.layout import StateLayout
 from ..physics.pancake import MU, STATE_LAYOUT, violation_torch
 
@@ -238,18 +239,27 @@ class EndPose(Objective):
         self, target: Sequence[float] | np.ndarray, alpha: float = 1.0, mu: float | None = None,
         fields: Sequence[str] | None = None, weights: Sequence[float] | None = None,
     ) -> None:
-        target_arr = np.asarray(target, dtype=np.float64)
-        if target_arr.ndim not in (1, 2) or target_arr.shape[-1] < 1 or not np.all(np.isfinite(target_arr)):
-            raise ValueError(f"target must be finite, one value per end-pose field or (B, n), got {np.shape(target)}")
+        target_arr = as_float_array(target, "target")
+        if target_arr.ndim not in (1, 2) or target_arr.shape[-1] < 1 or target_arr.size == 0:
+            raise ValueError(f"target must be one value per end-pose field or (B, n), got shape {target_arr.shape}")
+        if not np.all(np.isfinite(target_arr)):
+            raise ValueError(f"target must be finite, got {target_arr.tolist()}")
         _check_weight("alpha", alpha)
         if mu is not None:
             _check_weight("mu", mu, positive=True)
-        if weights is not None and (fields is None or len(weights) != len(fields)):
-            raise ValueError("weights need fields, one weight per field")
+        if fields is not None and (
+            isinstance(fields, str) or not all(isinstance(f, str) for f in fields) or len(fields) == 0
+        ):
+            raise ValueError(f"fields must be a non-empty sequence of state field names, got {fields!r}")
+        if weights is not None:
+            if fields is None or isinstance(weights, str) or len(weights) != len(fields):
+                raise ValueError("weights need fields, one weight per field")
+            for w in weights:
+                _check_weight("weights", w)
         self.target, self.alpha, self.mu = target_arr, float(alpha), None if mu is None else float(mu)
         self.fields = None if fields is None else tuple(fields)
         self.weights = None if weights is None else tuple(float(w) for w in weights)
-        self._columns: list[int] | None = None
+        self._columns: list[int] | slice | None = None
         self._violation: Callable[[torch.Tensor, torch.Tensor], torch.Tensor | None] | None = None
 
     def _bind_columns(self, layout: StateLayout, fields: Sequence[str], weights: Sequence[float], task: str) -> None:
@@ -258,7 +268,10 @@ class EndPose(Objective):
                 f"EndPose target has {self.target.shape[-1]} values, but the {task!r} task's end pose is "
                 f"{list(fields)} in {layout}"
             )
-        self._columns = [layout.index(f) for f in fields]
+        columns = [layout.index(f) for f in fields]
+        # a run of neighbouring columns is read as a slice: a view, cheaper to differentiate than a gather
+        contiguous = columns == list(range(columns[0], columns[0] + len(columns)))
+        self._columns = slice(columns[0], columns[-1] + 1) if contiguous else columns
         self.weights = tuple(float(w) for w in weights)
         self._field_names = tuple(fields)
 
@@ -342,11 +355,11 @@ class Ranges(Objective):
     ) -> None:
         for name, value in (("p_lim", p_lim), ("theta_lim", theta_lim), ("alpha", alpha), ("beta", beta)):
             _check_weight(name, value)
-        _check_weight("theta_end", abs(theta_end))
+        check_number("theta_end", theta_end)
         if mu is not None:
             _check_weight("mu", mu, positive=True)
-        if len(v_lim) != 3:
-            raise ValueError(f"Ranges needs three velocity limits (v_y, v_z, v_theta), got {len(v_lim)}")
+        if isinstance(v_lim, str) or not hasattr(v_lim, "__len__") or len(v_lim) != 3:
+            raise ValueError(f"Ranges needs three velocity limits (v_y, v_z, v_theta), got {v_lim!r}")
         for value in v_lim:
             _check_weight("v_lim", value)
         self.p_lim, self.theta_end, self.theta_lim = float(p_lim), float(theta_end), float(theta_lim)

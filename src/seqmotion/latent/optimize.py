@@ -9,23 +9,27 @@ physics; ``z ← z − η ∂J/∂z``; repeat. Three cases:
 * case 3 — :func:`optimize_trajectory`: optimise the decoder's output accelerations directly
   (starting from what the decoder produced), states by integration.
 
-Everything is batched: many input motions (and per-trajectory targets) in one call. The
-model's weights are frozen during optimisation; only z (or the accelerations) change.
+Everything is batched: many input motions (and per-trajectory targets) in one call. Only z
+(or the accelerations) change: gradients are taken with respect to them alone
+(``torch.autograd.grad(J, z)``), so the model's weights are never touched — not even their
+``requires_grad`` flags, which makes concurrent calls on one model from several threads safe.
 """
 
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
-from ..errors import as_trajectories, check_finite_result
+from ..errors import as_float_array, as_trajectories, check_finite_result, check_number
 from ..tasks.base import TrainedModel
 from .objectives import as_objective
+
+MAX_STEPS = 1_000_000
+"""More updates than this in one call is a typo."""
 
 
 @dataclass
@@ -49,19 +53,6 @@ class OptimizationResult:
     seconds_per_update: float
 
 
-@contextmanager
-def _frozen(model: torch.nn.Module):
-    """Weights take no gradient while latents are optimised (and are restored afterwards)."""
-    flags = [p.requires_grad for p in model.parameters()]
-    for p in model.parameters():
-        p.requires_grad_(False)
-    try:
-        yield
-    finally:
-        for p, flag in zip(model.parameters(), flags, strict=True):
-            p.requires_grad_(flag)
-
-
 def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.optim.Optimizer:
     if name == "sgd":  # plain gradient descent, eq. 4.2
         return torch.optim.SGD(params, lr=lr)
@@ -78,11 +69,22 @@ def _prepare(
     if not isinstance(model, TrainedModel):
         raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
     model.check_physics(physics)
-    if steps < 0 or not (lr == "auto" or (isinstance(lr, (int, float)) and lr > 0)):
-        raise ValueError(f"need steps >= 0 and lr > 0 or 'auto', got steps={steps}, lr={lr!r}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 0 <= steps <= MAX_STEPS:
+        raise ValueError(f"steps must be an integer in [0, {MAX_STEPS}], got {steps!r}")
+    if not (isinstance(lr, str) and lr == "auto"):
+        check_number("lr", lr, minimum=0, strict_minimum=True)
     batch, single = as_trajectories(states, model.input_dim, "states")
     x = torch.from_numpy(batch)
     return as_objective(objective).bind(model), x, model.start_state(x), x.shape[1], single
+
+
+def _check_method(optimizer: object, lr: object, continuation: object) -> None:
+    """Refuse a bad optimiser choice before any work (the same checks :func:`_descend` makes)."""
+    if not isinstance(optimizer, str) or optimizer not in ("sgd", "adam", "lm"):
+        raise ValueError(f"optimizer must be 'sgd', 'adam' or 'lm', got {optimizer!r}")
+    if lr == "auto" and optimizer == "adam":
+        raise ValueError("optimizer='adam' needs a numeric lr (lr='auto' is gradient descent with a line search)")
+    _continuation(continuation, optimizer)
 
 
 def _descend(
@@ -216,9 +218,15 @@ def _continuation(continuation: tuple[float, int] | None, optimizer: str) -> tup
         return (1.0, 0)
     if optimizer != "lm":
         raise ValueError("continuation is a Levenberg–Marquardt option (optimizer='lm')")
+    bad = ValueError(f"continuation must be (initial penalty weight in (0, 1], updates ≥ 0), got {continuation!r}")
+    if isinstance(continuation, str) or not hasattr(continuation, "__len__") or len(continuation) != 2:
+        raise bad
     weight, ramp = continuation
-    if not (0 < float(weight) <= 1) or int(ramp) < 0:
-        raise ValueError(f"continuation must be (initial penalty weight in (0, 1], updates ≥ 0), got {continuation!r}")
+    try:
+        check_number("continuation weight", weight, minimum=0, strict_minimum=True, maximum=1)
+        check_number("continuation updates", ramp, minimum=0, maximum=MAX_STEPS, integer=True)
+    except ValueError:
+        raise bad from None
     return float(weight), int(ramp)
 
 
@@ -260,6 +268,8 @@ def optimize_latent(
             judges at another μ.
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
+    check_number("seed", seed, minimum=0, maximum=2**63 - 1, integer=True)
+    _check_method(optimizer, lr, continuation)
     with torch.no_grad():
         if isinstance(init, str) and init == "encoder":
             z0 = model.encode_torch(x)
@@ -267,16 +277,16 @@ def optimize_latent(
             gen = torch.Generator().manual_seed(seed)
             z0 = torch.randn(len(x), model.model.latent_dim, generator=gen)
         elif not isinstance(init, str):  # continue from given latents
-            z0 = torch.as_tensor(np.atleast_2d(np.asarray(init, dtype=np.float32)))
+            with np.errstate(over="ignore"):
+                z0 = torch.as_tensor(np.atleast_2d(as_float_array(init, "init").astype(np.float32)))
             if z0.shape != (len(x), model.model.latent_dim) or not torch.isfinite(z0).all():
                 raise ValueError(f"init latent must be finite with shape ({len(x)}, {model.model.latent_dim})")
         else:
             raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
-    with _frozen(model.model):
-        z, out_states, out_accel, history, seconds = _descend(
-            z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer,
-            _continuation(continuation, optimizer),
-        )
+    z, out_states, out_accel, history, seconds = _descend(
+        z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer,
+        _continuation(continuation, optimizer),
+    )
     return _result(out_states, out_accel, z, history, seconds, single)
 
 
@@ -296,13 +306,13 @@ def optimize_trajectory(
     dissertation) or ``"auto"``. Arguments as :func:`optimize_latent`.
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
+    _check_method(optimizer, lr, continuation)
     with torch.no_grad():
         _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, **physics)
-    with _frozen(model.model):
-        accel, out_states, out_accel, history, seconds = _descend(
-            accel0, lambda u: (model.integrate_torch(x0, u, **physics), u), objective, steps, lr, optimizer,
-            _continuation(continuation, optimizer),
-        )
+    accel, out_states, out_accel, history, seconds = _descend(
+        accel0, lambda u: (model.integrate_torch(x0, u, **physics), u), objective, steps, lr, optimizer,
+        _continuation(continuation, optimizer),
+    )
     return _result(out_states, out_accel, None, history, seconds, single)
 
 

@@ -122,8 +122,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Execute the parsed ``lfd`` subcommand; bad arguments raise ``ValueError``."""
+    from ..training.checkpoint import check_writable, check_writable_dir
+
     if args.lfd_command == "collect":
         from .dataset import collect
+
+        check_writable_dir(args.out, "--out")
 
         per_position = {name: args.per_position for name in args.sets} if args.per_position is not None else None
         reports = collect(
@@ -158,8 +162,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {pos.name:13s} {ok}/{int(mask.sum())} successful")
         return 0
     if args.lfd_command == "train":
+        check_writable_dir(args.out, "--out")
         return _train(args)
     if args.lfd_command == "evaluate":
+        if args.json is not None:
+            check_writable(args.json, None, "--json")
         return _evaluate(args)
     if args.lfd_command == "export":
         from .export import export_policy
@@ -257,7 +264,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.json:  # before printing: a closed stdout (e.g. piped into head) must not lose the result
         from ..training.checkpoint import atomic_write_bytes
 
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # keys in position order, not sorted
+        # keys in position order, not sorted
         atomic_write_bytes(Path(args.json), (json.dumps(result.as_dict(), indent=1) + "\n").encode())
     cells = "  ".join(f"{name} {ok}/{n}" for name, (ok, n) in result.per_position.items())
     print(

@@ -164,6 +164,7 @@ def collect_set(
     import h5py
 
     from ..sim import pushing
+    from ..training.checkpoint import atomic_path, check_writable
     from .operator import PHASES, OperatorParams, ScriptedOperator
     from .teleop import BilateralGains, teleoperate
 
@@ -185,7 +186,7 @@ def collect_set(
     path = Path(path)
     if path.exists() and not overwrite:
         raise ValueError(f"{path} already exists (pass overwrite=True to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
+    check_writable(path, (".h5",), "dataset")
 
     gains = BilateralGains()
     steps = round(duration / gains.dt)
@@ -194,8 +195,11 @@ def collect_set(
     successes, attempts = np.zeros(6, dtype=int), np.zeros(6, dtype=int)
     start = time.perf_counter()
     float_opts = {"dtype": "f4", "compression": "gzip", "compression_opts": 4, "shuffle": True}
+    # Written under a temporary name and renamed when complete: a killed collection leaves the old file
+    # (or none), never a truncated one.
+    writing = atomic_path(path)
     try:
-        with h5py.File(path, "w") as f:
+        with writing as tmp, h5py.File(tmp, "w") as f:
             f.attrs.update(
                 format=FORMAT, version=VERSION, set_name=name, seed=seed, dt=gains.dt, duration=float(duration),
                 n_episodes=n, samples=steps, camera=camera or "", image_size=pushing.IMAGE_SIZE, complete=False,
@@ -378,6 +382,17 @@ def load_dataset(path: str | Path) -> PushingDataset:
         f = h5py.File(path, "r")
     except OSError as exc:
         raise ValueError(f"{path} is not a readable HDF5 file: {exc}") from None
+    try:
+        return _read_open_dataset(path, f)
+    except (KeyError, TypeError, AttributeError, json.JSONDecodeError) as exc:  # a group or attribute missing
+        raise ValueError(f"{path} is not a complete {FORMAT} dataset: {type(exc).__name__}: {exc}") from None
+    except OSError as exc:  # h5py reports corrupt chunks as OSError
+        raise ValueError(f"{path} is corrupt: {exc}") from None
+
+
+def _read_open_dataset(path: Path, f: object) -> PushingDataset:  # f: an open h5py.File
+    import h5py
+
     with f:
         if f.attrs.get("format") != FORMAT:
             raise ValueError(f"{path} is not a {FORMAT} dataset (format={f.attrs.get('format')!r})")
@@ -385,6 +400,12 @@ def load_dataset(path: str | Path) -> PushingDataset:
             raise ValueError(f"{path} has format version {f.attrs.get('version')}, this code reads {VERSION}")
         if not bool(f.attrs.get("complete", False)):
             raise ValueError(f"{path} is incomplete (its collection was interrupted)")
+        for group in ("motions", "episodes", "episodes/variation", "operator"):
+            if group not in f or not isinstance(f[group], h5py.Group):
+                raise ValueError(f"{path} has no {group!r} group: not a complete {FORMAT} dataset")
+        missing = [k for k in MOTION_KEYS if k not in f["motions"]]
+        if missing:
+            raise ValueError(f"{path} has no motions {missing}")
         attrs = {k: _decode_attr(k, v) for k, v in f.attrs.items()}
         motions = {
             k: (f["motions"][k][()].astype(np.float64) if k != "phase" else f["motions"][k][()])

@@ -19,7 +19,7 @@ from typing import Any
 
 from ..tasks.registry import home_package
 from ..training.checkpoint import atomic_write_bytes
-from ..training.pretrained import export_pretrained
+from ..training.pretrained import check_pretrained_name, export_pretrained
 from .models import PushingPolicy
 from .task import TASK
 
@@ -70,6 +70,7 @@ def export_policy(
     Returns:
         The target directory.
     """
+    check_pretrained_name(name)  # before anything is read
     policy_dir = Path(policy_dir)
     policy = PushingPolicy.from_pretrained(policy_dir)  # verifies weights against the config
     metrics: dict[str, Any] = {}

@@ -297,6 +297,21 @@ def _fit(
         lr_final_fraction=getattr(settings, "lr_final_fraction", 1.0), grad_clip=getattr(settings, "grad_clip", None),
         run_dir=checkpoint_dir, identity=identity, generators={"rng": gen},
     )
+    try:
+        history = _epochs(loop, module, n, settings, gen, batch_loss, desc, progress, min_batch, checkpoint_dir,
+                          steps_per_epoch)
+    finally:
+        loop.close()  # also unlocks the checkpoint directory when the training fails
+    history["seconds"] = loop.elapsed
+    return history
+
+
+def _epochs(
+    loop: TrainingLoop, module: torch.nn.Module, n: int, settings: SeqAETraining | CNNTraining, gen: torch.Generator,
+    batch_loss: Any, desc: str, progress: bool, min_batch: int, checkpoint_dir: str | Path | None,
+    steps_per_epoch: int,
+) -> dict[str, Any]:
+    """The epochs of :func:`_fit` on its loop."""
     saved = loop.start()
     history: dict[str, Any] = {"loss": list(saved.get("loss", []))}
     first_epoch = int(saved.get("epoch", 0))
@@ -319,8 +334,6 @@ def _fit(
         loop.log({"loss": history["loss"][-1]}, epoch=done)
         if checkpoint_dir is not None and (done % CHECKPOINT_EVERY == 0 or done == settings.epochs):
             loop.checkpoint(extra={"epoch": done, "loss": history["loss"]})
-    loop.close()
-    history["seconds"] = loop.elapsed
     return history
 
 

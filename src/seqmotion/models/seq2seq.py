@@ -34,6 +34,20 @@ from torch import nn
 
 from .lstm import LSTMState, StackedLSTM
 
+SIZE_BOUNDS = {
+    "encoder_input_dim": 4096,
+    "decoder_input_dim": 4096,
+    "output_dim": 1024,
+    "chunk": 100_000,
+    "layers": 64,
+    "hidden": 65_536,
+    "head_hidden": 65_536,
+}
+"""Upper bounds of a config's sizes: far beyond any model, low enough that a corrupt config cannot ask for
+absurd allocations (loading also compares every size with the weights before anything is allocated)."""
+MAX_LAYER_WEIGHTS = 2**31
+"""The largest input layer (chunk × features × hidden weights) a config may describe."""
+
 
 @dataclass
 class Seq2SeqConfig:
@@ -70,11 +84,31 @@ class Seq2SeqConfig:
     sigma_min: float = 1e-3
 
     def __post_init__(self) -> None:
-        for name in ("encoder_input_dim", "decoder_input_dim", "output_dim", "chunk", "layers", "hidden"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)}")
+        """Check the config as a schema before anything is built: types, ranges and sizes.
+
+        Raises:
+            ValueError: naming the first bad field.
+        """
+        for name, bound in SIZE_BOUNDS.items():
+            value = getattr(self, name)
+            low = 0 if name == "head_hidden" else 1
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= bound:
+                raise ValueError(f"{name} must be an integer in [{low}, {bound}], got {value!r}")
+        if self.chunk * max(self.encoder_input_dim, self.decoder_input_dim) * self.hidden > MAX_LAYER_WEIGHTS:
+            raise ValueError(
+                f"chunk × input features × hidden = {self.chunk} × "
+                f"{max(self.encoder_input_dim, self.decoder_input_dim)} × {self.hidden} is beyond any model "
+                f"({MAX_LAYER_WEIGHTS} weights per layer)"
+            )
+        if not isinstance(self.correlated_pairs, list | tuple):
+            raise ValueError(f"correlated_pairs must be a list of [i, j] pairs, got {self.correlated_pairs!r}")
         for pair in self.correlated_pairs:
-            if len(pair) != 2 or not all(0 <= i < self.output_dim for i in pair) or pair[0] == pair[1]:
+            if (
+                not isinstance(pair, list | tuple)
+                or len(pair) != 2
+                or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < self.output_dim for i in pair)
+                or pair[0] == pair[1]
+            ):
                 raise ValueError(f"correlated pair {pair} is not two distinct output dimensions")
         dims = {
             "encoder_input_scale": self.encoder_input_dim,
@@ -84,8 +118,18 @@ class Seq2SeqConfig:
         }
         for name, dim in dims.items():
             value = getattr(self, name)
-            if value is not None and len(value) != dim:
-                raise ValueError(f"{name} needs {dim} entries, got {len(value)}")
+            if value is None:
+                continue
+            if not isinstance(value, list | tuple) or len(value) != dim:
+                raise ValueError(f"{name} needs {dim} entries, got {value!r}")
+            for v in value:
+                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                    raise ValueError(f"{name} entries must be finite numbers, got {value!r}")
+                if name != "output_offset" and not v > 0:
+                    raise ValueError(f"{name} entries must be positive (they divide or scale), got {value!r}")
+        sigma = self.sigma_min
+        if isinstance(sigma, bool) or not isinstance(sigma, int | float) or not (math.isfinite(sigma) and sigma > 0):
+            raise ValueError(f"sigma_min must be a finite number > 0 (it keeps S_u positive definite), got {sigma!r}")
 
     @property
     def latent_dim(self) -> int:
@@ -96,7 +140,21 @@ class Seq2SeqConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> Seq2SeqConfig:
-        return cls(**data)
+        """The config ``to_dict`` wrote, checked (``ValueError`` for anything else: unknown or missing keys,
+        bad values)."""
+        if not isinstance(data, dict):
+            raise ValueError(f"a model config must be a JSON object, got {type(data).__name__}")
+        try:
+            return cls(**data)
+        except TypeError as exc:
+            raise ValueError(f"not a model config: {exc}") from None
+
+    def parameter_shapes(self) -> dict[str, tuple[int, ...]]:
+        """Name → shape of every tensor of the model this config describes, without allocating it
+        (built on PyTorch's ``meta`` device)."""
+        with torch.device("meta"):
+            module = ChunkedSeq2Seq(self)
+        return {k: tuple(v.shape) for k, v in module.state_dict().items()}
 
 
 class GaussianHead(nn.Module):

@@ -26,7 +26,7 @@ from ..data import pancake as inputs
 from ..physics import pancake as physics
 from ..physics.integrator import implied_accel
 from ..tasks.pancake import FEASIBLE_TOLERANCE, THETA_WEIGHT, Deformer
-from ..training.checkpoint import atomic_write_text
+from ..training.checkpoint import atomic_write_text, save_figure
 
 FIG25_TARGETS = [(y, z, 2.5) for y in (-0.2, 0.0, 0.2) for z in (-0.2, 0.0, 0.2)]
 FIG26_TARGET = (0.2, 0.0, 2.5)
@@ -128,7 +128,7 @@ def figures(deformer: Deformer, out: Path) -> dict:
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[1].set(xlabel="time [ms]", ylabel="θ [rad]", title="attitude")
     fig.tight_layout()
-    fig.savefig(out / "fig2_5_deformation.png", dpi=130)
+    save_figure(fig, out / "fig2_5_deformation.png", dpi=130)
     plt.close(fig)
 
     x, r = originals[red], deformer.deform(originals[red])
@@ -144,7 +144,7 @@ def figures(deformer: Deformer, out: Path) -> dict:
            title="Fig. 2.6: the (0.2, 0, 2.5) motion")
     ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "fig2_6_psi.png", dpi=130)
+    save_figure(fig, out / "fig2_6_psi.png", dpi=130)
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -153,7 +153,7 @@ def figures(deformer: Deformer, out: Path) -> dict:
     ax.set(xlabel="time [ms]", ylabel="deformed − original", title="Fig. 2.7: amount of deformation")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "fig2_7_deformation_amount.png", dpi=130)
+    save_figure(fig, out / "fig2_7_deformation_amount.png", dpi=130)
     plt.close(fig)
     return {
         "fig2_5_max_fc_deformed": float(deformed.violation.max()),

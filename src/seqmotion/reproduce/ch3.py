@@ -30,7 +30,7 @@ import numpy as np
 
 from ..data import sliding as commands
 from ..tasks.sliding import PAN_LIMIT, SlidingPlanner
-from ..training.checkpoint import atomic_write_text
+from ..training.checkpoint import atomic_write_text, save_figure
 
 FRICTION_GRID = [(mu, mud) for mu in (0.7, 0.9, 1.1, 1.3) for mud in (0.3, 0.4, 0.6, 0.7) if mud < mu]
 LENGTH = 1200
@@ -154,7 +154,7 @@ def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int
         ax.legend(fontsize=8)
     fig.suptitle("Fig. 3.7: reproduced trajectories in the 2-D physics (K = 1200)")
     fig.tight_layout()
-    fig.savefig(out / "fig3_7_paths.png", dpi=130)
+    save_figure(fig, out / "fig3_7_paths.png", dpi=130)
     plt.close(fig)
 
     fig, axes = plt.subplots(1, len(study["models"]), figsize=(4.2 * len(study["models"]), 3.8), squeeze=False)
@@ -170,7 +170,7 @@ def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int
         fig.colorbar(im, ax=ax, label="RMSE [mm]")
     fig.suptitle("Fig. 3.10: reproduction error across friction the models never saw")
     fig.tight_layout()
-    fig.savefig(out / "fig3_10_friction.png", dpi=130)
+    save_figure(fig, out / "fig3_10_friction.png", dpi=130)
     plt.close(fig)
     return command
 

@@ -29,7 +29,7 @@ from ..data import pancake as inputs
 from ..latent import optimize_latent, optimize_trajectory
 from ..latent.objectives import EndPose, Ranges
 from ..tasks.pancake import FEASIBLE_TOLERANCE, Deformer
-from ..training.checkpoint import atomic_write_text
+from ..training.checkpoint import atomic_write_text, save_figure
 from ..training.files import write_arrays
 from .ch2 import load_deformer
 
@@ -112,7 +112,7 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
     ax.set(yscale="log", xlabel="update", ylabel="J1 (mean of 27 targets)", title="Fig. 4.2: progress of the objective")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "fig4_2_objective.png", dpi=130)
+    save_figure(fig, out / "fig4_2_objective.png", dpi=130)
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.5))
@@ -126,7 +126,7 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
     axes[1].set(ylabel="end-attitude RMSE [deg]", xticks=range(3), xticklabels=["1", "2", "3"], xlabel="case")
     fig.suptitle("Fig. 4.6: end-pose errors after 100 updates")
     fig.tight_layout()
-    fig.savefig(out / "fig4_6_end_rmse.png", dpi=130)
+    save_figure(fig, out / "fig4_6_end_rmse.png", dpi=130)
     plt.close(fig)
 
     res = results[names[0]]
@@ -149,7 +149,7 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
         axes[2].set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="(c) cone angle")
         fig.suptitle(f"Case 1 after 100 updates, final attitude {label}")
         fig.tight_layout()
-        fig.savefig(out / fname, dpi=120)
+        save_figure(fig, out / fname, dpi=120)
         plt.close(fig)
 
 
@@ -187,13 +187,13 @@ def j2_study(deformer: Deformer, out: Path) -> dict:
     axes[0].legend(fontsize=8)
     fig.suptitle("Fig. 4.8: optimising J2")
     fig.tight_layout()
-    fig.savefig(out / "fig4_8_j2_velocity.png", dpi=120)
+    save_figure(fig, out / "fig4_8_j2_velocity.png", dpi=120)
     cone = deformer.options.cone_half_angle
     ax2.axhspan(-cone, cone, color="tab:blue", alpha=0.15, label=f"cone, μ = {deformer.options.mu:g}")
     ax2.set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="Fig. 4.9: ψ while optimising J2")
     ax2.legend(fontsize=8)
     fig2.tight_layout()
-    fig2.savefig(out / "fig4_9_j2_psi.png", dpi=120)
+    save_figure(fig2, out / "fig4_9_j2_psi.png", dpi=120)
     plt.close(fig)
     plt.close(fig2)
     final = snapshots[20]

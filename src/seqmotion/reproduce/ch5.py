@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ..training.checkpoint import atomic_write_text
+from ..training.checkpoint import atomic_write_text, save_figure
 
 PRESET_NAMES = ("original", "larger", "smaller")
 CAMERA_NAMES = ("default", "position1", "position2")
@@ -305,7 +305,7 @@ def _plot_fig5_9(out: Path, table52: dict) -> None:
     ax.set_title("Fig. 5.9 / Table 5.2: 18 image-motion pairs (30 trials each)")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "fig5_9_success.png", dpi=150)
+    save_figure(fig, out / "fig5_9_success.png", dpi=150)
     plt.close(fig)
 
 
@@ -335,7 +335,7 @@ def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
     axes[1].legend(fontsize=7, loc="best")
     fig.suptitle(f"Fig. 5.11: latents of {len(unseen)} unseen images by block position ({main_preset()} model)")
     fig.tight_layout()
-    fig.savefig(out / "fig5_11_latent_pca.png", dpi=150)
+    save_figure(fig, out / "fig5_11_latent_pca.png", dpi=150)
     plt.close(fig)
     atomic_write_text(out / "fig5_11_latent_pca.json", json.dumps({"explained_variance": explained, **points}) + "\n")
     return explained

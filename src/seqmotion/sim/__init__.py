@@ -38,6 +38,12 @@ _LAZY = {
     "plot_sliding": ("plots", "plot_sliding"),
     "motions": ("motions", None),
     "pan_reference": ("kinematics", "pan_reference"),
+    "PancakeArmEnv": ("envs", "PancakeArmEnv"),
+    "SlidingArmEnv": ("envs", "SlidingArmEnv"),
+    "run_episode": ("closed_loop", "run_episode"),
+    "ClosedLoopResult": ("closed_loop", "ClosedLoopResult"),
+    "PANCAKE_NOISE": ("closed_loop", "PANCAKE_NOISE"),
+    "register_envs": ("registration", "register_envs"),
 }
 
 __all__ = sorted(_LAZY)

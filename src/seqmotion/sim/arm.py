@@ -300,14 +300,15 @@ class Media:
         """A video at ``fps`` ``slow_motion`` × slower than real time, and/or ``n_snapshots`` over the motion."""
         video_steps: set[int] = set()
         if video is not None:
-            if not (fps > 0 and slow_motion > 0):
-                raise ValueError(f"fps and slow_motion must be positive, got {fps} and {slow_motion}")
+            if not (0 < fps <= 1000 and 0 < slow_motion <= 1000):
+                raise ValueError(f"fps and slow_motion must be positive (at most 1000), got {fps} and {slow_motion}")
             every = max(1, round(1.0 / (fps * slow_motion * ref.dt)))  # a frame every this many periods
             video_steps = set(range(0, len(ref), every))
         snap_steps: list[int] = []
         if snapshots is not None:
-            if n_snapshots < 1:
-                raise ValueError(f"n_snapshots must be at least 1, got {n_snapshots}")
+            whole = isinstance(n_snapshots, int | np.integer) and not isinstance(n_snapshots, bool)
+            if not whole or not 1 <= n_snapshots <= 100:
+                raise ValueError(f"n_snapshots must be an integer in [1, 100], got {n_snapshots!r}")
             last = min(len(ref), ref.n_motion + round(0.1 / ref.dt)) - 1  # the motion and its deceleration
             snap_steps = sorted(set(np.linspace(0, last, n_snapshots).round().astype(int).tolist()))
         return cls(video, snapshots, video_steps, snap_steps, fps, camera)
@@ -444,11 +445,17 @@ def single_trajectory(array: object, dim: int, name: str) -> np.ndarray:
     return arr[0]
 
 
+MAX_EXTRA_TIME = 60.0
+"""The longest deceleration, hold or settling phase a run may ask for [s] (a simulated minute)."""
+
+
 def check_times(**times: float) -> None:
-    """``ValueError`` naming the first of ``times`` [s] that is not a non-negative number."""
+    """``ValueError`` naming the first of ``times`` [s] that is not a number of seconds in [0, 60]."""
     for name, value in times.items():
-        if not (np.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a non-negative number of seconds, got {value}")
+        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+            raise ValueError(f"{name} must be a number of seconds, got {value!r}")
+        if not (np.isfinite(value) and 0 <= value <= MAX_EXTRA_TIME):
+            raise ValueError(f"{name} must be between 0 and {MAX_EXTRA_TIME:g} s, got {value}")
 
 
 def first_true(mask: np.ndarray) -> int | None:

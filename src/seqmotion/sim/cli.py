@@ -1,14 +1,16 @@
 """``seqmotion simulate pancake|sliding --trajectory FILE [--video out.mp4]``.
 
 ``add_parser(subparsers)`` registers the ``simulate`` command on the main parser and
-``run(args)`` executes it. MuJoCo is imported only when a simulation runs. ``--mu`` sets the
+``run(args)`` executes it. ``--video``, ``--snapshots`` and ``--json`` are checked before the
+simulation starts and written atomically. MuJoCo is imported only when a simulation runs. ``--mu`` sets the
 friction coefficient a pancake run's executed friction cone is judged with
 (:func:`~seqmotion.sim.pancake.run_pancake`'s ``mu``).
 
 Trajectory files:
 
 * pancake — ``.npz`` with an array ``states`` ``(K, 6)``, or ``.csv`` with one sample per row
-  ``y, z, θ, v_y, v_z, v_θ`` (an optional header row is skipped); 1 ms per sample.
+  ``y, z, θ, v_y, v_z, v_θ`` (a first row of names only is a header; text anywhere else is an
+  error naming its line); 1 ms per sample.
 * sliding — ``.npz`` with ``pan_states`` ``(K, 4)`` and optionally ``rel_states`` (the plan's
   predicted object path) and ``command`` (the object path asked for), or ``.csv`` with rows
   ``x_p, y_p, vx_p, vy_p``.
@@ -48,27 +50,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
-    """Arrays from an ``.npz`` (the first key required, the rest optional) or a ``.csv`` (first key)."""
-    if not path.is_file():
-        raise ValueError(f"{path} does not exist")
-    if path.suffix == ".npz":
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                if keys[0] not in data:
-                    raise ValueError(f"{path} has no array {keys[0]!r} (has {sorted(data.files)})")
-                return {k: np.asarray(data[k]) for k in keys if k in data}
-        except (OSError, EOFError) as exc:
-            raise ValueError(f"cannot read {path}: {exc}") from None
-    if path.suffix == ".csv":
-        try:
-            arr = np.loadtxt(path, delimiter=",", ndmin=2)
-        except ValueError:  # a header row
-            try:
-                arr = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
-            except ValueError as exc:
-                raise ValueError(f"cannot read {path} as {dim} numeric columns: {exc}") from None
-        return {keys[0]: arr}
-    raise ValueError(f"unsupported trajectory file {path} (use .npz or .csv)")
+    """Arrays from an ``.npz`` (the first key required, the rest optional) or a ``.csv`` (first key; a first
+    row of names only is a header, any other text is an error naming its line)."""
+    from ..training.files import read_arrays
+
+    return read_arrays(path, keys)
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse unwritable outputs before the simulation runs (``ValueError`` naming the option)."""
+    from ..training.checkpoint import check_writable
+
+    for option, suffixes in (("video", (".mp4",)), ("snapshots", (".png",)), ("json", None)):
+        value = getattr(args, option)
+        if value is not None:
+            check_writable(value, suffixes, f"--{option}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from .pancake import run_pancake
     from .sliding import run_sliding
 
+    _check_outputs(args)
     model = None
     if args.model:
         from ..api import resolve_model
@@ -122,7 +119,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name}: {getattr(args, name)}")
     if args.json:
         out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
         payload = {"metrics": result.summary(), **{k: np.asarray(v).tolist() for k, v in logged.items()}}
         atomic_write_bytes(out, json.dumps(payload).encode())  # never a half-written file at out
         print(f"metrics: {out}")

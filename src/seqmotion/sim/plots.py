@@ -24,10 +24,12 @@ def _pyplot():
 
 def _save(plt: Any, fig: Any, path: str | Path) -> Path:
     """Lay out ``fig``, write it to ``path`` (PNG, 130 dpi; parent folders made) and close it."""
+    from ..training.checkpoint import atomic_path
+
     fig.tight_layout()
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
+    with atomic_path(path) as tmp:  # a temporary beside it, renamed: never a half-written figure
+        fig.savefig(tmp, dpi=130)
     plt.close(fig)
     return path
 

@@ -114,28 +114,32 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: float = 30.0) -
     """Encode ``frames`` (H, W, 3) uint8 as an H.264 MP4 at ``fps``."""
     import imageio.v2 as imageio
 
+    from ..training.checkpoint import atomic_path
+
     path = Path(path)
     if not frames:
         raise ValueError("no frames to write")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with imageio.get_writer(path, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
-        for frame in frames:
-            writer.append_data(frame)
+    with atomic_path(path) as tmp:  # a killed encoder leaves the old video, not a broken one
+        with imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=8) as writer:
+            for frame in frames:
+                writer.append_data(frame)
     return path
 
 
 def write_strip(frames: list[np.ndarray], path: str | Path, labels: list[str] | None = None) -> Path:
     """Save frames side by side as one PNG (a snapshot strip), optionally with a label under each."""
+    from ..training.checkpoint import atomic_path
+
     path = Path(path)
     if not frames:
         raise ValueError("no frames to write")
     gap = np.full((frames[0].shape[0], 6, 3), 255, dtype=np.uint8)
     strip = np.concatenate([x for f in frames for x in (f, gap)][:-1], axis=1)
-    path.parent.mkdir(parents=True, exist_ok=True)
     if labels is None:
         import imageio.v2 as imageio
 
-        imageio.imwrite(path, strip)
+        with atomic_path(path) as tmp:
+            imageio.imwrite(tmp, strip)
         return path
     import matplotlib
 
@@ -150,6 +154,7 @@ def write_strip(frames: list[np.ndarray], path: str | Path, labels: list[str] | 
     width = frames[0].shape[1] + gap.shape[1]
     for i, label in enumerate(labels):
         fig.text((i * width + frames[0].shape[1] / 2) / w, 0.02, label, ha="center", va="bottom", fontsize=10)
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return path

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from ..data.trajectories import TrajectoryBatch
-from ..errors import CheckpointError, as_trajectories, check_finite_result
+from ..errors import CheckpointError, as_float_array, as_trajectories, check_finite_result, check_number
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig, rollout
 from ..physics.layout import StateLayout
 from ..training import checkpoint as ckpt
@@ -43,7 +43,10 @@ from ..training.curriculum import Curriculum
 from ..training.pretrained import PretrainedModel
 from . import registry
 from .options import TaskOptions
+from .stepper import OnlineGenerator, stepper_contract
 
+MAX_LENGTH = 1_000_000
+"""The longest motion ``decode`` generates (1000 s at 1 ms)."""
 FEASIBLE_TOLERANCE = 0.01
 """A motion counts as feasible when its largest constraint violation is at most this."""
 
@@ -95,6 +98,11 @@ class Task(ABC):
 
     def build_model(self, config: TrainConfig) -> ChunkedSeq2Seq:
         model_config = Seq2SeqConfig.from_dict(config.model)
+        self.check_model_config(model_config)
+        return ChunkedSeq2Seq(model_config)
+
+    def check_model_config(self, model_config: Seq2SeqConfig) -> None:
+        """``ValueError`` unless the model reads the task's input layout and writes its accel layout."""
         reads, writes = model_config.encoder_input_dim, model_config.output_dim
         if reads != self.input_layout.dim or writes != self.accel_layout.dim:
             raise ValueError(
@@ -102,7 +110,6 @@ class Task(ABC):
                 f"{model_config.output_dim} features, but the task's {self.input_layout} and {self.accel_layout} "
                 "need " + f"{self.input_layout.dim} and {self.accel_layout.dim}"
             )
-        return ChunkedSeq2Seq(model_config)
 
     # --- options ---------------------------------------------------------------------------------
 
@@ -198,7 +205,10 @@ class TrainedModel(PretrainedModel):
             raise CheckpointError(
                 f"a {type(self).__name__} needs a {type(self).task!r} model, got {self.task_def.name!r}"
             )
-        self.options = self.task_def.options(self.config.get("training", {}).get("options", {}))
+        training = self.config.get("training", {})
+        if not isinstance(training, dict):
+            raise ValueError(f"the config's training record must be a JSON object, got {type(training).__name__}")
+        self.options = self.task_def.options(training.get("options", {}))
 
     # --- the save/load contract --------------------------------------------------------------
 
@@ -206,21 +216,29 @@ class TrainedModel(PretrainedModel):
         return self.model.state_dict()
 
     def config_json(self) -> dict[str, Any]:
-        return {k: v for k, v in self.config.items() if k not in ("format", "weights_sha256")}
+        return {k: v for k, v in self.config.items() if k not in ckpt.HASH_FIELDS}
 
     @classmethod
     def from_checkpoint(cls, config: dict[str, Any], tensors: dict[str, torch.Tensor], source: str) -> TrainedModel:
+        """Check the config as a schema (types, ranges, the task's layouts) and every size in it against the
+        weights' shapes *before* the model is allocated; then build it and load the weights."""
+        task_name = config.get("task")
+        if not isinstance(task_name, str):
+            raise CheckpointError(f"{source}/config.json names no task (task={task_name!r})")
         try:
-            task = registry.get(config.get("task"))
+            task = registry.get(task_name)
         except ValueError as exc:
             raise CheckpointError(f"{source}: {exc}") from None
-        try:
-            model = ChunkedSeq2Seq(Seq2SeqConfig.from_dict(config["model"]))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise CheckpointError(f"{source}/config.json does not describe a valid model: {exc}") from None
-        ckpt.load_state_dict_strict(model, tensors, source)
         if task.model_class is not None and not issubclass(task.model_class, cls):
             raise CheckpointError(f"{source} holds a {task.name!r} model, not a {cls.__name__}")
+        try:
+            model_config = Seq2SeqConfig.from_dict(config.get("model"))
+            task.check_model_config(model_config)
+        except ValueError as exc:
+            raise CheckpointError(f"{source}/config.json does not describe a valid model: {exc}") from None
+        ckpt.check_shapes(model_config.parameter_shapes(), {k: tuple(v.shape) for k, v in tensors.items()}, source)
+        model = ChunkedSeq2Seq(model_config)
+        ckpt.load_state_dict_strict(model, tensors, source)
         try:
             return task.wrap(model, config)
         except ValueError as exc:  # options the task refuses
@@ -351,8 +369,7 @@ class TrainedModel(PretrainedModel):
 
     def decode(self, latent: object, x0: object, length: int, **physics: Any) -> Any:
         """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples."""
-        if int(length) < 2:
-            raise ValueError(f"length must be at least 2, got {length}")
+        length = check_number("length", length, minimum=2, maximum=MAX_LENGTH, integer=True)
         self.check_physics(physics)
         z, start, single = self._latent_and_start(latent, x0)
         with torch.inference_mode():
@@ -360,15 +377,18 @@ class TrainedModel(PretrainedModel):
         return first_of(result) if single else result
 
     def _latent_and_start(self, latent: object, x0: object) -> tuple[torch.Tensor, np.ndarray, bool]:
-        z = np.asarray(latent, dtype=np.float32)
+        with np.errstate(over="ignore"):  # a latent beyond float32 becomes inf: refused below
+            z = as_float_array(latent, "latent").astype(np.float32)
         single = z.ndim == 1
-        z, start = np.atleast_2d(z), np.atleast_2d(np.asarray(x0, dtype=np.float64))
+        z, start = np.atleast_2d(z), np.atleast_2d(as_float_array(x0, "x0"))
         s = self.state_layout.dim
         if z.ndim != 2 or z.shape[1] != self.model.latent_dim or start.shape != (z.shape[0], s):
             raise ValueError(
                 f"need latent (B, {self.model.latent_dim}) and x0 (B, {s}) [{self.state_layout}]; "
                 f"got {z.shape} and {start.shape}"
             )
+        if z.shape[0] == 0:
+            raise ValueError("latent has an empty batch (B = 0)")
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(start))):
             raise ValueError("latent and x0 must be finite (NaN or inf given)")
         return torch.from_numpy(z), start, single
@@ -381,24 +401,34 @@ class TrainedModel(PretrainedModel):
         return self.task_def.make_result(motion, self)
 
     def generator(
-        self, inputs: object | None = None, *, latent: object | None = None, x0: object | None = None, **physics: Any
+        self, inputs: object | None = None, *, latent: object | None = None, x0: object | None = None,
+        length: int | None = None, replan: bool = True, **physics: Any
     ) -> OnlineGenerator:
-        """An online motion generator (the decoder alone) for a control loop.
+        """The decoder as an online motion generator for a control loop (contract: :mod:`.stepper`).
 
-        Give either the ``inputs`` motion to encode (x0 = the task's start state for it) or a
-        ``latent`` and a start state ``x0`` of the task's ``state_layout``.
+        Give either the ``inputs`` motion to encode (x0 = the task's start state for it, K = its
+        length) or a ``latent`` and a start state ``x0`` of the task's ``state_layout`` (K = ``length``,
+        default: the longest motion the model trained on). Past K the generator brings the robot to
+        rest within the task's constraint, then holds. ``replan``: between chunk boundaries, correct
+        the remaining outputs from the latest measured states.
         """
         if inputs is not None:
+            if latent is not None or x0 is not None:
+                raise ValueError("give either the input motion, or latent and x0 — not both")
             batch, single = as_trajectories(inputs, self.input_dim, self.input_layout.kind)
             with torch.inference_mode():
                 x = torch.from_numpy(batch)
-                z = self.encode_torch(x)
+                z = self.encode_torch(x).numpy()
                 start = self.start_state(x).double().numpy()
+            length = batch.shape[1] if length is None else length
         elif latent is not None and x0 is not None:
-            z, start, single = self._latent_and_start(latent, x0)
+            z_t, start, single = self._latent_and_start(latent, x0)
+            z = z_t.numpy()
         else:
             raise ValueError("give either the input motion, or both latent and x0")
-        return OnlineGenerator(self.model, self.dynamics(**physics), self.state_layout, z, start, single)
+        dynamics = self.dynamics(**physics)
+        return OnlineGenerator(self.model, dynamics, stepper_contract(self, dynamics), z, start, single,
+                               length=length, violation=self.violation_torch, replan=replan)
 
     def quantized(self, min_features: int = 256) -> TrainedModel:
         """A copy for fast CPU inference with the big linear layers in int8 (weight-only).
@@ -417,51 +447,6 @@ class TrainedModel(PretrainedModel):
     def __repr__(self) -> str:
         m = self.model.cfg
         return f"{type(self).__name__}(task={self.task_def.name!r}, {m.layers}x{m.hidden}, C={m.chunk})"
-
-
-class OnlineGenerator:
-    """The decoder as an online motion generator, for any task.
-
-    Each :meth:`step` takes the C states measured since the previous step — of the task's
-    ``state_layout`` (the first step takes none: it starts from ``(x0, …, x0)``, eq. 2.12) —
-    and returns the next C decoder outputs. Fed the states its own outputs produce, it
-    reproduces ``generate`` exactly.
-    """
-
-    def __init__(
-        self, model: ChunkedSeq2Seq, dynamics: ChunkDynamics, layout: StateLayout, latent: torch.Tensor,
-        x0: np.ndarray, single: bool,
-    ) -> None:
-        self.model, self.chunk, self.dynamics, self.layout = model, model.chunk, dynamics, layout
-        self._latent, self._x0, self._single = latent, x0, single
-        self.reset()
-
-    def reset(self) -> None:
-        """Start over from x0 with the same latent."""
-        self._state = self.model.initial_state(self._latent)
-        self._steps = 0
-
-    def step(self, measured: object | None = None) -> np.ndarray:
-        """Next C outputs ``(C, d)`` (or ``(B, C, d)``) from the last C measured states ``(C, S)``/``(B, C, S)``."""
-        b = self._latent.shape[0]
-        if self._steps == 0:
-            if measured is not None:
-                raise ValueError("the first step starts from x0; call it without measured states")
-            chunk = np.repeat(self._x0[:, None], self.chunk, axis=1)
-        else:
-            if measured is None:
-                raise ValueError(f"after the first step, pass the {self.chunk} states measured since the last call")
-            chunk, _ = as_trajectories(measured, self.layout.dim, f"measured {self.layout.kind}", min_length=1)
-            if chunk.shape != (b, self.chunk, self.layout.dim):
-                raise ValueError(
-                    f"measured must hold the last {self.chunk} states of {self.layout}, got shape {np.shape(measured)}"
-                )
-        with torch.inference_mode():
-            inputs = self.dynamics.decoder_input(torch.from_numpy(chunk))
-            self._state, mean, _ = self.model.decode_step(self._state, inputs, need_cov=False)
-        self._steps += 1
-        out = mean.double().numpy()
-        return out[0] if self._single else out
 
 
 __all__ = ["FEASIBLE_TOLERANCE", "Motion", "OnlineGenerator", "Task", "TrainConfig", "TrainedModel", "first_of"]

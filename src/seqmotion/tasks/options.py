@@ -37,6 +37,8 @@ class TaskOptions:
         Raises:
             ValueError: an unknown option, or a value its check refuses.
         """
+        if data is not None and not isinstance(data, Mapping):
+            raise ValueError(f"options of {cls.__name__} must map names to values, got {type(data).__name__}")
         data = dict(data or {})
         unknown = sorted(set(data) - set(cls.names()))
         if unknown:
@@ -73,6 +75,9 @@ class TaskOptions:
 
 # --- checks used by the tasks' __post_init__ -----------------------------------------------------
 
+MAX_LENGTH = 1_000_000
+"""The longest trajectory an option may ask for (1000 s at 1 ms)."""
+
 
 def check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
     """Refuse a value that is not a finite number > 0 (≥ 0 with ``allow_zero``)."""
@@ -82,20 +87,22 @@ def check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
         raise ValueError(f"option {name} must be {'≥' if allow_zero else '>'} 0, got {value!r}")
 
 
-def check_count(name: str, value: Any, minimum: int = 1) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"option {name} must be an integer ≥ {minimum}, got {value!r}")
+def check_count(name: str, value: Any, minimum: int = 1, maximum: int = MAX_LENGTH) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
+        raise ValueError(f"option {name} must be an integer in [{minimum}, {maximum}], got {value!r}")
 
 
 def check_length_range(name: str, value: Any, minimum: int = 2) -> None:
-    """A ``[K_min, K_max]`` pair of trajectory lengths."""
+    """A ``[K_min, K_max]`` pair of trajectory lengths (at most :data:`MAX_LENGTH`)."""
     if (
         not isinstance(value, list | tuple)
         or len(value) != 2
         or not all(isinstance(v, int) and not isinstance(v, bool) for v in value)
-        or not minimum <= value[0] <= value[1]
+        or not minimum <= value[0] <= value[1] <= MAX_LENGTH
     ):
-        raise ValueError(f"option {name} must be [K_min, K_max] with {minimum} <= K_min <= K_max, got {value!r}")
+        raise ValueError(
+            f"option {name} must be [K_min, K_max] with {minimum} <= K_min <= K_max <= {MAX_LENGTH}, got {value!r}"
+        )
 
 
 def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:

@@ -109,7 +109,7 @@ def get(name: str) -> Any:
         ValueError: no such task (the message lists the known ones).
     """
     tasks = _discover()
-    if name not in tasks:
+    if not isinstance(name, str) or name not in tasks:
         raise ValueError(f"unknown task {name!r}; known tasks: {sorted(tasks)}")
     return tasks[name]
 

@@ -5,6 +5,11 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from ..errors import check_number
+
+MAX_COUNT = 10**9
+"""Upper bound of the run's counts (batches, batch size, epochs): a typo, not a training."""
+
 
 @dataclass
 class TrainConfig:
@@ -43,12 +48,35 @@ class TrainConfig:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.batches_per_epoch < 1 or self.batch_size < 1:
-            raise ValueError("batches_per_epoch and batch_size must be positive")
-        if not self.lr > 0:
-            raise ValueError(f"lr must be positive, got {self.lr}")
-        if not 0.0 < self.lr_final_fraction <= 1.0:
+        self.validate()
+
+    def validate(self) -> TrainConfig:
+        """Check every setting (types, finiteness, ranges); call again after changing attributes.
+
+        Raises:
+            ValueError: naming the first bad setting.
+        """
+        for name in ("task", "preset"):
+            if not isinstance(getattr(self, name), str):
+                raise ValueError(f"{name} must be a string, got {getattr(self, name)!r}")
+        for name in ("model", "curriculum", "options"):
+            if not isinstance(getattr(self, name), dict):
+                raise ValueError(f"{name} must be a dict, got {type(getattr(self, name)).__name__}")
+        for name in ("batches_per_epoch", "batch_size"):
+            check_number(name, getattr(self, name), minimum=1, maximum=MAX_COUNT, integer=True)
+        check_number("lr", self.lr, minimum=0, strict_minimum=True)
+        fraction = check_number("lr_final_fraction", self.lr_final_fraction, minimum=0, strict_minimum=True)
+        if fraction > 1:
             raise ValueError(f"lr_final_fraction must be in (0, 1], got {self.lr_final_fraction}")
+        if self.grad_clip is not None:
+            check_number("grad_clip", self.grad_clip, minimum=0)
+        check_number("seed", self.seed, minimum=0, integer=True)
+        if self.checkpoint_every is not None:
+            check_number("checkpoint_every", self.checkpoint_every, minimum=1, integer=True)
+        check_number("keep_checkpoints", self.keep_checkpoints, minimum=1, maximum=MAX_COUNT, integer=True)
+        epochs = self.curriculum.get("epochs")
+        check_number("curriculum epochs", epochs, minimum=1, maximum=MAX_COUNT, integer=True)
+        return self
 
     @property
     def epochs(self) -> int:
@@ -59,4 +87,10 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> TrainConfig:
-        return cls(**data)
+        """The config ``to_dict`` wrote (``ValueError`` for anything else)."""
+        if not isinstance(data, dict):
+            raise ValueError(f"a training config must be a dict, got {type(data).__name__}")
+        try:
+            return cls(**data)
+        except TypeError as exc:  # unknown or missing keys
+            raise ValueError(f"not a training config: {exc}") from None

@@ -70,7 +70,9 @@ class MetricsLog:
     Resume-safe: on opening, the rows of steps ``<= keep_before`` (those up to the checkpoint
     the run resumes from) are written back to the file atomically (readers and a kill see the
     old file or the new one, never a truncated one) and new rows are appended; every row is
-    flushed as it is written, so a kill loses nothing already logged.
+    flushed as it is written, so a kill loses nothing already logged. Rows a kill cut short
+    (fewer fields than the header) and repeated steps are dropped on reopening, so the log
+    holds every step exactly once.
     """
 
     def __init__(self, path: Path, keep_before: int) -> None:
@@ -78,10 +80,16 @@ class MetricsLog:
         rows: list[dict[str, str]] = []
         fields: list[str] | None = None
         if self.path.exists() and keep_before > 0:
-            with open(self.path, newline="") as f:
+            with open(self.path, newline="", errors="replace") as f:
                 reader = csv.DictReader(f)
-                rows = [r for r in reader if r.get("step") and int(r["step"]) <= keep_before]
                 fields = list(reader.fieldnames or []) or None
+                seen: set[int] = set()
+                for row in reader:
+                    step = _step_of(row)
+                    if step is None or step > keep_before or step in seen or None in row.values():
+                        continue  # a row cut short by a kill, a duplicate, or one after the checkpoint
+                    seen.add(step)
+                    rows.append(row)
         buffer = io.StringIO(newline="")
         self._fields = fields if rows else None
         if self._fields:
@@ -106,6 +114,13 @@ class MetricsLog:
 
     def close(self) -> None:
         self._file.close()
+
+
+def _step_of(row: dict[str, Any]) -> int | None:
+    try:
+        return int(row.get("step") or "")
+    except (TypeError, ValueError):
+        return None
 
 
 def _flatten(value: Any, prefix: str = "") -> dict[str, Any]:
@@ -162,8 +177,10 @@ class TrainingLoop:
         writer: bool = True,
         reduce_gradients: Callable[[list[torch.nn.Parameter]], None] | None = None,
     ) -> None:
-        if not lr > 0 or not 0.0 < lr_final_fraction <= 1.0:
+        if not (math.isfinite(lr) and lr > 0) or not 0.0 < lr_final_fraction <= 1.0:
             raise ValueError(f"need lr > 0 and 0 < lr_final_fraction <= 1, got {lr} and {lr_final_fraction}")
+        if isinstance(total_steps, bool) or int(total_steps) != total_steps or total_steps < 0:
+            raise ValueError(f"total_steps must be a non-negative integer, got {total_steps!r}")
         self.module = module
         self.params = list(params)
         self.optimizer = torch.optim.Adam(self.params, lr=lr)
@@ -178,6 +195,7 @@ class TrainingLoop:
         self.reduce_gradients = reduce_gradients
         self._metrics = metrics
         self._log: MetricsLog | None = None
+        self._lock = ckpt.RunLock(self.run_dir) if self.run_dir is not None and writer else None
         self.steps = 0
         """Optimiser steps taken (restored on resume); sets the learning rate."""
         self._clock = time.perf_counter()
@@ -190,12 +208,21 @@ class TrainingLoop:
         Returns:
             The extra state the checkpoint was written with (``{}`` for a fresh run).
 
+        A writing loop locks ``run_dir`` (:class:`~.checkpoint.RunLock`) until :meth:`close`, and
+        removes the temporaries a killed run left there; ``resume=False`` removes the run's old
+        checkpoints (a fresh run must not be pruned in favour of an older run's later steps).
+
         Raises:
             seqmotion.CheckpointError: the checkpoint belongs to another run (its identity
                 differs) or is unreadable or does not fit the model.
+            seqmotion.errors.RunInUseError: another training is writing into ``run_dir``.
         """
         state: dict[str, Any] = {}
         elapsed = 0.0
+        if self._lock is not None:
+            self._lock.acquire()
+            if not resume:
+                ckpt.forget_checkpoints(self.run_dir)
         exists = self.run_dir is not None and self.run_dir.exists()
         latest = ckpt.latest_checkpoint(self.run_dir) if resume and exists else None
         if latest is not None:
@@ -293,7 +320,15 @@ class TrainingLoop:
         )
 
     def close(self) -> None:
-        """Close the metrics log."""
+        """Close the metrics log and release the run directory's lock."""
         if self._log is not None:
             self._log.close()
             self._log = None
+        if self._lock is not None:
+            self._lock.release()
+
+    def __enter__(self) -> TrainingLoop:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -16,6 +16,7 @@ ships its models and writes the card beside it.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
@@ -91,7 +92,23 @@ class PretrainedModel:
         """
         directory = ckpt.resolve_model_dir(Path(directory))
         config, tensors = ckpt.read_model(directory, expected_task=cls.task)
+        cls._dry_run(config, tensors, str(directory))
         return cls.from_checkpoint(config, tensors, str(directory))
+
+    @classmethod
+    def _dry_run(cls, config: dict[str, Any], tensors: dict[str, torch.Tensor], source: str) -> None:
+        """Build the model ``config`` describes on PyTorch's ``meta`` device (no memory) and fit the weights'
+        shapes into it: a config that does not fit its weights is refused (CheckpointError) before anything
+        is allocated, however large a model it describes. Anything else the meta device cannot do is left
+        to the real load, which checks everything again."""
+        shapes = {k: torch.empty(v.shape, dtype=v.dtype, device="meta") for k, v in tensors.items()}
+        try:
+            with torch.device("meta"):
+                cls.from_checkpoint(config, shapes, source)
+        except ValueError:  # CheckpointError included: a bad config, or weights that do not fit it
+            raise
+        except Exception:  # noqa: BLE001 - an operation the meta device does not support: inconclusive
+            pass
 
     def model_card(
         self, name: str, metrics: dict | None = None, notes: str = "", size_mb: float | None = None,
@@ -133,22 +150,48 @@ def export_pretrained(
 ) -> Path:
     """Ship ``model`` (loaded from the model directory ``source``) as ``root/name`` with its card.
 
-    The weights and config are copied byte for byte (so the hash in the config still holds),
-    each through a temporary name renamed into place; the card is written last.
+    The weights and config are copied byte for byte (so the hashes in the config still hold).
+    A new ``root/name`` is written whole under a temporary name and renamed into place (complete
+    or absent); an existing one gets the weights, then the config, then the card, each through
+    a temporary name.
 
     Returns:
         The target directory.
-    """
-    from .checkpoint import atomic_write_bytes
 
+    Raises:
+        ValueError: ``name`` is not one plain folder name (``"../x"``, ``".hidden"``, ``"a/b"``),
+            ``source`` is not a model directory, or ``root`` cannot be written.
+    """
+    from .checkpoint import atomic_path, atomic_write_bytes
+
+    check_pretrained_name(name)
     source, target = Path(source), Path(root) / name
-    if not name or "/" in name or name.startswith("."):
-        raise ValueError(f"a pretrained name is one plain folder name, got {name!r}")
-    target.mkdir(parents=True, exist_ok=True)
     for file in (ckpt.WEIGHTS, ckpt.CONFIG):
-        tmp = target / f".{file}.tmp"
-        shutil.copyfile(source / file, tmp)
-        tmp.replace(target / file)
-    size_mb = (target / ckpt.WEIGHTS).stat().st_size / 1e6
-    atomic_write_bytes(target / CARD, model.model_card(name, metrics, notes, size_mb, measured).encode())
+        if not (source / file).is_file():
+            raise ValueError(f"{source} has no {file}: not a model directory")
+    ckpt.check_writable_dir(Path(root), "pretrained folder")
+    card = model.model_card(name, metrics, notes, (source / ckpt.WEIGHTS).stat().st_size / 1e6, measured)
+    if not target.exists():  # a new model appears whole (weights, config and card) or not at all
+        with atomic_path(target, directory=True) as tmp:
+            for file in (ckpt.WEIGHTS, ckpt.CONFIG):
+                shutil.copyfile(source / file, tmp / file)
+            (tmp / CARD).write_bytes(card.encode())
+        return target
+    for file in (ckpt.WEIGHTS, ckpt.CONFIG):  # replacing one: the config, which names its weights, last
+        with atomic_path(target / file) as tmp:
+            shutil.copyfile(source / file, tmp)
+    atomic_write_bytes(target / CARD, card.encode())
     return target
+
+
+PRETRAINED_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
+"""What a shipped model may be called: one plain folder name (no path, no leading dot)."""
+
+
+def check_pretrained_name(name: object) -> str:
+    """``ValueError`` unless ``name`` is a plain folder name (letters, digits, ``.``, ``_``, ``-``)."""
+    if not isinstance(name, str) or not PRETRAINED_NAME.fullmatch(name) or ".." in name:
+        raise ValueError(
+            f"a pretrained name is one plain folder name (letters, digits, '.', '_', '-'; at most 100), got {name!r}"
+        )
+    return name

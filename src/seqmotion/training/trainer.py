@@ -15,9 +15,28 @@ Adam's state and the step counter, and a resumed run continues bit for bit. A ch
 another configuration (anything but the checkpoint cadence differing) is refused.
 
 **Data parallelism.** Launched by ``torchrun --nproc_per_node=N``, every process draws the
-same global batch, trains on its 1/N share, and the gradients are averaged with one
-all-reduce per step (``gloo`` on CPU, ``nccl`` on GPUs), which equals the single-process
-gradient of the whole batch. Rank 0 writes checkpoints and logs.
+same global batch and trains on its 1/N share (trajectories ``rank, rank + N, …``); the
+gradients are averaged with one all-reduce per step (``gloo`` on CPU, ``nccl`` on GPUs).
+The scheduled-sampling coins do not depend on the rank either: the coins generator is the
+single-process one, and every ``torch.rand``/``torch.randn(n, …, generator=coins)`` a task's
+loss makes on a rank draws the global batch's ``N·n`` numbers and keeps the rank's rows
+(:class:`_RankSlice`), so trajectory ``b`` gets the coin it gets in one process whichever
+rank holds it. An N-process run therefore trains on exactly the data, coins and per-trajectory
+losses of the single-process run of the same command. What differs is floating-point
+rounding only: the gradient is the mean of N per-rank means summed by the all-reduce
+instead of one mean over the batch, and the kernels run on N-times smaller batches, which
+may round differently; weights agree to float32 rounding after a step and drift apart
+slowly over many steps (``tests/test_training.py`` checks a 2-rank run against one process:
+~6e-8 apart after an epoch of the tiny preset). The logged terms are means of the per-rank
+means. Other draws from the coins generator (``bernoulli``, ``Tensor.uniform_``) are per rank.
+Rank 0 writes checkpoints and logs.
+
+**Run directories.** A training locks its run directory while it writes there (a second
+training into it is refused by name), and removes what a killed run left half-written.
+Every write is atomic (:mod:`.checkpoint`): a kill at any instant leaves the previous
+checkpoint, ``latest`` and ``metrics.csv`` intact, ``sm.load(run)`` always loads a complete
+model (the run's latest checkpoint when the top-level model was being replaced), and
+rerunning the command resumes bit for bit and rewrites a top-level model the kill left stale.
 """
 
 from __future__ import annotations
@@ -30,8 +49,10 @@ from typing import Any
 import numpy as np
 import torch
 import torch.distributed as dist
+from torch.overrides import TorchFunctionMode
 from tqdm import tqdm
 
+from ..errors import check_number
 from . import checkpoint as ckpt
 from .config import TrainConfig
 from .loop import TrainingLoop
@@ -58,6 +79,26 @@ def _average_gradients(params: list[torch.nn.Parameter], world: int) -> None:
     for g in grads:
         g.copy_(flat[offset : offset + g.numel()].view_as(g))
         offset += g.numel()
+
+
+class _RankSlice(TorchFunctionMode):
+    """While active on data-parallel rank ``rank`` of ``world``: ``torch.rand``/``torch.randn`` calls that
+    draw from ``generator`` with a leading batch axis of ``n`` draw ``world · n`` rows (the global
+    batch's, as one process draws them) and return rows ``rank, rank + world, …`` (this rank's
+    trajectories). Every other call passes through unchanged."""
+
+    def __init__(self, generator: torch.Generator, rank: int, world: int) -> None:
+        super().__init__()
+        self.generator, self.rank, self.world = generator, rank, world
+
+    def __torch_function__(self, func, types, args=(), kwargs=None):  # noqa: ANN001, ANN204 - torch's protocol
+        kwargs = kwargs or {}
+        if func in (torch.rand, torch.randn) and kwargs.get("generator") is self.generator and args:
+            size = tuple(args[0]) if len(args) == 1 and isinstance(args[0], (tuple, list, torch.Size)) else args
+            if size and all(isinstance(n, int) for n in size):
+                full = func(size[0] * self.world, *size[1:], **kwargs)
+                return full[self.rank :: self.world]
+        return func(*args, **kwargs)
 
 
 CADENCE = ("training.checkpoint_every", "training.keep_checkpoints")
@@ -89,31 +130,51 @@ def train(
             (``model.safetensors`` + ``config.json``) and ``metrics.csv`` go.
         resume: continue from the run's latest checkpoint if there is one.
         progress: show a progress bar with the loss terms and the share of feasible outputs.
-        stop_at_step: stop after this many optimiser steps in total (for timing and tests).
+        stop_at_step: stop after this many optimiser steps in total (for timing and tests; ≥ 1).
+
+    Raises:
+        ValueError: a bad setting (named), or ``run_dir`` cannot be written.
+        seqmotion.CheckpointError: the run directory holds another training's checkpoints.
+        seqmotion.errors.RunInUseError: another training is writing into ``run_dir``.
     """
     if getattr(task, "name", None) != config.task:
         raise ValueError(f"the config is for task {config.task!r}, not {getattr(task, 'name', task)!r}")
+    config.validate()  # attributes may have been changed since it was made
+    if stop_at_step is not None:
+        check_number("stop_at_step (--max-steps)", stop_at_step, minimum=1, integer=True)
     task.options(config)  # refuse unknown or bad options before anything is written
     rank, world = _distributed()
     if config.batch_size % world:
         raise ValueError(f"batch_size {config.batch_size} is not divisible by {world} processes")
     run_dir = Path(run_dir)
     if rank == 0:
-        run_dir.mkdir(parents=True, exist_ok=True)
+        ckpt.check_writable_dir(run_dir, "run directory")
 
     torch.manual_seed(config.seed)
     model = task.build_model(config)
     curriculum = task.curriculum(config)
-    bpe = config.batches_per_epoch
-    total = curriculum.epochs * bpe
-    every = config.checkpoint_every or bpe
+    total = curriculum.epochs * config.batches_per_epoch
     loop = TrainingLoop(
         model, list(model.parameters()), lr=config.lr, total_steps=total,
         lr_final_fraction=config.lr_final_fraction, grad_clip=config.grad_clip, run_dir=run_dir,
         identity={"training": config.to_dict()}, ignore=CADENCE, keep_checkpoints=config.keep_checkpoints,
         writer=rank == 0, reduce_gradients=(lambda params: _average_gradients(params, world)) if world > 1 else None,
     )
+    try:
+        _run(task, config, model, curriculum, loop, run_dir, rank, world, resume, progress, stop_at_step)
+    finally:
+        loop.close()
+    return run_dir
 
+
+def _run(
+    task: Any, config: TrainConfig, model: torch.nn.Module, curriculum: Any, loop: TrainingLoop, run_dir: Path,
+    rank: int, world: int, resume: bool, progress: bool, stop_at_step: int | None,
+) -> None:
+    """The body of :func:`train` (its loop is closed, and the run directory unlocked, by the caller)."""
+    bpe = config.batches_per_epoch
+    total = curriculum.epochs * bpe
+    every = config.checkpoint_every or bpe
     program = sys.argv[0]
     if program.endswith("seqmotion"):
         program = "seqmotion"
@@ -136,12 +197,18 @@ def train(
 
     # Data are drawn in the loop, not on a prefetch thread: on a 2-core CPU a second thread
     # fights PyTorch's own threads and made steps ~60 % slower (measured).
+    wrote_at = None
     while step < end:
         epoch = step // bpe + 1
         stage, batch = draw(step)
-        coins = torch.Generator().manual_seed(int(np.random.default_rng([config.seed, step, 1 + rank]).integers(2**62)))
+        # the single-process coins of step `step`; on a data-parallel rank, _RankSlice hands out this rank's share
+        coins = torch.Generator().manual_seed(int(np.random.default_rng([config.seed, step, 1]).integers(2**62)))
 
-        loss, terms = task.loss(model, batch, stage, config, coins)
+        if world > 1:
+            with _RankSlice(coins, rank, world):
+                loss, terms = task.loss(model, batch, stage, config, coins)
+        else:
+            loss, terms = task.loss(model, batch, stage, config, coins)
         if not torch.isfinite(loss):
             raise FloatingPointError(f"non-finite loss at step {step} (epoch {epoch}): {terms}")
         loop.step(loss)
@@ -165,8 +232,24 @@ def train(
                 )
                 loop.checkpoint(cfg, {"epoch": epoch, "elapsed_seconds": elapsed, "provenance": provenance})
                 ckpt.write_model(run_dir, model.state_dict(), cfg)
+                wrote_at = step
             if world > 1:
                 dist.barrier()
     bar.close()
-    loop.close()
-    return run_dir
+    if rank == 0 and wrote_at != loop.steps and loop.steps > 0:
+        _repair_exported_model(run_dir, model, loop.steps)
+
+
+def _repair_exported_model(run_dir: Path, model: torch.nn.Module, step: int) -> None:
+    """Rewrite the run's top-level model from its latest checkpoint (the state this run resumed) when a
+    kill left it stale (an earlier step) or incomplete (weights and config of different writes)."""
+    latest = ckpt.latest_checkpoint(run_dir)
+    if latest is None:
+        return
+    try:
+        current = ckpt.model_is_complete(run_dir) and ckpt.read_config(run_dir).get("step") == step
+    except ckpt.CheckpointError:
+        current = False
+    if not current:
+        saved = ckpt.read_config(latest)
+        ckpt.write_model(run_dir, model.state_dict(), {k: v for k, v in saved.items() if k not in ckpt.HASH_FIELDS})
