@@ -57,6 +57,8 @@ def as_float_array(array: object, name: str) -> np.ndarray:
     (strings, objects, complex numbers, ragged lists)."""
     if isinstance(array, (str, bytes)):
         raise ValueError(f"{name} must be a numeric array, got {type(array).__name__}")
+    if np.iscomplexobj(array):
+        raise ValueError(f"{name} must be real numbers, got a complex array")
     try:
         raw = np.asarray(array)
         if raw.dtype.kind not in "biuf":

@@ -97,8 +97,9 @@ def violation(states: object, accel: object, mu: float = MU) -> np.ndarray:
     Returns:
         ``(N,)`` or ``(B, N)`` violations [rad]; zero where the pancake holds.
     """
-    if not mu > 0:
-        raise ValueError(f"mu must be positive, got {mu}")
+    if isinstance(mu, bool) or not isinstance(mu, int | float | np.integer | np.floating) or not math.isfinite(mu) \
+            or mu <= 0:
+        raise ValueError(f"mu must be a positive finite number, got {mu!r}")
     theta, ac, single = _prepare(states, accel)
     out = violation_torch(theta, ac, mu).numpy()
     return out[0] if single else out

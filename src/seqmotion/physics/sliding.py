@@ -219,7 +219,12 @@ def rollout(
         ``(pan_states, rel_states)``, each ``(K, 4)`` (or batched), starting at rest at 0:
         the pan ``[x, y, vx, vy]`` and the object relative to it.
     """
-    mu_arr, mud_arr = np.asarray(mu, dtype=np.float64), np.asarray(mu_dyn, dtype=np.float64)
+    if np.iscomplexobj(mu) or np.iscomplexobj(mu_dyn):
+        raise ValueError(f"friction must be real numbers, got mu={mu}, mu_dyn={mu_dyn}")
+    try:
+        mu_arr, mud_arr = np.asarray(mu, dtype=np.float64), np.asarray(mu_dyn, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"friction must be numbers, got mu={mu!r}, mu_dyn={mu_dyn!r}: {exc}") from None
     if not (np.all(mu_arr > 0) and np.all(mud_arr >= 0) and np.all(mud_arr <= mu_arr)):
         raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu={mu}, mu_dyn={mu_dyn}")
     if not dt > 0:

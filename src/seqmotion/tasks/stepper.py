@@ -201,9 +201,26 @@ def stop_accel(v0: np.ndarray, n: int, scale: np.ndarray, tau: float, limit: np.
     return np.where(still[..., None], 0.0, a)
 
 
+MAX_ABS_STATE = 1e6
+"""The largest magnitude a measured or start state may have (SI units: a million metres or metres
+per second is a sensor fault, not a state; past float32's range the decoder would return NaN)."""
+
+
+def _refuse_complex(value: object, name: str) -> None:
+    if np.iscomplexobj(value):
+        raise ValueError(f"{name} must be real numbers, got a complex array")
+
+
+def _refuse_absurd(arr: np.ndarray, name: str) -> None:
+    if np.any(np.abs(arr) > MAX_ABS_STATE):
+        bad = np.argwhere(np.abs(arr) > MAX_ABS_STATE)[0].tolist()
+        raise ValueError(f"{name} has a magnitude above {MAX_ABS_STATE:g} (first at index {bad}): not a physical state")
+
+
 def check_states(value: object, batch: int, single: bool, layout: dict[str, Any], name: str) -> np.ndarray:
     """``value`` as float64 ``(B, n, S)`` of the layout (``ValueError`` naming the problem)."""
     names, units = layout["names"], layout["units"]
+    _refuse_complex(value, name)
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -223,11 +240,13 @@ def check_states(value: object, batch: int, single: bool, layout: dict[str, Any]
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))[0].tolist()
         raise ValueError(f"{name} contains NaN or inf (first at index {bad})")
+    _refuse_absurd(arr, name)
     return arr[None] if single else arr
 
 
 def check_vectors(value: object, dim: int, name: str, what: str, batch: int | None = None) -> tuple[np.ndarray, bool]:
     """``(B, dim)`` float64 from ``(dim,)`` or ``(B, dim)``, finite; and whether it was a single vector."""
+    _refuse_complex(value, name)
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -429,6 +448,9 @@ class StepperCore:
                 start = self._predict(self._latest, parts[0])[:, -1]
             parts.append(self._stop(start, n_stop))
         out = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
+        if not np.all(np.isfinite(out)):  # never hand NaN to a robot: refuse (the generator needs a reset)
+            raise ValueError("the measured states drove the decoder out of its numeric range (NaN outputs); "
+                             "check the measurements, then reset() the generator")
         self._available = n_total
         return out[0] if self._single else out
 
