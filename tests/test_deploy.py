@@ -9,7 +9,6 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 
 import seqmotion as sm
 from seqmotion.cli import main as cli_main
@@ -26,11 +25,8 @@ SEQ2SEQ = [name for name in sm.pretrained_models() if isinstance(sm.load_pretrai
 
 
 @pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_thread(one_thread):
+    """Every test here runs torch on one thread (see conftest)."""
 
 
 @pytest.fixture(scope="module")

@@ -27,16 +27,6 @@ from seqmotion.training.files import parse_csv, read_trajectory, write_arrays
 
 
 @pytest.fixture(scope="module")
-def deformer():
-    return sm.load_pretrained("pancake")
-
-
-@pytest.fixture(scope="module")
-def planner():
-    return sm.load_pretrained("sliding")
-
-
-@pytest.fixture(scope="module")
 def sketch():
     return inputs.straight((0.1, 0.0, 2.0), 150)
 

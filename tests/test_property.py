@@ -36,16 +36,6 @@ SLOWER = settings(max_examples=round(25 * SCALE), deadline=None, suppress_health
 
 
 @pytest.fixture(scope="module")
-def deformer():
-    return sm.load_pretrained("pancake")
-
-
-@pytest.fixture(scope="module")
-def planner():
-    return sm.load_pretrained("sliding")
-
-
-@pytest.fixture(scope="module")
 def motion(deformer):
     """A decoded pancake motion as torch ``(states (1, K, 6), accel (1, K-1, 3))``."""
     result = deformer.deform(sm.data.pancake.straight((0.05, 0.0, 1.0), 80))

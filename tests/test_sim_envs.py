@@ -170,22 +170,6 @@ def test_render_fps_matches_the_frames(tmp_path):
     assert frame.shape == (48, 64, 3) and env.metadata["render_fps"] == 50
 
 
-@pytest.fixture(scope="module")
-def deformer():
-    return sm.load_pretrained("pancake")
-
-
-@pytest.fixture
-def one_thread():
-    """A 2 × 64 decoder step is fastest on one torch thread (and then does not fight MuJoCo)."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def test_closed_loop_keeps_the_pancake_on_with_measurement_noise(deformer, one_thread):
     from seqmotion.sim.closed_loop import PANCAKE_NOISE, draw_turning_episodes, run_episode
 

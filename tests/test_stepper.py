@@ -14,22 +14,18 @@ from seqmotion.tasks.stepper import stop_accel
 
 
 @pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """A control loop steps a batch of one: one thread is fastest (and immune to a busy machine)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_thread(one_thread):
+    """Every test here runs torch on one thread (see conftest)."""
 
 
 @pytest.fixture(scope="module")
-def pancake():
-    return sm.load_pretrained("pancake")
+def pancake(deformer):
+    return deformer
 
 
 @pytest.fixture(scope="module")
-def sliding():
-    return sm.load_pretrained("sliding")
+def sliding(planner):
+    return planner
 
 
 def drive(gen, x0, sizes, *, disturb=None, until=None):
