@@ -1,13 +1,15 @@
-"""Speed of latent-space adjustment (ch. 4) and the IPOPT peer, measured in one run.
+"""Exact latent adjustment against the strong IPOPT peer, and the default method's speed, in one run.
 
+    python benchmarks/bench_latent.py peer [--fresh 50] [--seed 2026] [--model DIR] [--out FILE]
     python benchmarks/bench_latent.py timing [--model DIR]
-    python benchmarks/bench_latent.py peer [--model DIR] [--targets 0,4,13]
 
-``timing``: seconds per update for one K = 500 trajectory and for all 27 targets in one batch,
-per case (the dissertation: 1.21 s per update for cases 1 and 2, 1.05 s for case 3, i7-8700).
-``peer``: per target, the wall time until J1 < 1e-3 for case 1 (a fresh run that stops at the
-first update below the threshold, encoding included) and for IPOPT by direct transcription
-(CasADi, from the same S-curve), with final J1 and max F_c. Prints JSON lines.
+``peer``: on the dissertation's 27 end-pose targets and on ``--fresh`` targets drawn uniformly
+from y, z ∈ [−0.1, 0.1] m, θ ∈ [−π, π] (``--seed``), K = 500, S-curve inputs: per target, side by
+side (order alternating), IPOPT with the friction cone as hard force-form constraints cold from
+the S-curve, and ``optimize_latent(..., exact=True)``; plus the default call's J1 after 5
+updates (``seqmotion.reproduce.ch4.peer``). Prints one JSON line per target set with the summary
+and writes every row to ``--out`` (JSON).
+``timing``: seconds per update per case and method, one K = 500 trajectory and 27 in a batch.
 """
 
 from __future__ import annotations
@@ -15,24 +17,41 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
+import torch
+
 import seqmotion as sm
 from seqmotion.reproduce import ch4
+from seqmotion.training.checkpoint import atomic_write_json
 from seqmotion.training.provenance import machine_description
+
+
+def fresh_targets(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-0.1, 0.1, n), rng.uniform(-0.1, 0.1, n), rng.uniform(-np.pi, np.pi, n)])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("what", choices=["timing", "peer"])
     parser.add_argument("--model")
-    parser.add_argument("--targets", help="comma-separated indices into the 27 targets (default: all)")
+    parser.add_argument("--fresh", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--out", default="bench_latent_peer.json")
     args = parser.parse_args()
+    torch.set_num_threads(1)
     deformer = sm.load(args.model) if args.model else sm.load_pretrained("pancake")
     if args.what == "timing":
         print(json.dumps({"timing": ch4.timing(deformer), "machine": machine_description()}))
         return
-    idx = [int(i) for i in args.targets.split(",")] if args.targets else range(len(ch4.TARGETS))
-    for row in ch4.peer(deformer, ch4.TARGETS[list(idx)]):
-        print(json.dumps({**row, "machine": machine_description()}))
+    record = {"machine": machine_description(), "seed": args.seed, "sets": {}}
+    for name, targets in (("dissertation 27", ch4.TARGETS), (f"fresh {args.fresh}", fresh_targets(args.fresh,
+                                                                                                  args.seed))):
+        rows = ch4.peer(deformer, targets)
+        summary = ch4.peer_summary(rows)
+        record["sets"][name] = {"summary": summary, "rows": rows}
+        print(json.dumps({"set": name, **summary}), flush=True)
+    atomic_write_json(args.out, record)
 
 
 if __name__ == "__main__":

@@ -162,16 +162,20 @@ def test_online_generator_refuses_absurd_measured_states(deformer):
        lr=st.one_of(st.sampled_from(["auto", "fast", 0, -1.0, float("nan"), float("inf"), None, 1e300]),
                     st.floats(1e-6, 10.0)),
        init=st.one_of(st.sampled_from(["encoder", "random", "other", None]), arrays(dims=(128, 5), max_k=2)),
-       optimizer=st.sampled_from(["sgd", "adam", "lm", "bfgs", None]),
-       continuation=st.one_of(st.none(), st.tuples(st.floats(allow_nan=True), st.integers(-3, 5))),
-       seed=st.one_of(st.integers(-5, 2**70), st.just(1.5)))
-def test_optimize_latent_arguments(deformer, steps, lr, init, optimizer, continuation, seed):
+       optimizer=st.sampled_from(["auto", "sgd", "adam", "lm", "bfgs", None]),
+       continuation=st.one_of(st.sampled_from([None, "auto", "off"]),
+                              st.tuples(st.floats(allow_nan=True), st.integers(-3, 5))),
+       seed=st.one_of(st.integers(-5, 2**70), st.just(1.5)),
+       exact=st.sampled_from([False, True, 1, "yes"]))
+def test_optimize_latent_arguments(deformer, steps, lr, init, optimizer, continuation, seed, exact):
     sketch = sm.data.pancake.straight((0.05, 0.0, 1.0), 100)
 
     def check():
         res = sm.optimize_latent(deformer, sketch, sm.objectives.EndPose((0.05, 0.0, 1.0)), steps=steps, lr=lr,
-                                 init=init, optimizer=optimizer, continuation=continuation, seed=seed)
+                                 init=init, optimizer=optimizer, continuation=continuation, seed=seed, exact=exact)
         assert finite(res.states, res.accel, res.latent, res.history)
+        if exact is True:  # the polish reaches this easy target whatever the latent stage did
+            assert res.exact and res.terms["end error"].value <= 1e-9
 
     value_error_or(check)
 

@@ -30,6 +30,8 @@ def test_ch2_quick(pancake_run, tmp_path, monkeypatch):
 
 def test_ch4_quick(pancake_run, tmp_path, monkeypatch):
     monkeypatch.setattr(ch4, "robot", lambda states, out, mu: {"robot": "not run in tests"})
+    real_peer = ch4.peer
+    monkeypatch.setattr(ch4, "peer", lambda deformer, targets: real_peer(deformer, targets[:1]))
     zero = {"one_trajectory_s": 0.0, "batch_of_27_s": 0.0}
     monkeypatch.setattr(ch4, "timing", lambda deformer: {"case": {"lm": zero, "line search": zero}})
     summary = ch4.run(tmp_path, model=str(pancake_run), quick=True)
@@ -39,11 +41,21 @@ def test_ch4_quick(pancake_run, tmp_path, monkeypatch):
         for case in summary["methods"][method].values():
             assert len(case["mean_j1_by_update"]) == 21
             assert case["mean_j1_by_update"][-1] <= case["mean_j1_by_update"][0]
-    assert summary["peer_skipped"] == "quick mode"
+    # the peer table, side by side on one target: exact=True (latent LM + polish, even from a tiny model)
+    # and the strong IPOPT peer both reach J1 ≤ 1e-9 with the cone kept to 1e-6 rad
+    (row,) = summary["peer"]
+    assert row["exact"] and row["exact_j1"] <= 1e-9 and row["exact_max_fc"] <= 1e-6
+    assert row["ipopt_exact"] and row["ipopt_status"] == "Solve_Succeeded"
+    assert row["exact_seconds"] > 0 and row["ipopt_seconds"] > 0 and np.isfinite(row["default_j1_update_5"])
+    assert "exact=True 1/1, IPOPT 1/1" in (tmp_path / "table4_peer.md").read_text()
     for name in ("fig4_2_objective.png", "fig4_6_end_rmse.png", "fig4_8_j2_velocity.png", "fig4_9_j2_psi.png",
                  "fig4_3_theta_-pi.png", "table4_end_rmse.md", "j2_trajectory.npz"):
         assert (tmp_path / name).stat().st_size > 0
-    assert {"update_0", "update_10", "update_20", "dissertation_eta_100_final_J2"} == set(summary["j2"])
+    assert {"update_0", "update_10", "update_20", "update_20 + polish", "dissertation_eta_100_final_J2"} == set(
+        summary["j2"])
+    polished = summary["j2"]["update_20 + polish"]["terms"]  # the exact polish meets every term of J2
+    assert set(polished) == {"end position band", "end attitude band", "velocity limits", "friction cone"}
+    assert all(term["met"] for term in polished.values())
 
 
 def test_ch3_quick(tmp_path, monkeypatch):
@@ -64,22 +76,3 @@ def test_ch3_quick(tmp_path, monkeypatch):
     for name in ("fig3_7_paths.png", "fig3_10_friction.png", "table3_friction.md", "table3_range.md",
                  "table3_qualitative.md"):
         assert (tmp_path / "out" / name).stat().st_size > 0
-
-
-def test_ch4_peer_rows(pancake_run, monkeypatch):
-    """The peer table runs LM per target and times IPOPT beside it (IPOPT itself replaced here)."""
-    from seqmotion.latent import transcription
-
-    def fake_ipopt(target, threshold, mu=1.0):
-        return transcription.TranscriptionResult(
-            states=np.zeros((500, 6)), accel=np.zeros((499, 3)), j1=0.5, max_fc=0.0, history=np.zeros((1, 2)),
-            seconds_to_threshold=None, solve_seconds=1.0, build_seconds=0.1, status="Maximum_Iterations_Exceeded")
-
-    monkeypatch.setattr(transcription, "solve_end_pose", fake_ipopt)
-    deformer = ch4.load_deformer(str(pancake_run))
-    rows = ch4.peer(deformer, ch4.TARGETS[:2])
-    assert len(rows) == 2
-    for row in rows:
-        assert np.isfinite(row["latent_final_j1"]) and row["ipopt_final_j1"] == 0.5
-        assert row["latent_seconds_to_threshold"] is None or row["latent_seconds_to_threshold"] > 0
-    assert "never" in ch4._peer_table(rows)

@@ -38,10 +38,22 @@ def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[s
     """
     from dataclasses import fields
 
-    columns = {f.name: getattr(result, f.name) for f in fields(result) if getattr(result, f.name) is not None}
+    trust_fields = ("uncertainty", "errors", "out_of_distribution", "ood_reasons")  # named below, or printed
+    columns = {f.name: getattr(result, f.name) for f in fields(result)
+               if getattr(result, f.name) is not None and f.name not in trust_fields}
     names: dict[str, list[str]] = {}
+    uncertainty = getattr(result, "uncertainty", None)
+    if uncertainty is not None:  # predicted std per sample: std.y, std.z, std.theta
+        columns["uncertainty"] = uncertainty
+        names["uncertainty"] = [f"std.{n}" for n in model.uncertainty_names]
+    for key, value in (getattr(result, "errors", None) or {}).items():  # scalars: kept in .npz, printed for CSV
+        columns[f"errors.{key}"] = np.asarray(value)
+    if getattr(result, "out_of_distribution", None) is not None:
+        columns["out_of_distribution"] = np.asarray(result.out_of_distribution)
     layouts = (model.state_layout, model.accel_layout, model.input_layout)
     for field, value in columns.items():
+        if field in names:
+            continue
         width = np.shape(value)[-1] if np.ndim(value) == 2 else None
         layout = next((lay for lay in layouts if lay.dim == width), None)
         if layout is None:
@@ -126,6 +138,8 @@ def cmd_deform(args: argparse.Namespace) -> int:
             if before is not None:
                 message += f" (input: {float(before.max()):.4f})"
     print(message)
+    for line in model.trust_lines(result):
+        print(line)
     return 0
 
 
@@ -137,6 +151,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from seqmotion.training.files import check_output, read_trajectory, write_arrays
 
     check_output(args.output)
+    if args.tolerance is not None:
+        check_number("--tolerance (RMS distance [m])", args.tolerance, minimum=0)
     if args.circle is not None:
         check_number("--circle (radius [m])", args.circle, minimum=0, strict_minimum=True, maximum=10.0)
         check_number("--length", args.length, minimum=2, maximum=1_000_000, integer=True)
@@ -157,6 +173,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
     reach = 1000 * np.linalg.norm(plan.pan_states[:, :2], axis=1).max()
     print(f"planned {len(command)} samples → {args.output}: object RMSE {rmse:.1f} mm against the command, "
           f"pan within {reach:.0f} mm of its start (2-D physics, μ = {mu:g}, μ' = {mu_dyn:g})")
+    tolerance = {} if args.tolerance is None else {"tracking_rmse_m": args.tolerance}
+    for line in planner.trust_lines(plan, tolerance):
+        print(line)
+    return 0
+
+
+def cmd_calibrate_trust(args: argparse.Namespace) -> int:
+    from seqmotion.tasks import trust
+    from seqmotion.training.checkpoint import check_writable_dir as check
+
+    model = _trained_model(args.model)
+    directory = Path(getattr(model, "source_dir", None) or args.model)
+    check(directory, "model directory")
+    path = trust.write_calibration(model, directory, n=args.n, seed=args.seed)
+    cal = model.trust_calibration
+    print(f"wrote {path}: {args.n} training inputs; in distribution: "
+          + ", ".join(f"{k} ≤ {v:.4g}" for k, v in cal.upper.items()) + f", length ≥ {cal.lower['length']:.0f}")
     return 0
 
 
@@ -186,7 +219,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     task = tasks.get(model.config_json()["task"])
     root = Path(args.to) if args.to is not None else tasks.registry.home_package(task) / "pretrained"
     target = export_pretrained(model, source, args.name, root, metrics, args.notes or "")
-    print(f"shipped {args.run} as {args.name!r} in {target} (with MODEL_CARD.md)")
+    from seqmotion.tasks import TrainedModel, trust
+
+    if isinstance(model, TrainedModel):  # the out-of-distribution bounds ship beside the weights
+        trust.write_calibration(model, target)
+    print(f"shipped {args.run} as {args.name!r} in {target} (with MODEL_CARD.md"
+          + (f" and {trust.TRUST_FILE})" if isinstance(model, TrainedModel) else ")"))
     if root not in tasks.pretrained_roots():
         print(f"note: {root} is not where seqmotion looks for shipped models; add it to "
               f"{tasks.registry.PRETRAINED_PATH_ENV} for sm.load_pretrained({args.name!r})")
@@ -248,8 +286,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mu", type=float, help="static friction of the 2-D physics (default: the model's)")
     p.add_argument("--mu-dyn", type=float, help="dynamic friction of the 2-D physics (default: the model's)")
     p.add_argument("--int8", action="store_true", help="int8 weights for the big layers (faster on CPU, wide models)")
+    p.add_argument("--tolerance", type=float, metavar="METRES",
+                   help="warn when the object's RMS distance from the command exceeds this (default 0.005)")
     p.add_argument("--output", required=True, help=".npz or .csv")
     p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("calibrate-trust",
+                       help="(re)write a model's trust.json: the training-input bounds behind out_of_distribution")
+    p.add_argument("model", help="shipped model name or model directory")
+    p.add_argument("--n", type=int, default=2048, help="fresh training inputs to draw")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_calibrate_trust)
 
     p = sub.add_parser("reproduce", help="reproduce a chapter's figures and tables")
     p.add_argument("chapter", choices=["ch2", "ch3", "ch4", "ch5"])

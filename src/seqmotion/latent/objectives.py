@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -31,11 +32,47 @@ import torch
 from ..errors import as_float_array, check_number
 from ..physics.layout import StateLayout
 from ..physics.pancake import MU, STATE_LAYOUT, violation_torch
+from ..physics.transcription import Constraint, end_values, scale_rows
+from ..tasks.base import FEASIBLE_TOLERANCE
 
 D_WEIGHTS = (1.0, 1.0, 0.1)
 """D = diag(1, 1, 0.1): metres against radians (eqs. 2.25, 4.3)."""
 
 ObjectiveFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@dataclass
+class Term:
+    """One term of an objective, judged on a motion (:meth:`Objective.report`).
+
+    Attributes:
+        value: the term's measure, a float or ``(B,)`` (e.g. the end error [m], the largest cone
+            violation [rad], the largest excess over a velocity limit).
+        limit: the largest value at which the term counts as met.
+        unit: ``value``'s unit.
+    """
+
+    value: Any
+    limit: float
+    unit: str = ""
+
+    @property
+    def met(self) -> Any:
+        """Whether ``value ≤ limit`` (per trajectory for a batch)."""
+        ok = np.asarray(self.value) <= self.limit
+        return bool(ok) if ok.ndim == 0 else ok
+
+    def __str__(self) -> str:
+        values = np.atleast_1d(np.asarray(self.value, dtype=float))
+        worst = float(values.max()) if values.size else 0.0
+        verdict = "met" if bool(np.all(values <= self.limit)) else "MISSED"
+        return f"{worst:.3g} {self.unit} (limit {self.limit:.3g}) {verdict}".replace("  ", " ")
+
+
+_NO_EXACT = (
+    "{self!r} has no exact form, so exact=True cannot make it exact; exact=True takes EndPose, AtRest, Ranges "
+    "and their weighted sums (or an Objective subclass with exact_constraints)"
+)
 
 
 _NO_RESIDUALS = (
@@ -59,6 +96,24 @@ class Objective:
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
+
+    @property
+    def least_squares(self) -> bool:
+        """Whether the objective has least-squares form (``residuals``, ``penalty``): then the default
+        optimiser is Levenberg–Marquardt."""
+        return False
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        """The objective as hard constraints for the exact polish: ``(constraint, parameters (B, n))`` pairs.
+
+        Only objectives whose goal is a set (an end pose, rest, bands) have one; ``ValueError`` otherwise.
+        """
+        raise ValueError(_NO_EXACT.format(self=self))
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        """Each term of the objective on the motions ``states`` ``(B, K, S)``, ``accel`` ``(B, K-1, d)``:
+        name → :class:`Term` (value, limit, whether met). Default: none (a plain function has no terms)."""
+        return {}
 
     def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         raise ValueError(_NO_RESIDUALS.format(self=self))
@@ -95,6 +150,16 @@ class Sum(Objective):
     def bind(self, model: Any) -> Objective:
         return Sum([part.bind(model) for part in self.parts])
 
+    @property
+    def least_squares(self) -> bool:
+        return all(part.least_squares for part in self.parts)
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        return [c for part in self.parts for c in part.exact_constraints()]
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        return {name: term for part in self.parts for name, term in part.report(states, accel).items()}
+
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return sum(part(states, accel) for part in self.parts)  # type: ignore[return-value]
 
@@ -116,6 +181,18 @@ class Scaled(Objective):
 
     def bind(self, model: Any) -> Objective:
         return Scaled(self.weight, self.inner.bind(model))
+
+    @property
+    def least_squares(self) -> bool:
+        return self.weight >= 0 and self.inner.least_squares
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        if self.weight <= 0:
+            raise ValueError(_NO_EXACT.format(self=self))
+        return self.inner.exact_constraints()
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        return self.inner.report(states, accel)
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return self.weight * self.inner(states, accel)
@@ -155,6 +232,10 @@ class Function(Objective):
             if value is not None and not callable(value):
                 raise ValueError(f"Function's {name} must be callable, got {type(value).__name__}")
         self.fn, self.residual_fn, self.penalty_fn, self.layout = fn, residuals, penalty, layout
+
+    @property
+    def least_squares(self) -> bool:
+        return self.residual_fn is not None
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         if self.fn is None:
@@ -233,11 +314,13 @@ class EndPose(Objective):
         alpha: weight α of the constraint penalty (≥ 0).
         mu: judge the cone at this μ instead of the model's own (pancake; default: the model's).
         fields, weights: reach for these state fields with these weights instead of the task's.
+        tolerance: the end error ``|D (p[K-1] − p_end)|`` at which :meth:`report` counts the
+            target as reached (default 1e-3: 1 mm, or 0.01 rad with D's 0.1).
     """
 
     def __init__(
         self, target: Sequence[float] | np.ndarray, alpha: float = 1.0, mu: float | None = None,
-        fields: Sequence[str] | None = None, weights: Sequence[float] | None = None,
+        fields: Sequence[str] | None = None, weights: Sequence[float] | None = None, tolerance: float = 1e-3,
     ) -> None:
         target_arr = as_float_array(target, "target")
         if target_arr.ndim not in (1, 2) or target_arr.shape[-1] < 1 or target_arr.size == 0:
@@ -247,16 +330,15 @@ class EndPose(Objective):
         _check_weight("alpha", alpha)
         if mu is not None:
             _check_weight("mu", mu, positive=True)
-        if fields is not None and (
-            isinstance(fields, str) or not all(isinstance(f, str) for f in fields) or len(fields) == 0
-        ):
-            raise ValueError(f"fields must be a non-empty sequence of state field names, got {fields!r}")
+        _check_fields(fields)
         if weights is not None:
             if fields is None or isinstance(weights, str) or len(weights) != len(fields):
                 raise ValueError("weights need fields, one weight per field")
             for w in weights:
                 _check_weight("weights", w)
+        _check_weight("tolerance", tolerance)
         self.target, self.alpha, self.mu = target_arr, float(alpha), None if mu is None else float(mu)
+        self.tolerance = float(tolerance)
         self.fields = None if fields is None else tuple(fields)
         self.weights = None if weights is None else tuple(float(w) for w in weights)
         self._columns: list[int] | slice | None = None
@@ -284,7 +366,7 @@ class EndPose(Objective):
         else:
             raise ValueError(f"task {task.name!r} declares no end pose; give EndPose(target, fields=[...]) of "
                              f"{model.state_layout}")
-        bound = EndPose(self.target, self.alpha, self.mu, fields, weights)
+        bound = EndPose(self.target, self.alpha, self.mu, fields, weights, self.tolerance)
         bound.layout = model.state_layout
         bound._bind_columns(model.state_layout, fields, weights, task.name)
         options = model.options
@@ -309,6 +391,31 @@ class EndPose(Objective):
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return (self.end_error(states) ** 2).sum(-1) + self.penalty(states, accel)
 
+    @property
+    def least_squares(self) -> bool:
+        return True
+
+    def _column_list(self) -> list[int]:
+        if self._columns is None:
+            self.end_error(torch.zeros(1, 2, STATE_LAYOUT.dim, dtype=torch.float64))  # binds the pancake default
+        cols = self._columns
+        return list(range(cols.start, cols.stop)) if isinstance(cols, slice) else list(cols)  # type: ignore[union-attr]
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        """The end-pose fields equal the target at the last sample (the cone is the task's own constraint)."""
+        return [(end_values(self._column_list(), "end pose"), np.atleast_2d(self.target))]
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        """``end error``: ``|D (p[K-1] − p_end)|`` (≤ ``tolerance``); ``constraint``: the largest violation
+        (≤ 0.01, the feasibility tolerance)."""
+        with torch.no_grad():
+            terms = {"end error": Term(_np(self.end_error(states).norm(dim=-1)), self.tolerance, "(D-weighted)")}
+            violation = self._violation(states, accel) if self._violation is not None else \
+                violation_torch(states[:, : accel.shape[1], 2], accel, MU if self.mu is None else self.mu)
+            if violation is not None:
+                terms["constraint"] = Term(_np(_max_per_trajectory(violation)), FEASIBLE_TOLERANCE, "(violation)")
+        return terms
+
     def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return self.end_error(states)
 
@@ -322,6 +429,14 @@ class EndPose(Objective):
 
     def __repr__(self) -> str:
         return f"EndPose(target={self.target.tolist()}, alpha={self.alpha:g})"
+
+
+def _check_fields(fields: object) -> None:
+    if fields is not None and (
+        isinstance(fields, str) or not hasattr(fields, "__len__") or len(fields) == 0  # type: ignore[arg-type]
+        or not all(isinstance(f, str) for f in fields)  # type: ignore[attr-defined]
+    ):
+        raise ValueError(f"fields must be a non-empty sequence of state field names, got {fields!r}")
 
 
 def _check_weight(name: str, value: Any, positive: bool = False) -> None:
@@ -383,5 +498,117 @@ class Ranges(Objective):
         cone = dynamic_penalty(states, accel, MU if self.mu is None else self.mu)
         return position_band + attitude_band + self.alpha * cone + velocity
 
+    def _excess(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, torch.Tensor]:
+        """How far each band is overstepped, ``(B,)`` each (0 where it holds)."""
+        end = states[:, -1]
+        v_lim = torch.tensor(self.v_lim, dtype=states.dtype)
+        return {
+            "end position band": torch.relu(torch.sqrt(end[:, 0] ** 2 + end[:, 1] ** 2) - self.p_lim),
+            "end attitude band": torch.relu((end[:, 2] - self.theta_end).abs() - self.theta_lim),
+            # from sample 1: the start state is given, not generated (a linear sketch starts moving)
+            "velocity limits": torch.relu(states[:, 1:, 3:].abs() - v_lim).amax((1, 2)),
+        }
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        """Each band's excess [m, rad, SI velocity] (met at 0, to 1e-6) and the largest cone violation (≤ 0.01 rad)."""
+        with torch.no_grad():
+            units = {"end position band": "m", "end attitude band": "rad", "velocity limits": "(m/s, rad/s)"}
+            terms = {name: Term(_np(v), 1e-6, units[name]) for name, v in self._excess(states, accel).items()}
+            cone = violation_torch(states[:, : accel.shape[1], 2], accel, MU if self.mu is None else self.mu)
+            terms["friction cone"] = Term(_np(_max_per_trajectory(cone)), FEASIBLE_TOLERANCE, "rad")
+        return terms
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        """The bands and velocity limits (from sample 1: the start state is given) as hard constraints (the
+        cone is the task's own)."""
+        none = np.zeros((1, 0))
+        p_lim, theta_end, theta_lim, v_lim = self.p_lim, self.theta_end, self.theta_lim, np.array(self.v_lim)
+        return [
+            (Constraint("end position band", ("ranges_position", p_lim),
+                        lambda x, u, p: x[0, -1] ** 2 + x[1, -1] ** 2, -math.inf, p_lim**2), none),
+            (Constraint("end attitude band", ("ranges_attitude", theta_end, theta_lim),
+                        lambda x, u, p: x[2, -1], theta_end - theta_lim, theta_end + theta_lim), none),
+            # |v| ≤ v_lim per field, scaled so every bound is ±1
+            (Constraint("velocity limits", ("ranges_velocity", *self.v_lim),
+                        lambda x, u, p: scale_rows(x[3:6, 1:], 1 / np.maximum(v_lim, 1e-12)), -1.0, 1.0), none),
+        ]
+
     def __repr__(self) -> str:
         return f"Ranges(p_lim={self.p_lim}, theta_end={self.theta_end:.4f}, theta_lim={self.theta_lim})"
+
+
+class AtRest(Objective):
+    """The motion ends at rest: ``J = Σ_j (w_j v_j[K-1])²`` over the layout's rate fields.
+
+    Rate fields are those whose unit ends in ``/s`` (pancake: v_y, v_z, v_θ); ``w`` is 1, and 0.1
+    for ``rad/s`` (D's weighting). Least-squares, so it composes with :class:`EndPose` for
+    Levenberg–Marquardt, and has an exact form (the rate fields equal 0 at the last sample).
+
+    Args:
+        fields: the state fields that must end at 0 instead of the rate fields.
+        tolerance: the largest end rate at which :meth:`report` counts the motion as at rest
+            (default 0.01 m/s or rad/s).
+    """
+
+    def __init__(self, fields: Sequence[str] | None = None, tolerance: float = 0.01) -> None:
+        _check_fields(fields)
+        _check_weight("tolerance", tolerance)
+        self.fields, self.tolerance = None if fields is None else tuple(fields), float(tolerance)
+        self._columns: list[int] | None = None
+        self._weights: torch.Tensor | None = None
+
+    def bind(self, model: Any) -> AtRest:
+        bound = AtRest(self.fields, self.tolerance)
+        bound.layout = model.state_layout
+        bound._set_columns(model.state_layout)
+        return bound
+
+    def _set_columns(self, layout: StateLayout) -> None:
+        names = self.fields or tuple(n for n, u in zip(layout.names, layout.units, strict=True) if u.endswith("/s"))
+        if not names:
+            raise ValueError(f"{layout} has no rate fields (units ending in /s); give AtRest(fields=[...])")
+        self._columns = [layout.index(n) for n in names]
+        self._weights = torch.tensor([0.1 if layout.units[c] == "rad/s" else 1.0 for c in self._columns])
+
+    def _bound(self) -> tuple[list[int], torch.Tensor]:
+        if self._columns is None:
+            self._set_columns(STATE_LAYOUT)  # unbound: pancake states
+        assert self._columns is not None and self._weights is not None
+        return self._columns, self._weights
+
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        columns, weights = self._bound()
+        return weights.to(states.dtype) * states[:, -1, columns]
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(states.shape[0], dtype=states.dtype, device=states.device)
+
+    def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return (self.residuals(states, accel) ** 2).sum(-1)
+
+    @property
+    def least_squares(self) -> bool:
+        return True
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        columns, _ = self._bound()
+        return [(end_values(columns, "at rest"), np.zeros((1, len(columns))))]
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        columns, _ = self._bound()
+        with torch.no_grad():
+            return {"end rate": Term(_np(states[:, -1, columns].abs().amax(-1)), self.tolerance, "(m/s, rad/s)")}
+
+    def __repr__(self) -> str:
+        return "AtRest()" if self.fields is None else f"AtRest(fields={list(self.fields)})"
+
+
+def _np(value: torch.Tensor) -> np.ndarray:
+    return value.detach().double().cpu().numpy()
+
+
+def _max_per_trajectory(violation: torch.Tensor) -> torch.Tensor:
+    """The largest value per trajectory of ``(B, N)`` (0 for N = 0)."""
+    if violation.shape[-1] == 0:
+        return torch.zeros(violation.shape[0], dtype=violation.dtype)
+    return violation.amax(-1)

@@ -18,18 +18,49 @@ Everything is batched: many input motions (and per-trajectory targets) in one ca
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
 from ..errors import as_float_array, as_trajectories, check_finite_result, check_number
-from ..tasks.base import TrainedModel
-from .objectives import as_objective
+from ..tasks.base import POLISH_VIOLATION_TOLERANCE, TrainedModel
+from .objectives import Objective, Term, as_objective
 
 MAX_STEPS = 1_000_000
 """More updates than this in one call is a typo."""
+
+
+@dataclass
+class Stage:
+    """One stage of an adjustment and where it ended.
+
+    Attributes:
+        name: ``"latent"`` (updates of z), ``"trajectory"`` (updates of the inputs, case 3) or
+            ``"polish"`` (the exact stage: IPOPT on the motion closest to the previous stage's).
+        steps: updates (latent / trajectory) or IPOPT iterations (polish), ``(B,)`` for a batch
+            where they differ per trajectory.
+        seconds: wall time of the stage.
+        objective: the objective after the stage, per trajectory.
+        status: per trajectory: ``"converged"`` / ``"ran all updates"`` (latent), IPOPT's return
+            status (polish).
+    """
+
+    name: str
+    steps: Any
+    seconds: float
+    objective: np.ndarray
+    status: list[str]
+
+    def __str__(self) -> str:
+        steps = np.atleast_1d(self.steps)
+        span = f"{int(steps.min())}" if steps.min() == steps.max() else f"{int(steps.min())}–{int(steps.max())}"
+        unit = "iterations" if self.name == "polish" else "updates"
+        statuses = ", ".join(sorted(set(self.status)))
+        return (f"{self.name}: {span} {unit}, {self.seconds:.3f} s, objective ≤ {float(np.max(self.objective)):.3g} "
+                f"({statuses})")
 
 
 @dataclass
@@ -37,13 +68,19 @@ class OptimizationResult:
     """The adjusted motion(s); a leading B axis when the input was batched.
 
     Attributes:
-        states: ``(K, S)`` states after the last update.
+        states: ``(K, S)`` states after the last stage.
         accel: ``(K-1, d)`` their inputs.
-        latent: ``(L·H,)`` the optimised z (None for case 3).
-        history: ``(steps + 1,)`` the objective before each update and after the last
-            (``(steps + 1, B)`` for a batch; a scalar objective gives ``(steps + 1,)``).
+        latent: ``(L·H,)`` the optimised z (None for case 3). After an exact polish the motion is
+            the polished one, near (not equal to) what z decodes to.
+        history: ``(updates + 1,)`` the objective before each update and after the last
+            (``(updates + 1, B)`` for a batch; a scalar objective gives ``(updates + 1,)``).
         seconds_per_update: mean wall time of one update (backward, step, forward; with
             ``lr="auto"`` also the line search's extra forward passes).
+        stages: where each stage ended (:class:`Stage`): the updates, then the polish with ``exact=True``.
+        terms: each term of the objective on the final motion, name → :class:`~.objectives.Term`
+            (value, limit, ``met``); empty for a plain function.
+        exact: with ``exact=True``: whether the polish made the objective's constraints and the task's
+            constraint hold exactly (IPOPT converged, violation ≤ 1e-6), per trajectory; None otherwise.
     """
 
     states: np.ndarray
@@ -51,6 +88,20 @@ class OptimizationResult:
     latent: np.ndarray | None
     history: np.ndarray
     seconds_per_update: float
+    stages: list[Stage] = field(default_factory=list)
+    terms: dict[str, Term] = field(default_factory=dict)
+    exact: Any = None
+
+    @property
+    def met(self) -> bool:
+        """Whether every term of the objective is met, for every trajectory (True when it has no terms)."""
+        return all(bool(np.all(term.met)) for term in self.terms.values())
+
+    def describe(self) -> str:
+        """One line per stage and per term: what was reached and what was missed."""
+        lines = [str(stage) for stage in self.stages]
+        lines += [f"{name}: {term}" for name, term in self.terms.items()]
+        return "\n".join(lines)
 
 
 def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.optim.Optimizer:
@@ -62,15 +113,15 @@ def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.o
 
 
 def _prepare(
-    model: object, states: object, objective: object, steps: int, lr: float | str, physics: dict[str, Any]
+    model: object, states: object, objective: object, steps: int | None, lr: float | str, physics: dict[str, Any]
 ) -> tuple[Any, torch.Tensor, torch.Tensor, int, bool]:
     """Validate the arguments; return ``(objective bound to the model, inputs (B, K, S), x0 (B, S'), K,
     was_single)``."""
     if not isinstance(model, TrainedModel):
         raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
     model.check_physics(physics)
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 0 <= steps <= MAX_STEPS:
-        raise ValueError(f"steps must be an integer in [0, {MAX_STEPS}], got {steps!r}")
+    if steps is not None:
+        _check_steps(steps)
     if not (isinstance(lr, str) and lr == "auto"):
         check_number("lr", lr, minimum=0, strict_minimum=True)
     batch, single = as_trajectories(states, model.input_dim, "states")
@@ -81,7 +132,7 @@ def _prepare(
 def _check_method(optimizer: object, lr: object, continuation: object) -> None:
     """Refuse a bad optimiser choice before any work (the same checks :func:`_descend` makes)."""
     if not isinstance(optimizer, str) or optimizer not in ("sgd", "adam", "lm"):
-        raise ValueError(f"optimizer must be 'sgd', 'adam' or 'lm', got {optimizer!r}")
+        raise ValueError(f"optimizer must be 'auto', 'sgd', 'adam' or 'lm', got {optimizer!r}")
     if lr == "auto" and optimizer == "adam":
         raise ValueError("optimizer='adam' needs a numeric lr (lr='auto' is gradient descent with a line search)")
     _continuation(continuation, optimizer)
@@ -95,11 +146,13 @@ def _descend(
     lr: float | str,
     optimizer: str,
     relax: tuple[float, int] = (1.0, 0),
+    tol: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray, float]:
     """Minimise ``objective(*evaluate(variable))`` over ``variable``; return the final motion and history.
 
     ``lr="auto"``: gradient descent with Armijo backtracking (see :func:`_armijo_step`). A
     fixed η is meaningful only in units of a particular latent space; this needs none.
+    Stops early once every trajectory's objective is ≤ ``tol`` (after the continuation's ramp).
     """
     variable = variable.detach().clone().requires_grad_(True)
     states, accel = evaluate(variable)
@@ -113,6 +166,8 @@ def _descend(
     eta: torch.Tensor | None = None  # step sizes of the line search, or damping of Levenberg–Marquardt
     start = time.perf_counter()
     for step in range(steps):
+        if tol > 0 and step >= relax[1] and bool((value.detach() <= tol).all()):
+            break
         if optimizer == "lm":
             # continuation: the penalty's weight grows geometrically from relax[0] to 1 over relax[1] updates
             weight, ramp = relax
@@ -134,7 +189,7 @@ def _descend(
         states, accel = evaluate(next_variable)
         value = objective(states, accel)
         history.append(value.detach().double().numpy().copy())
-    seconds = (time.perf_counter() - start) / max(steps, 1)
+    seconds = (time.perf_counter() - start) / max(len(history) - 1, 1)
     return variable.detach(), states.detach(), accel.detach(), np.stack(history), seconds
 
 
@@ -184,11 +239,7 @@ def _lm_step(
     b = variable.shape[0]
     residuals = objective.residuals(states, accel)  # (B, m)
     penalty = penalty_weight * objective.penalty(states, accel)  # (B,)
-    rows = []
-    for i in range(residuals.shape[1]):
-        (g_i,) = torch.autograd.grad(residuals[:, i].sum(), variable, retain_graph=True)
-        rows.append(g_i.reshape(b, -1).double())
-    jac = torch.stack(rows, dim=1)  # (B, m, n), the linear algebra in float64
+    jac = _jacobian(residuals, variable)  # (B, m, n), the linear algebra in float64
     if penalty.requires_grad:
         (g_pen,) = torch.autograd.grad(penalty.sum(), variable)
         g_pen = g_pen.reshape(b, -1).double()
@@ -213,6 +264,20 @@ def _lm_step(
     return candidate, (new_r**2).sum(-1) + new_p, states, accel, lam / 3
 
 
+def _jacobian(residuals: torch.Tensor, variable: torch.Tensor) -> torch.Tensor:
+    """``∂r_b/∂v_b`` ``(B, m, n)`` in float64: the m backward passes vectorised into one (vmap over the
+    backward graph), or one after another where an operation has no batching rule."""
+    b, m = residuals.shape
+    try:
+        seeds = torch.eye(m, dtype=residuals.dtype).unsqueeze(1).expand(m, b, m)  # seed j picks residual j
+        (jac,) = torch.autograd.grad(residuals, variable, grad_outputs=seeds, retain_graph=True,
+                                     is_grads_batched=True)
+        return jac.reshape(m, b, -1).transpose(0, 1).double()
+    except RuntimeError:
+        rows = [torch.autograd.grad(residuals[:, i].sum(), variable, retain_graph=True)[0] for i in range(m)]
+        return torch.stack([r.reshape(b, -1) for r in rows], dim=1).double()
+
+
 def _continuation(continuation: tuple[float, int] | None, optimizer: str) -> tuple[float, int]:
     if continuation is None:
         return (1.0, 0)
@@ -230,19 +295,53 @@ def _continuation(continuation: tuple[float, int] | None, optimizer: str) -> tup
     return float(weight), int(ramp)
 
 
+DEFAULT_CONTINUATION = (1e-3, 4)
+"""Levenberg–Marquardt's default: the penalty weighted 1e-3 at the first update, 1 from the 4th."""
+EXACT_LATENT_TOL = 1e-3
+"""With ``exact=True`` the latent stage stops once the objective is below this: the polish does the rest."""
+
+
+def _resolve_method(
+    objective: Objective, optimizer: str, lr: float | str, continuation: object, steps: int | None,
+    exact: bool, tol: float | None,
+) -> tuple[str, tuple[float, int] | None, int, float]:
+    """``(optimizer, continuation, steps, tol)`` with the defaults filled in (see :func:`optimize_latent`)."""
+    if not isinstance(exact, bool):
+        raise ValueError(f"exact must be True or False, got {exact!r}")
+    if optimizer == "auto":
+        optimizer = "lm" if objective.least_squares and lr == "auto" else "sgd"
+    if isinstance(continuation, str):
+        if continuation != "auto":
+            raise ValueError(f"continuation must be 'auto', None or (w0, n), got {continuation!r}")
+        continuation = DEFAULT_CONTINUATION if optimizer == "lm" else None
+    _check_method(optimizer, lr, continuation)
+    if steps is None:  # exact: the latent stage only has to come near (≤ 7 updates on ch. 4's targets)
+        steps = 10 if exact else 20 if optimizer == "lm" else 100
+    if tol is None:
+        tol = EXACT_LATENT_TOL if exact else 0.0
+    check_number("tol", tol, minimum=0)
+    return optimizer, continuation, steps, float(tol)  # type: ignore[return-value]
+
+
 def optimize_latent(
     model: TrainedModel,
     states: object,
     objective: object,
-    steps: int = 100,
+    steps: int | None = None,
     lr: float | str = "auto",
     init: str | np.ndarray = "encoder",
-    optimizer: str = "sgd",
+    optimizer: str = "auto",
     seed: int = 0,
-    continuation: tuple[float, int] | None = None,
+    continuation: tuple[float, int] | str | None = "auto",
+    exact: bool = False,
+    tol: float | None = None,
     **physics: Any,
 ) -> OptimizationResult:
-    """Cases 1 and 2: optimise the latent z of ``states`` for ``objective``.
+    """Cases 1 and 2: optimise the latent z of ``states`` for ``objective``; with ``exact=True``, then polish.
+
+    The defaults are the method that works: Levenberg–Marquardt with penalty continuation for
+    least-squares objectives (``EndPose``, ``AtRest``, residual ``Function`` objectives: J1 < 1e-3 within 5
+    updates on ch. 4's targets), gradient descent with a line search otherwise.
 
     Args:
         model: a trained model (``Deformer``, ``SlidingPlanner``...).
@@ -250,18 +349,30 @@ def optimize_latent(
             their start state and length are used).
         objective: an :class:`~seqmotion.latent.objectives.Objective` or a callable
             ``f(states, accel) -> tensor``.
-        steps: number of updates.
+        steps: the most updates (default 20 with Levenberg–Marquardt, 100 with gradient descent; 10
+            with ``exact=True``).
         lr: step size η, or ``"auto"`` (default): Armijo backtracking at every update. The
             dissertation's η = 200 (cases 1, 2) is tied to its latent scale; on ours it diverges.
         init: ``"encoder"`` (case 1), ``"random"`` (case 2: z ~ N(0, I), seeded by ``seed``), or
             latents to continue from (``(L·H,)`` / ``(B, L·H)``, e.g. a previous result's ``latent``).
-        optimizer: ``"sgd"`` (plain gradient descent, eq. 4.2), ``"adam"``, or ``"lm"``
-            (Levenberg–Marquardt, for least-squares objectives such as ``EndPose``; ``lr`` unused).
+        optimizer: ``"auto"`` (default: ``"lm"`` for least-squares objectives, else ``"sgd"``),
+            ``"sgd"`` (plain gradient descent, eq. 4.2: the dissertation's method), ``"adam"``, or
+            ``"lm"`` (Levenberg–Marquardt; ``lr`` unused).
         continuation: ``(w0, n)`` for ``optimizer="lm"``: the objective's penalty (e.g. the
             friction cone's) is weighted ``w0`` at the first update, growing geometrically to 1 at
             update ``n`` and after. The end pose moves first, the penalty then pulls the motion
             back inside the constraint: this passes the penalty's ridges that stall plain descent.
-            ``history`` always holds the true objective.
+            ``"auto"`` (default): ``(1e-3, 4)`` with LM; None: no continuation. ``history``
+            always holds the true objective.
+        exact: after the updates, polish the motion so the objective's goal and the task's
+            constraint hold exactly (pancake: end pose to J1 ≤ 1e-9, F_c ≤ 1e-6 rad): IPOPT finds the
+            motion closest to the latent stage's that meets them (:meth:`TrainedModel.polish`).
+            Needs a task with an exact form (pancake) and an objective with one (``EndPose``,
+            ``AtRest``, ``Ranges`` and sums of them); others are refused by name. A trajectory the
+            polish cannot make exact (e.g. an unreachable target) keeps the latent stage's motion,
+            ``res.exact`` is False for it and a warning names it.
+        tol: stop updating once every objective is ≤ ``tol`` (default 0, run all updates;
+            ``exact=True``: 1e-3, the polish does the rest).
         physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding); a name the
             task's dynamics do not take is refused (``ValueError``). The pancake's μ is an option
             of the model (``model.options.mu``), used by its objectives; ``EndPose(..., mu=...)``
@@ -269,7 +380,9 @@ def optimize_latent(
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
     check_number("seed", seed, minimum=0, maximum=2**63 - 1, integer=True)
-    _check_method(optimizer, lr, continuation)
+    optimizer, relax, steps, tol = _resolve_method(objective, optimizer, lr, continuation, steps, exact, tol)
+    _check_steps(steps)
+    constraints = _exact_constraints(model, objective, physics) if exact else None
     with torch.no_grad():
         if isinstance(init, str) and init == "encoder":
             z0 = model.encode_torch(x)
@@ -283,37 +396,119 @@ def optimize_latent(
                 raise ValueError(f"init latent must be finite with shape ({len(x)}, {model.model.latent_dim})")
         else:
             raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
+    start = time.perf_counter()
     z, out_states, out_accel, history, seconds = _descend(
         z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer,
-        _continuation(continuation, optimizer),
+        _continuation(relax, optimizer), tol,
     )
-    return _result(out_states, out_accel, z, history, seconds, single)
+    stages = [_stage("latent", history, time.perf_counter() - start, steps, tol)]
+    return _finish(model, objective, x0, out_states, out_accel, z, history, seconds, stages, constraints, single)
 
 
 def optimize_trajectory(
     model: TrainedModel,
     states: object,
     objective: object,
-    steps: int = 100,
+    steps: int | None = None,
     lr: float | str = "auto",
-    optimizer: str = "sgd",
-    continuation: tuple[float, int] | None = None,
+    optimizer: str = "auto",
+    continuation: tuple[float, int] | str | None = "auto",
+    exact: bool = False,
+    tol: float | None = None,
     **physics: Any,
 ) -> OptimizationResult:
     """Case 3: optimise the decoder's output accelerations directly (states by integration).
 
     Starts from the motion the decoder generates for ``states``; ``lr`` is η (1000 in the
-    dissertation) or ``"auto"``. Arguments as :func:`optimize_latent`.
+    dissertation) or ``"auto"``. Arguments and defaults as :func:`optimize_latent`.
     """
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
-    _check_method(optimizer, lr, continuation)
+    optimizer, relax, steps, tol = _resolve_method(objective, optimizer, lr, continuation, steps, exact, tol)
+    _check_steps(steps)
+    constraints = _exact_constraints(model, objective, physics) if exact else None
     with torch.no_grad():
         _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, **physics)
+    start = time.perf_counter()
     accel, out_states, out_accel, history, seconds = _descend(
         accel0, lambda u: (model.integrate_torch(x0, u, **physics), u), objective, steps, lr, optimizer,
-        _continuation(continuation, optimizer),
+        _continuation(relax, optimizer), tol,
     )
-    return _result(out_states, out_accel, None, history, seconds, single)
+    stages = [_stage("trajectory", history, time.perf_counter() - start, steps, tol)]
+    return _finish(model, objective, x0, out_states, out_accel, None, history, seconds, stages, constraints, single)
+
+
+def _check_steps(steps: object) -> None:
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 0 <= steps <= MAX_STEPS:
+        raise ValueError(f"steps must be an integer in [0, {MAX_STEPS}], got {steps!r}")
+
+
+def _exact_constraints(model: TrainedModel, objective: Objective, physics: dict[str, Any]) -> list:
+    """The objective's constraints for the polish; refuse, before any work, what cannot be made exact."""
+    model.exact_form()  # ValueError naming the task when it has no exact polish
+    if physics:
+        raise ValueError(f"exact=True polishes at the model's own physics; drop {sorted(physics)}")
+    return objective.exact_constraints()
+
+
+def _stage(name: str, history: np.ndarray, seconds: float, steps: int, tol: float) -> Stage:
+    last = np.atleast_1d(history[-1])
+    updates = len(history) - 1
+    status = "reached tol" if tol > 0 and bool(np.all(last <= tol)) else "ran all updates" if updates == steps \
+        else "stopped"
+    return Stage(name, updates, seconds, last, [status] * len(last))
+
+
+def _finish(
+    model: TrainedModel, objective: Objective, x0: torch.Tensor, states: torch.Tensor, accel: torch.Tensor,
+    latent: torch.Tensor | None, history: np.ndarray, seconds: float, stages: list[Stage],
+    constraints: list | None, single: bool,
+) -> OptimizationResult:
+    """Polish (with ``exact=True``), judge each term, and shape the result."""
+    states, accel = states.double(), accel.double()
+    exact = None
+    if constraints is not None:
+        states, accel, exact, polish_stage = _polish(model, objective, x0, states, accel, constraints)
+        stages.append(polish_stage)
+    terms = objective.report(states, accel)
+    res = _result(states, accel, latent, history, seconds, single)
+    res.stages, res.terms = stages, terms
+    res.exact = None if exact is None else (bool(exact[0]) if single else exact)
+    if single:
+        res.terms = {name: Term(np.asarray(t.value).reshape(-1)[0], t.limit, t.unit) for name, t in terms.items()}
+        for stage in res.stages:
+            stage.objective = stage.objective[:1]
+    return res
+
+
+def _polish(
+    model: TrainedModel, objective: Objective, x0: torch.Tensor, states: torch.Tensor, accel: torch.Tensor,
+    constraints: list,
+) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, Stage]:
+    """Each trajectory's motion closest to the latent stage's that meets ``constraints`` and the task's exactly."""
+    start = time.perf_counter()
+    b = len(states)
+    out_states, out_accel = states.clone(), accel.clone()
+    exact, iterations, status = np.zeros(b, bool), np.zeros(b, int), []
+    x0_np, accel_np = x0.double().numpy(), accel.numpy()
+    for i in range(b):
+        params = [p[i] if len(p) > 1 else p[0] for _, p in constraints]
+        solution = model.polish(x0_np[i], accel_np[i], [c for c, _ in constraints], params)
+        iterations[i], found = solution.iterations, solution.status
+        new_states = torch.from_numpy(solution.states)[None]
+        new_accel = torch.from_numpy(solution.accel)[None]
+        violation = model.violation_torch(new_states, new_accel)
+        worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
+        if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
+            out_states[i], out_accel[i], exact[i] = new_states[0], new_accel[0], True
+        else:
+            found += f" (violation {worst:.2g})" if solution.success else ""
+            reason = "the constraints cannot all hold (target unreachable?)" if solution.infeasible else found
+            warnings.warn(f"exact polish failed on trajectory {i}: {reason}; it keeps the unpolished motion",
+                          RuntimeWarning, stacklevel=3)
+        status.append(found)
+    with torch.no_grad():
+        value = objective(out_states, out_accel).double().expand(b).numpy()
+    return out_states, out_accel, exact, Stage("polish", iterations, time.perf_counter() - start, value, status)
 
 
 def _result(

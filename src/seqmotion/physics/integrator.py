@@ -77,6 +77,43 @@ def implied_accel(states: np.ndarray, dt: float = DT) -> np.ndarray:
     return np.diff(states[..., d:], axis=-2) / dt
 
 
+def reach_end(
+    x0: np.ndarray, accel: np.ndarray, columns: list[int], values: np.ndarray, weights: np.ndarray | None = None,
+    dt: float = DT,
+) -> np.ndarray:
+    """The inputs nearest ``accel`` (``min Σ_k w ⊙ |Δu[k]|²``) whose motion from ``x0`` ends at ``values``.
+
+    The end state is linear in the inputs — per axis j, ``p[N] = p0 + N dt v0 + dt² Σ_k (N − k − 1/2) u[k]``
+    and ``v[N] = v0 + dt Σ_k u[k]`` — so the nearest inputs are a closed-form, per-axis correction
+    (a ramp in k), here with the least-squares solution of the (at most 2 × 2) system per axis.
+
+    Args:
+        x0: ``(2d,)`` start state; ``accel``: ``(N, d)`` inputs.
+        columns: state columns that must end at ``values`` (positions ``j``, velocities ``d + j``).
+        weights: ``(d,)`` the metric per input component (default 1).
+    """
+    accel = np.asarray(accel, dtype=np.float64)
+    n, d = accel.shape
+    end = integrate_numpy(x0, accel, dt)[-1]
+    k = np.arange(n)
+    out = accel.copy()
+    for j in range(d):
+        rows, gap = [], []
+        for c, value in zip(columns, np.asarray(values, dtype=np.float64), strict=True):
+            if c == j:  # position of axis j
+                rows.append(dt**2 * (n - k - 0.5))
+                gap.append(value - end[c])
+            elif c == d + j:  # velocity of axis j
+                rows.append(np.full(n, dt))
+                gap.append(value - end[c])
+        if not rows:
+            continue
+        g = np.stack(rows) / (1.0 if weights is None else weights[j])  # W⁻¹ Gᵀ, transposed
+        gram = np.stack(rows) @ g.T
+        out[:, j] += g.T @ np.linalg.lstsq(gram, np.asarray(gap), rcond=None)[0]
+    return out
+
+
 def step_reference(x: np.ndarray, u: np.ndarray, dt: float = DT) -> np.ndarray:
     """One explicit ``A x + B u`` step (the sample-by-sample reference used in tests)."""
     a, b = transition_matrices(u.shape[-1], dt)

@@ -13,6 +13,7 @@ still spatula tilted by θ has ``ψ = -θ`` and holds iff ``|θ| < atan μ`` (45
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import torch
@@ -20,6 +21,7 @@ import torch
 from ..errors import as_trajectories
 from .integrator import DT, implied_accel
 from .layout import StateLayout
+from .transcription import Constraint, casadi
 
 GRAVITY = 9.8
 """Magnitude of gravity [m/s²]; the vector is ``(0, -GRAVITY)`` in (y, z)."""
@@ -85,6 +87,14 @@ def _prepare(states: object, accel: object) -> tuple[torch.Tensor, torch.Tensor,
     return theta, torch.as_tensor(ac), single
 
 
+def check_mu(mu: object) -> float:
+    """``mu`` as a float, or ``ValueError`` unless it is a positive finite number."""
+    if isinstance(mu, bool) or not isinstance(mu, int | float | np.integer | np.floating) or not math.isfinite(mu) \
+            or mu <= 0:
+        raise ValueError(f"mu must be a positive finite number, got {mu!r}")
+    return float(mu)
+
+
 def violation(states: object, accel: object, mu: float = MU) -> np.ndarray:
     """F_c per sample (eq. 2.18) for NumPy trajectories.
 
@@ -97,9 +107,7 @@ def violation(states: object, accel: object, mu: float = MU) -> np.ndarray:
     Returns:
         ``(N,)`` or ``(B, N)`` violations [rad]; zero where the pancake holds.
     """
-    if isinstance(mu, bool) or not isinstance(mu, int | float | np.integer | np.floating) or not math.isfinite(mu) \
-            or mu <= 0:
-        raise ValueError(f"mu must be a positive finite number, got {mu!r}")
+    check_mu(mu)
     theta, ac, single = _prepare(states, accel)
     out = violation_torch(theta, ac, mu).numpy()
     return out[0] if single else out
@@ -120,3 +128,31 @@ def violation_of_states(states: object, mu: float = MU, dt: float = DT) -> np.nd
     st, single = as_trajectories(states, STATE_DIM, "states")
     out = violation(st, implied_accel(st, dt), mu)
     return out[0] if single else out
+
+
+def cone_constraint(mu: float = MU, margin: float = 0.0) -> Constraint:
+    """The friction cone in force form, for :mod:`.transcription` (exact polish and the IPOPT peer).
+
+    In the spatula frame, with the specific force ``f = g − u`` (``g = (0, −9.8)``):
+    ``n = f_y sin θ − f_z cos θ`` (along the spatula's normal) and ``t = f_y cos θ + f_z sin θ``
+    (along its surface). The pancake holds iff ``μ n − t ≥ 0`` and ``μ n + t ≥ 0`` — the same set
+    as ``|ψ| ≤ atan μ`` without the angle's wrap-around, two smooth constraints per sample
+    (``2 (K−1)`` values: the first row of pairs, then the second).
+
+    ``margin`` [m/s²]: require ``μ n ∓ t ≥ margin`` instead. At 0 a solver may settle on free fall
+    (``f ≈ 0``, spatula and pancake falling together), where the constraints hold to its tolerance
+    but ψ — the angle of a vanishing force — is arbitrary; a small margin keeps the pancake pressed
+    on (``n ≥ margin / μ``), so ``|ψ| ≤ atan μ`` holds exactly.
+    """
+    mu = check_mu(mu)
+    if not (isinstance(margin, int | float) and math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"margin must be a finite number ≥ 0, got {margin!r}")
+
+    def build(x: Any, u: Any, p: Any) -> Any:
+        ca = casadi()
+        fy, fz, theta = -u[0, :], -GRAVITY - u[1, :], x[2, :-1]
+        normal = fy * ca.sin(theta) - fz * ca.cos(theta)
+        tangent = fy * ca.cos(theta) + fz * ca.sin(theta)
+        return ca.vertcat(mu * normal - tangent, mu * normal + tangent)
+
+    return Constraint("friction cone", ("pancake_cone", mu, float(margin)), build, float(margin), math.inf)

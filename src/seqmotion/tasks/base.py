@@ -26,9 +26,11 @@ latent optimisation uses. Tasks may subclass it for friendly verbs (``Deformer.d
 from __future__ import annotations
 
 import json
+import warnings
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 import torch
@@ -36,14 +38,17 @@ import torch
 from ..data.trajectories import TrajectoryBatch
 from ..errors import CheckpointError, as_float_array, as_trajectories, check_finite_result, check_number
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig, rollout
+from ..physics.integrator import DoubleIntegratorDynamics, reach_end
 from ..physics.layout import StateLayout
+from ..physics.transcription import Constraint, Solution, end_values, transcription
 from ..training import checkpoint as ckpt
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum
 from ..training.pretrained import PretrainedModel
-from . import registry
+from . import registry, trust
 from .options import TaskOptions
 from .stepper import OnlineGenerator, stepper_contract
+from .trust import position_std
 
 MAX_LENGTH = 1_000_000
 """The longest motion ``decode`` generates (1000 s at 1 ms)."""
@@ -68,6 +73,9 @@ class Task(ABC):
     ``(("y", "z", "theta"), (1, 1, 0.1))``; None: the task has no end pose."""
     model_class: ClassVar[type[TrainedModel] | None] = None
     """The user-facing class of the trained model (default :class:`TrainedModel`)."""
+    uncertainty_fields: ClassVar[tuple[str, ...] | None] = None
+    """The state fields whose covariance the dynamics' ``pos_cov`` output holds (a result's
+    ``uncertainty`` columns); None: the first p fields of ``state_layout``."""
 
     # --- training ------------------------------------------------------------------------------
 
@@ -136,6 +144,11 @@ class Task(ABC):
         """
         return None
 
+    def exact_form(self, options: TaskOptions) -> ExactForm | None:
+        """What an exact polish needs (:class:`ExactForm`), or None: ``exact=True`` and ``keep_end=True``
+        are then refused for this task."""
+        return None
+
     def sketch(self, end: tuple[float, ...], length: int, timing: str = "s_curve") -> np.ndarray:
         """A rough input motion ``(K, input_dim)`` from the start to the end-pose values ``end`` (the
         CLI's default input for ``seqmotion optimize``); tasks without one refuse."""
@@ -144,6 +157,68 @@ class Task(ABC):
     def make_result(self, motion: Motion, model: TrainedModel) -> Any:
         """The result object ``generate`` returns (default: the :class:`Motion` itself)."""
         return motion
+
+    # --- trust signals (:mod:`.trust`) ------------------------------------------------------------
+
+    def input_features(self, inputs: np.ndarray, lengths: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Cheap features of ``(B, K, input_dim)`` inputs, each ``(B,)``, that the out-of-distribution flag
+        compares with training (default: length, extent, peak speed and implied acceleration per unit
+        group of ``input_layout``: :func:`seqmotion.tasks.trust.input_features`)."""
+        from .trust import input_features
+
+        return input_features(self.input_layout, inputs, lengths)
+
+    def errors(
+        self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
+        options: TaskOptions,
+    ) -> dict[str, np.ndarray]:
+        """The errors a user judges a generated motion by, each ``(B,)`` (SI units in the name).
+
+        ``inputs`` ``(B, K, input_dim)``, ``states`` ``(B, K, S)``, ``accel`` ``(B, K-1, d)``, ``violation``
+        ``(B, K-1)`` or None. Default, for a task whose input layout is its state layout:
+        ``shape_rmse_m`` (RMS over samples of the metre fields' distance from the input),
+        ``end_position_error_m``, ``end_attitude_error_rad`` (largest over radian fields),
+        ``end_speed_m_s`` (the generated motion's, metres per second fields) and ``max_violation``.
+        """
+        out: dict[str, np.ndarray] = {}
+        units = self.state_layout.units
+        if self.input_layout.names == self.state_layout.names:
+            metres = [i for i, u in enumerate(units) if u == "m"]
+            radians = [i for i, u in enumerate(units) if u == "rad"]
+            if metres:
+                gap = np.linalg.norm(states[..., metres] - inputs[..., metres], axis=-1)
+                out["shape_rmse_m"] = np.sqrt((gap**2).mean(axis=-1))
+                out["end_position_error_m"] = gap[:, -1]
+            if radians:
+                out["end_attitude_error_rad"] = np.abs(states[:, -1, radians] - inputs[:, -1, radians]).max(axis=-1)
+        speeds = [i for i, u in enumerate(units) if u == "m/s"]
+        if speeds:
+            out["end_speed_m_s"] = np.linalg.norm(states[:, -1, speeds], axis=-1)
+        if violation is not None:
+            out["max_violation"] = violation.max(axis=-1) if violation.shape[-1] else np.zeros(len(states))
+        return out
+
+    def position_cov(
+        self, accel_cov: torch.Tensor, states: torch.Tensor, accel: torch.Tensor, outputs: dict[str, torch.Tensor],
+        dynamics: ChunkDynamics,
+    ) -> torch.Tensor | None:
+        """The covariance ``(B, K-1, p, p)`` of the positions of states ``1..K-1`` from the decoder's input
+        covariances ``accel_cov`` ``(B, K-1, d, d)`` propagated through the physics from a known start —
+        what the dynamics' ``pos_cov`` output holds, computed once over the whole motion.
+
+        ``states`` ``(B, K, S)``, ``accel`` ``(B, K-1, d)`` and the dynamics' other ``outputs`` (first K-1
+        samples) are the motion's. Default: the closed form of the double integrator
+        (:func:`seqmotion.tasks.trust.integrate_covariance`) when the task's dynamics is one; None (the
+        chunk-by-chunk propagation is used) otherwise.
+        """
+        if isinstance(dynamics, DoubleIntegratorDynamics):
+            return trust.integrate_covariance(accel_cov, dynamics.dt)
+        return None
+
+    def tolerances(self, options: TaskOptions) -> dict[str, float]:
+        """Error name → the largest value a user accepts; a result beyond one gets a warning (default:
+        ``max_violation`` ≤ :data:`FEASIBLE_TOLERANCE`)."""
+        return {"max_violation": FEASIBLE_TOLERANCE}
 
     # --- trained models ------------------------------------------------------------------------
 
@@ -156,10 +231,51 @@ class Task(ABC):
         return (self.model_class or TrainedModel).from_pretrained(directory)
 
 
+@dataclass(frozen=True)
+class ExactForm:
+    """A task's motion as an NLP, for the exact polish (:mod:`seqmotion.physics.transcription`).
+
+    Attributes:
+        dim: axes of the double integrator the task's states follow (state = the ``dim``
+            positions, then their velocities; inputs = ``dim`` accelerations).
+        dt: its sampling interval [s].
+        constraints: the task's own constraints in CasADi form (pancake: the friction cone in force form).
+        accel_weights: the polish's metric, ``Σ_k |√w ⊙ (u[k] − u_ref[k])|² / K`` (pancake: 1, 1, 0.01 —
+            radians count a tenth of metres, as in D).
+    """
+
+    dim: int
+    dt: float
+    constraints: tuple[Constraint, ...]
+    accel_weights: tuple[float, ...]
+
+
+POLISH_VIOLATION_TOLERANCE = 1e-6
+"""A polished motion is exact when the task's constraint violation is at most this (pancake: F_c [rad])."""
+WARM_ITERATIONS = 20
+"""IPOPT iterations the warm (small-barrier) start gets before the polish falls back to a cold start:
+a nearly feasible motion needs 2–5; a far one (e.g. J2's, 1.25 rad outside its band) is faster from
+IPOPT's default barrier."""
+
+
 def first_of(result: Any) -> Any:
     """The same result dataclass with every array field indexed by ``[0]`` (drop a batch axis of 1)."""
     values = {f.name: getattr(result, f.name) for f in fields(result)}
-    return type(result)(**{k: v if v is None or np.ndim(v) == 0 else v[0] for k, v in values.items()})
+    return type(result)(**{k: _first(v) for k, v in values.items()})
+
+
+def _first(value: Any) -> Any:
+    """``value[0]`` for a batched field (arrays, lists, the arrays of a dict); scalars and None as they are."""
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        return {k: _first(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return value[0]
+    if np.ndim(value) == 0:
+        return value
+    first = value[0]
+    return first.item() if isinstance(first, np.bool_) else first
 
 
 @dataclass
@@ -172,12 +288,26 @@ class Motion:
         latent: ``(L·H,)`` the latent z the motion was decoded from.
         violation: ``(K-1,)`` the task's constraint violation per transition (0 where it holds),
             or None for a task without a constraint.
+        uncertainty: ``(K, p)`` the predicted std of the generated positions per sample (the Gaussian
+            head's covariance propagated through the physics; columns: the task's ``uncertainty_fields``,
+            row 0 = 0), or None.
+        errors: error name → value (``(B,)`` for a batch), :meth:`Task.errors`; None without an input.
+        out_of_distribution: whether the input lies outside what the model was trained on (per motion
+            for a batch; :mod:`.trust`); None when not judged (decoded from a latent).
+        ood_reasons: which features were out, e.g. ``["length 2000 > 500"]`` (a list per motion for a batch).
+        exact: with ``keep_end=True``: whether the polish made the motion end exactly at the input's end
+            pose, at rest, with the task's constraint held (≤ 1e-6); None otherwise.
     """
 
     states: np.ndarray
     accel: np.ndarray
     latent: np.ndarray
     violation: np.ndarray | None = None
+    uncertainty: np.ndarray | None = None
+    errors: dict[str, Any] | None = None
+    out_of_distribution: Any = None
+    ood_reasons: list | None = None
+    exact: Any = None
 
     @property
     def feasible(self) -> np.ndarray | bool | None:
@@ -186,6 +316,22 @@ class Motion:
             return None
         ok = self.violation.max(axis=-1) <= FEASIBLE_TOLERANCE
         return bool(ok) if np.ndim(ok) == 0 else ok
+
+
+class Assessment(NamedTuple):
+    """Trust signals of a motion (:meth:`TrainedModel.assess`; a leading B axis / a list per motion for a batch).
+
+    Attributes:
+        errors: error name → value (:meth:`Task.errors`).
+        out_of_distribution: whether the input lies outside the training distribution (None: not calibrated).
+        ood_reasons: which features were out (e.g. ``"length 2000 > 500"``).
+        uncertainty: ``(K, p)`` predicted position std, or None (no latent given).
+    """
+
+    errors: dict[str, Any]
+    out_of_distribution: Any
+    ood_reasons: list
+    uncertainty: np.ndarray | None
 
 
 class TrainedModel(PretrainedModel):
@@ -240,9 +386,11 @@ class TrainedModel(PretrainedModel):
         model = ChunkedSeq2Seq(model_config)
         ckpt.load_state_dict_strict(model, tensors, source)
         try:
-            return task.wrap(model, config)
+            wrapped = task.wrap(model, config)
         except ValueError as exc:  # options the task refuses
             raise CheckpointError(f"{source}/config.json: {exc}") from None
+        wrapped.source_dir = source  # where trust.json (:mod:`.trust`) lives, if anywhere
+        return wrapped
 
     def card_summary(self, name: str) -> list[str]:
         m = self.config["model"]
@@ -303,6 +451,20 @@ class TrainedModel(PretrainedModel):
         """Features per sample of the motions the encoder reads."""
         return self.input_layout.dim
 
+    @property
+    def uncertainty_names(self) -> tuple[str, ...]:
+        """The state fields a result's ``uncertainty`` columns are the predicted std of."""
+        fields_ = self.task_def.uncertainty_fields
+        if fields_ is None:
+            p = len(self.accel_layout.names)
+            fields_ = self.state_layout.names[:p]
+        return tuple(fields_)
+
+    @property
+    def uncertainty_units(self) -> tuple[str, ...]:
+        """The units of :attr:`uncertainty_names`."""
+        return tuple(self.state_layout.units[self.state_layout.index(n)] for n in self.uncertainty_names)
+
     def check_physics(self, physics: dict[str, Any]) -> None:
         """Refuse inference-time physics parameters the task's dynamics do not take, by name."""
         unknown = sorted(set(physics) - set(self.task_def.physics_parameters))
@@ -328,6 +490,46 @@ class TrainedModel(PretrainedModel):
         """The task's constraint violation ``(B, K-1)`` at this model's options (None: no constraint)."""
         return self.task_def.violation(states, accel, self.options)
 
+    # --- the exact polish --------------------------------------------------------------------------
+
+    def exact_form(self) -> ExactForm:
+        """The task's :class:`ExactForm` at this model's options; ``ValueError`` naming the task if it has none."""
+        form = self.task_def.exact_form(self.options)
+        if form is None:
+            raise ValueError(
+                f"task {self.task_def.name!r} has no exact polish (Task.exact_form returns None), so exact=True and "
+                "keep_end=True are not available for it; drop them to get the learned motion as it is"
+            )
+        return form
+
+    def polish(
+        self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint] = (),
+        params: Sequence[np.ndarray] = (), start: np.ndarray | None = None,
+    ) -> Solution:
+        """The motion closest to ``accel`` that meets the task's constraint and ``constraints`` exactly.
+
+        One trajectory: ``x0`` ``(S,)`` its start state, ``accel`` ``(K-1, d)`` the inputs to start from
+        and stay near; ``params`` one array per constraint (its target). IPOPT starts at ``accel`` with a
+        small barrier (a few iterations from a nearly feasible motion); if that does not converge (a
+        start far from feasible can even look locally infeasible), it runs once more from the same
+        motion with IPOPT's default barrier. ``start``: other inputs ``(K-1, d)`` to start IPOPT from
+        (default ``accel``), e.g. ``accel`` already corrected to meet linear end conditions.
+        """
+        form = self.exact_form()
+        every = form.constraints + tuple(constraints)
+        values = [np.zeros(0)] * len(form.constraints) + [np.asarray(p, np.float64) for p in params]
+        length = len(accel) + 1
+        kwargs = {"dt": form.dt, "accel_weights": form.accel_weights}
+        warm = transcription(form.dim, length, every, warm=True, max_iter=WARM_ITERATIONS, **kwargs)
+        guess = accel if start is None else start
+        solution = warm.solve(x0, guess, values, reference=accel)
+        if not solution.success:
+            retry = transcription(form.dim, length, every, **kwargs).solve(x0, guess, values, reference=accel)
+            retry.iterations += solution.iterations
+            retry.seconds += solution.seconds
+            solution = retry
+        return solution
+
     # --- differentiable maps (latent optimisation works on these) -------------------------------
 
     def encode_torch(self, inputs: torch.Tensor) -> torch.Tensor:
@@ -352,20 +554,71 @@ class TrainedModel(PretrainedModel):
 
     # --- NumPy API -----------------------------------------------------------------------------
 
-    def generate(self, inputs: object, **physics: Any) -> Any:
+    def generate(self, inputs: object, keep_end: bool = False, **physics: Any) -> Any:
         """Encode ``(K, input_dim)`` or ``(B, K, input_dim)`` motions (any K ≥ 2) and decode them
         through the task's physics: the task's result (a :class:`Motion` unless the task says otherwise).
 
+        ``keep_end=True``: then polish each motion (:meth:`polish`) so it ends exactly at the input's
+        end pose (the task's ``end_pose`` fields of the input's last sample), at rest, with the task's
+        constraint held — the learned motion changed as little as possible. Needs a task with an
+        exact form and an end pose; ``result.exact`` says, per motion, whether the polish succeeded
+        (one that fails keeps the learned motion and warns).
+
         Raises:
-            ValueError: wrong shape, K < 2, NaN or inf, a physics parameter the task does not take.
+            ValueError: wrong shape, K < 2, NaN or inf, a physics parameter the task does not take,
+                ``keep_end`` for a task without an exact form or end pose.
         """
         self.check_physics(physics)
         batch, single = as_trajectories(inputs, self.input_dim, self.input_layout.kind)
+        if not isinstance(keep_end, bool):
+            raise ValueError(f"keep_end must be True or False, got {keep_end!r}")
+        end = self._end_constraint(batch, physics) if keep_end else None
         with torch.inference_mode():
             x = torch.from_numpy(batch)
             z = self.encode_torch(x)
-            result = self._decode(z, self.start_state(x).double(), batch.shape[1], physics)
+            result = self._decode(z, self.start_state(x).double(), batch.shape[1], physics, inputs=batch, end=end)
         return first_of(result) if single else result
+
+    def _end_constraint(self, inputs: np.ndarray, physics: dict[str, Any]) -> tuple[Constraint, np.ndarray]:
+        """``keep_end``'s constraint — the end-pose fields at the inputs' last values, the rate fields
+        (units ending in ``/s``) at 0 — and its values ``(B, n)``; refusals by name first."""
+        self.exact_form()
+        task = self.task_def
+        if task.end_pose is None or self.input_layout.names != self.state_layout.names:
+            raise ValueError(f"keep_end=True needs a task whose inputs are its states and that declares an end pose; "
+                             f"{task.name!r} does not")
+        if physics:
+            raise ValueError(f"keep_end=True polishes at the model's own physics; drop {sorted(physics)}")
+        layout = self.state_layout
+        pose = [layout.index(f) for f in task.end_pose[0]]
+        rates = [i for i, unit in enumerate(layout.units) if unit.endswith("/s") and i not in pose]
+        values = np.concatenate([inputs[:, -1, pose], np.zeros((len(inputs), len(rates)))], axis=1)
+        return end_values(pose + rates, "end at the input's end pose, at rest"), values
+
+    def _polish_ends(
+        self, states: torch.Tensor, accel: torch.Tensor, end: tuple[Constraint, np.ndarray]
+    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+        """Polish each motion onto ``end`` (see :meth:`generate`); ``(states, accel, exact (B,))``."""
+        constraint, values = end
+        states, accel = states.clone(), accel.clone()
+        exact = np.zeros(len(states), dtype=bool)
+        x0, reference = states[:, 0].numpy(), accel.numpy()
+        form = self.exact_form()
+        for b in range(len(states)):
+            # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
+            # starts from a motion that only the task's constraint still separates from exact
+            start = reach_end(x0[b], reference[b], list(constraint.key[1]), values[b], np.array(form.accel_weights),
+                              form.dt)
+            solution = self.polish(x0[b], reference[b], [constraint], [values[b]], start=start)
+            new_states, new_accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
+            violation = self.violation_torch(new_states, new_accel)
+            worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
+            if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
+                states[b], accel[b], exact[b] = new_states[0], new_accel[0], True
+            else:
+                warnings.warn(f"keep_end: the polish failed on motion {b} ({solution.status}); it keeps the learned "
+                              "motion", RuntimeWarning, stacklevel=4)
+        return states, accel, exact
 
     def decode(self, latent: object, x0: object, length: int, **physics: Any) -> Any:
         """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples."""
@@ -393,12 +646,123 @@ class TrainedModel(PretrainedModel):
             raise ValueError("latent and x0 must be finite (NaN or inf given)")
         return torch.from_numpy(z), start, single
 
-    def _decode(self, z: torch.Tensor, x0: torch.Tensor, length: int, physics: dict[str, Any]) -> Any:
-        states, accel = self.decode_torch(z, x0.double(), length, **physics)
+    def rollout_with_std(
+        self, z: torch.Tensor, x0: torch.Tensor, length: int, **physics: Any
+    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray | None]:
+        """Decode latents ``(B, L·H)`` from ``x0`` ``(B, S)``: ``(states (B, K, S), accel (B, K-1, d), std)``
+        with ``std`` ``(B, K, p)`` the predicted position std of :attr:`uncertainty_names` (None: the
+        dynamics give no position covariance of that size).
+
+        The decoder's loop runs without propagating covariances; the head's ``S_u`` are propagated once
+        over the whole motion afterwards (:meth:`Task.position_cov`), which costs a fraction of doing it
+        chunk by chunk. A task without that closed form gets the chunk-by-chunk propagation.
+        """
+        dynamics = self.dynamics(**physics)
+        steps = self.model.num_chunks(length)
+        out = rollout(self.model, z, x0, trust.HeadCovarianceOnly(dynamics), steps, need_cov=True)
+        states, accel = out.states[:, :length], out.accel[:, : length - 1].to(x0.dtype)
+        outputs = {k: v[:, : length - 1] for k, v in out.outputs.items()}
+        cov = None
+        if out.accel_cov is not None:
+            cov = self.task_def.position_cov(out.accel_cov[:, : length - 1].to(x0.dtype), states, accel, outputs,
+                                             dynamics)
+        if cov is None:  # no closed form: the dynamics' own propagation
+            cov = rollout(self.model, z, x0, dynamics, steps, need_cov=True).outputs.get("pos_cov")
+        ok = cov is not None and cov.shape[-1] == len(self.uncertainty_names)
+        return states, accel, position_std(cov, length) if ok else None
+
+    def _decode(
+        self, z: torch.Tensor, x0: torch.Tensor, length: int, physics: dict[str, Any], inputs: np.ndarray | None = None,
+        end: tuple[Constraint, np.ndarray] | None = None,
+    ) -> Any:
+        """Decode (with the predicted std, :meth:`rollout_with_std`), polish onto ``end`` when given
+        (``keep_end``), and judge the motion against ``inputs`` ``(B, K, input_dim)`` when given (errors,
+        out-of-distribution flag)."""
+        x0 = x0.double()
+        states, accel, std = self.rollout_with_std(z, x0, length, **physics)
+        exact = None
+        if end is not None:
+            states, accel, exact = self._polish_ends(states, accel, end)
         violation = self.violation_torch(states, accel)
         states_np = check_finite_result(states.numpy(), f"{self.task_def.name} generation")
-        motion = Motion(states_np, accel.numpy(), z.float().numpy(), None if violation is None else violation.numpy())
+        motion = Motion(states_np, accel.numpy(), z.float().numpy(), None if violation is None else violation.numpy(),
+                        uncertainty=std, exact=exact)
+        if inputs is not None:
+            motion.errors, motion.out_of_distribution, motion.ood_reasons = self._judge(
+                inputs, states_np, motion.accel, motion.violation, std)
         return self.task_def.make_result(motion, self)
+
+    def _judge(
+        self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
+        std: np.ndarray | None,
+    ) -> tuple[dict[str, np.ndarray], np.ndarray | None, list[list[str]]]:
+        """Errors ``(B,)`` each, out-of-distribution flags ``(B,)`` and reasons for a batch."""
+        errors = self.task_def.errors(np.asarray(inputs, dtype=np.float64), states, accel, violation, self.options)
+        try:
+            calibration = trust.calibration_for(self)
+        except Exception as exc:  # noqa: BLE001 - a task whose generator cannot calibrate: say so, never fail
+            self.trust_calibration = trust.TrustCalibration(upper={}, source=f"not calibrated ({exc})")
+            calibration = self.trust_calibration
+        if not calibration.upper:
+            return errors, None, [[calibration.source] for _ in range(len(states))]
+        flags, reasons = calibration.check(trust.features_of(self, inputs, None, std))
+        return errors, flags, reasons
+
+    def trust_lines(self, result: Any, tolerances: dict[str, float] | None = None) -> list[str]:
+        """The lines the command lines print under a result (a task's result, a :class:`Motion` or an
+        :class:`Assessment`): errors, predicted std at the end, ``warning:`` lines for missed tolerances
+        (:meth:`Task.tolerances`, updated by ``tolerances``) and an input out of distribution
+        (:func:`.trust.summary_lines`)."""
+        return trust.summary_lines(
+            getattr(result, "errors", None), getattr(result, "uncertainty", None),
+            getattr(result, "out_of_distribution", None), getattr(result, "ood_reasons", None),
+            {**self.task_def.tolerances(self.options), **(tolerances or {})}, self.uncertainty_names,
+            self.uncertainty_units,
+        )
+
+    def assess(
+        self, inputs: object, states: object, accel: object, latent: object | None = None, **physics: Any
+    ) -> Assessment:
+        """Trust signals for a motion produced some other way (e.g. latent optimisation): its errors
+        against ``inputs``, whether ``inputs`` lie outside the training distribution, and — given the
+        ``latent`` it was decoded from — the predicted std (its end value joins the flag's features).
+
+        Args:
+            inputs: ``(K, input_dim)`` or ``(B, K, input_dim)`` the motion(s) the user gave.
+            states: ``(K, S)``/``(B, K, S)`` the result's states; ``accel``: ``(K-1, d)``/``(B, K-1, d)``.
+            latent: ``(L·H,)``/``(B, L·H)``, decoded from ``states[..., 0, :]`` for the uncertainty.
+            physics: the physics the motion was generated in (e.g. ``mu=``).
+
+        Returns:
+            :class:`Assessment` (errors, out_of_distribution, ood_reasons, uncertainty); floats, a
+            bool and a list of strings for one motion, ``(B,)`` arrays and a list per motion for a batch.
+        """
+        batch, single = as_trajectories(inputs, self.input_dim, self.input_layout.kind)
+        states_b, accel_b = as_float_array(states, "states"), as_float_array(accel, "accel")
+        if single:
+            states_b, accel_b = states_b[None], accel_b[None]
+        k = batch.shape[1]
+        if states_b.shape != (len(batch), k, self.state_layout.dim) or accel_b.shape != (
+            len(batch), k - 1, self.accel_layout.dim
+        ):
+            raise ValueError(
+                f"need states (B, {k}, {self.state_layout.dim}) and accel (B, {k - 1}, {self.accel_layout.dim}) "
+                f"for inputs {batch.shape}; got {states_b.shape} and {accel_b.shape}"
+            )
+        std = None
+        if latent is not None:
+            self.check_physics(physics)
+            z, start, _ = self._latent_and_start(latent, states_b[:, 0])
+            with torch.inference_mode():
+                _, _, std = self.rollout_with_std(z, torch.from_numpy(start), k, **physics)
+        with torch.inference_mode():
+            violation = self.violation_torch(torch.from_numpy(states_b), torch.from_numpy(accel_b))
+        errors, flags, reasons = self._judge(batch, states_b, accel_b, None if violation is None else violation.numpy(),
+                                             std)
+        result = Assessment(errors, flags, reasons, std)
+        if single:
+            return Assessment(*(_first(v) for v in result))
+        return result
 
     def generator(
         self, inputs: object | None = None, *, latent: object | None = None, x0: object | None = None,
@@ -449,4 +813,6 @@ class TrainedModel(PretrainedModel):
         return f"{type(self).__name__}(task={self.task_def.name!r}, {m.layers}x{m.hidden}, C={m.chunk})"
 
 
-__all__ = ["FEASIBLE_TOLERANCE", "Motion", "OnlineGenerator", "Task", "TrainConfig", "TrainedModel", "first_of"]
+__all__ = [
+    "FEASIBLE_TOLERANCE", "Assessment", "Motion", "OnlineGenerator", "Task", "TrainConfig", "TrainedModel", "first_of",
+]

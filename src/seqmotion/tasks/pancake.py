@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -28,7 +29,16 @@ from ..data.trajectories import TrajectoryBatch
 from ..errors import as_trajectories
 from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from ..physics.integrator import DT, DoubleIntegratorDynamics
-from ..physics.pancake import ACCEL_DIM, ACCEL_LAYOUT, MU, STATE_DIM, STATE_LAYOUT, violation_angle, violation_torch
+from ..physics.pancake import (
+    ACCEL_DIM,
+    ACCEL_LAYOUT,
+    MU,
+    STATE_DIM,
+    STATE_LAYOUT,
+    cone_constraint,
+    violation_angle,
+    violation_torch,
+)
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import (
@@ -40,7 +50,7 @@ from ..training.losses import (
     per_trajectory,
     sample_mask,
 )
-from .base import FEASIBLE_TOLERANCE, Motion, Task, TrainedModel
+from .base import FEASIBLE_TOLERANCE, ExactForm, Motion, Task, TrainedModel
 from .options import TaskOptions, check_count, check_length_range, check_positive
 
 THETA_WEIGHT = 0.1
@@ -221,6 +231,11 @@ class PancakeTask(Task):
         """F_c per transition at the model's μ (eq. 2.18)."""
         return violation_torch(states[:, : accel.shape[1], 2], accel, options.mu)
 
+    def exact_form(self, options: PancakeOptions) -> ExactForm:
+        """The double integrator with the friction cone in force form at the model's μ (for ``exact=True``),
+        with a margin of 1e-3 m/s² that keeps the pancake pressed on (see ``cone_constraint``)."""
+        return ExactForm(3, DT, (cone_constraint(options.mu, margin=1e-3),), (1.0, 1.0, THETA_WEIGHT**2))
+
     def sketch(self, end: tuple[float, ...], length: int, timing: str = "s_curve") -> np.ndarray:
         """A straight motion from rest at 0 to rest at ``end = (y, z, θ)`` (ch. 4's inputs)."""
         if len(end) != 3:
@@ -230,7 +245,25 @@ class PancakeTask(Task):
     def make_result(self, motion: Motion, model: TrainedModel) -> DeformResult:
         theta = torch.from_numpy(motion.states[:, :-1, 2])
         psi = violation_angle(theta, torch.from_numpy(motion.accel)).numpy()
-        return DeformResult(motion.states, motion.accel, motion.violation, psi, motion.latent)
+        return DeformResult(motion.states, motion.accel, motion.violation, psi, motion.latent, motion.uncertainty,
+                            motion.errors, motion.out_of_distribution, motion.ood_reasons, motion.exact)
+
+    def errors(
+        self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
+        options: TaskOptions,
+    ) -> dict[str, np.ndarray]:
+        """``shape_rmse_m`` (y, z RMS distance from the input), ``end_position_error_m``,
+        ``end_attitude_error_rad``, ``end_speed_m_s`` (|(v_y, v_z)| at the end), ``max_violation_rad``
+        (largest F_c at the model's μ), each ``(B,)``."""
+        out = super().errors(inputs, states, accel, violation, options)
+        if "max_violation" in out:
+            out["max_violation_rad"] = out.pop("max_violation")
+        return out
+
+    def tolerances(self, options: TaskOptions) -> dict[str, float]:
+        """Warn when F_c exceeds 0.01 rad. (No shape tolerance: keeping the pancake on moves a typical
+        position-type sketch's end by centimetres — a median 8 cm over fresh ones — by design.)"""
+        return {"max_violation_rad": FEASIBLE_TOLERANCE}
 
 
 TASK = PancakeTask()
@@ -250,6 +283,15 @@ class DeformResult:
         violation: ``(K-1,)`` F_c per sample [rad] at the model's μ (0 where the pancake holds).
         psi: ``(K-1,)`` the cone angle ψ per sample [rad] (Figs. 2.6, 4.3c).
         latent: ``(L·H,)`` the latent z the motion was decoded from.
+        uncertainty: ``(K, 3)`` the model's predicted std of y [m], z [m], θ [rad] per sample (its
+            Gaussian head's covariance propagated through the double integrator; row 0 = 0).
+        errors: ``shape_rmse_m``, ``end_position_error_m``, ``end_attitude_error_rad``, ``end_speed_m_s``,
+            ``max_violation_rad`` against the input (:meth:`PancakeTask.errors`; ``(B,)`` each for a batch).
+        out_of_distribution: whether the input lies outside what the model was trained on
+            (:mod:`seqmotion.tasks.trust`; ``(B,)`` for a batch); None when not judged.
+        ood_reasons: which input features were out, e.g. ``["length 1000 > 500"]``.
+        exact: with ``keep_end=True``: whether the motion was polished to end exactly at the input's end
+            pose, at rest, inside the cone (``(B,)`` for a batch); None otherwise.
     """
 
     states: np.ndarray
@@ -257,6 +299,11 @@ class DeformResult:
     violation: np.ndarray
     psi: np.ndarray
     latent: np.ndarray
+    uncertainty: np.ndarray | None = None
+    errors: dict[str, Any] | None = None
+    out_of_distribution: Any = None
+    ood_reasons: list | None = None
+    exact: Any = None
 
     @property
     def feasible(self) -> np.ndarray | bool:
@@ -274,14 +321,22 @@ class Deformer(TrainedModel):
 
     task = "pancake"
 
-    def deform(self, states: object) -> DeformResult:
+    def deform(self, states: object, keep_end: bool = False) -> DeformResult:
         """Deform ``(K, 6)`` or ``(B, K, 6)`` states (any K ≥ 2) into feasible ones.
+
+        Args:
+            states: the rough motion(s) [m, m, rad, m/s, m/s, rad/s] at 1 ms.
+            keep_end: also make the motion end exactly where the input ends (y, z, θ of its last
+                sample), at rest, with the cone held (F_c ≤ 1e-6 rad): the learned motion is polished
+                into the nearest one that does (IPOPT, a few iterations; see
+                :meth:`TrainedModel.polish`). The learned motion alone (the default) keeps the cone
+                but may end elsewhere and still moving; ``result.exact`` says which were polished.
 
         Raises:
             ValueError: wrong shape, K < 2, NaN or inf.
         """
         as_trajectories(states, STATE_DIM, "states")  # the pancake's own wording for a bad input
-        return self.generate(states)
+        return self.generate(states, keep_end=keep_end)
 
 
 PancakeTask.model_class = Deformer

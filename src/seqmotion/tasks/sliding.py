@@ -43,6 +43,8 @@ from .base import Motion, Task, TrainedModel
 from .options import TaskOptions, check_choice, check_length_range, check_positive
 
 PAN_LIMIT = 0.2  # p_lim [m]
+TRACKING_TOLERANCE = 0.005
+"""A plan whose object strays more than this RMS from its command [m] gets a warning."""
 VARIANTS = {
     "A": None,  # the full curriculum
     "B": {"loss_prime_prob": 0.0, "bspline_prob": 0.0},  # stage 3 only: L through the contact model
@@ -175,6 +177,7 @@ class SlidingTask(Task):
     accel_layout = contact.ACCEL_LAYOUT
     physics_parameters = ("mu", "mu_dyn")
     end_pose = (("x", "y"), (1.0, 1.0))
+    uncertainty_fields = ("x", "y")  # the object's position relative to the pan
 
     def train_config(self, preset: str) -> TrainConfig:
         options = SlidingOptions()
@@ -288,7 +291,52 @@ class SlidingTask(Task):
         return torch.cat([torch.zeros_like(inputs[:, 0]), inputs[:, 0]], dim=1)
 
     def make_result(self, motion: Motion, model: TrainedModel) -> SlidingPlan:
-        return SlidingPlan(motion.accel, motion.states[..., :4], motion.states[..., 4:], motion.latent)
+        return SlidingPlan(motion.accel, motion.states[..., :4], motion.states[..., 4:], motion.latent,
+                           motion.uncertainty, motion.errors, motion.out_of_distribution, motion.ood_reasons)
+
+    def errors(
+        self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
+        options: TaskOptions,
+    ) -> dict[str, np.ndarray]:
+        """Against the command ``inputs`` ``(B, K, 4)``, each ``(B,)``: ``tracking_rmse_m`` (RMS distance of the
+        object from its command), ``end_error_m``, ``end_speed_m_s`` (the object's, relative to the pan),
+        ``travel_share`` (the object's farthest distance from its start over the command's) and
+        ``pan_max_m`` (the pan's farthest excursion from home)."""
+        rel, pan = states[..., 4:6], states[..., :2]
+        gap = np.linalg.norm(rel - inputs[..., :2], axis=-1)
+        command_travel = np.linalg.norm(inputs[..., :2] - inputs[:, :1, :2], axis=-1).max(axis=-1)
+        travel = np.linalg.norm(rel - rel[:, :1], axis=-1).max(axis=-1)
+        return {
+            "tracking_rmse_m": np.sqrt((gap**2).mean(axis=-1)),
+            "end_error_m": gap[:, -1],
+            "end_speed_m_s": np.linalg.norm(states[:, -1, 6:8], axis=-1),
+            "travel_share": travel / np.maximum(command_travel, 1e-9),
+            "pan_max_m": np.linalg.norm(pan, axis=-1).max(axis=-1),
+        }
+
+    def position_cov(
+        self, accel_cov: torch.Tensor, states: torch.Tensor, accel: torch.Tensor, outputs: dict[str, torch.Tensor],
+        dynamics: contact.SlidingDynamics,
+    ) -> torch.Tensor:
+        """The object's relative-position covariance ``(B, K-1, 2, 2)``: ``S_ud = J S_up Jᵀ`` with the contact
+        model's ``J = ∂u_d/∂u_p`` per sample (−I sliding, 0 stuck or stopping, ``−I + μg (I − m mᵀ)/|u_p|``
+        at breakaway; rebuilt from each sample's ``branch``), integrated in closed form — what
+        :class:`~seqmotion.physics.sliding.SlidingDynamics` propagates chunk by chunk as ``pos_cov``."""
+        from .trust import integrate_covariance
+
+        branch = outputs["branch"]
+        mu = torch.as_tensor(dynamics.mu, dtype=accel.dtype).reshape(-1, 1, 1, 1)
+        norm = accel.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        m = (accel / norm).unsqueeze(-1)  # (B, K-1, 2, 1)
+        eye = torch.eye(2, dtype=accel.dtype)
+        breakaway = -eye + mu * contact.GRAVITY / norm.unsqueeze(-1) * (eye - m @ m.transpose(-1, -2))
+        jac = torch.where((branch == contact.BREAKAWAY)[..., None, None], breakaway,
+                          torch.where((branch == contact.SLIDE)[..., None, None], -eye, torch.zeros_like(eye)))
+        return integrate_covariance(jac @ accel_cov @ jac.transpose(-1, -2), dynamics.dt)
+
+    def tolerances(self, options: SlidingOptions) -> dict[str, float]:
+        """Warn when the object strays more than 5 mm RMS from its command or the pan leaves ``pan_limit``."""
+        return {"tracking_rmse_m": TRACKING_TOLERANCE, "pan_max_m": options.pan_limit}
 
 
 TASK = SlidingTask()
@@ -303,12 +351,23 @@ class SlidingPlan:
         pan_states: ``(K, 4)`` the pan ``[x, y, vx, vy]`` they produce, from rest at 0.
         rel_states: ``(K, 4)`` the object relative to the pan, as the 2-D contact model predicts.
         latent: ``(L·H,)`` the command's latent.
+        uncertainty: ``(K, 2)`` the model's predicted std of the object's x, y [m] per sample (its Gaussian
+            head's covariance propagated through the pan integrator and the contact model's Jacobian).
+        errors: ``tracking_rmse_m``, ``end_error_m``, ``end_speed_m_s``, ``travel_share``, ``pan_max_m``
+            (:meth:`SlidingTask.errors`; ``(B,)`` each for a batch).
+        out_of_distribution: whether the command lies outside what the model was trained on
+            (:mod:`seqmotion.tasks.trust`; ``(B,)`` for a batch).
+        ood_reasons: which command features were out, e.g. ``["peak_speed_m_s 1.9 > 0.62"]``.
     """
 
     pan_accel: np.ndarray
     pan_states: np.ndarray
     rel_states: np.ndarray
     latent: np.ndarray
+    uncertainty: np.ndarray | None = None
+    errors: dict[str, Any] | None = None
+    out_of_distribution: Any = None
+    ood_reasons: list | None = None
 
 
 class SlidingPlanner(TrainedModel):
