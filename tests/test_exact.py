@@ -98,3 +98,43 @@ def test_exact_is_refused_by_name(deformer, planner):
     report = EndPose((0.1, 0.0, 1.0)).report(torch.zeros(1, 5, 6, dtype=torch.float64),
                                              torch.zeros(1, 4, 3, dtype=torch.float64))
     assert not report["end error"].met and report["constraint"].met
+
+
+def test_reach_end_is_the_nearest_motion_that_ends_there():
+    """The closed-form end correction meets the end conditions, and nothing nearer does (any other change
+    that keeps them differs from it by a component orthogonal to the correction)."""
+    rng = np.random.default_rng(3)
+    x0, accel = rng.normal(0, 0.1, 6), rng.normal(0, 5, (120, 3))
+    values = np.array([0.1, -0.05, 1.0, 0.0, 0.0, 0.0])
+    weights = np.array([1.0, 1.0, 0.01])
+    out = integrator.reach_end(x0, accel, [0, 1, 2, 3, 4, 5], values, weights)
+    np.testing.assert_allclose(integrator.integrate_numpy(x0, out)[-1], values, atol=1e-10)
+    delta = out - accel
+    for _ in range(5):  # any other sequence with the same end differs by a change W-orthogonal to delta
+        extra = integrator.reach_end(np.zeros(6), rng.normal(0, 1, (120, 3)), [0, 1, 2, 3, 4, 5], np.zeros(6),
+                                     weights)  # a change that keeps the end where it is
+        np.testing.assert_allclose(integrator.integrate_numpy(np.zeros(6), extra)[-1], 0.0, atol=1e-10)
+        assert abs(float((weights * delta * extra).sum())) < 1e-6 * np.abs(delta).sum() * np.abs(extra).sum()
+
+
+def test_keep_end_ends_exactly_at_rest_in_the_cone(deformer):
+    sketches = gen.position_type(3, np.random.default_rng(11))
+    batch = sketches.states[:, :150]  # a batch needs one length: the first 150 samples of each, still moving
+    plain = deformer.deform(batch)
+    kept = deformer.deform(batch, keep_end=True)
+    assert plain.exact is None and kept.exact.shape == (3,) and np.all(kept.exact)
+    np.testing.assert_allclose(kept.states[:, -1, :3], batch[:, -1, :3], atol=1e-7)
+    np.testing.assert_allclose(kept.states[:, -1, 3:], 0.0, atol=1e-7)
+    assert kept.violation.max() <= 1e-6 and np.all(kept.feasible)
+    np.testing.assert_allclose(integrator.step_reference(kept.states[:, :-1], kept.accel), kept.states[:, 1:],
+                               atol=1e-12)
+    assert np.all(kept.errors["end_position_error_m"] < 1e-7)  # the trust signals judge the polished motion
+    one = deformer.deform(batch[0], keep_end=True)
+    assert one.exact is True and one.states.shape == (150, 6)
+
+
+def test_keep_end_is_refused_by_name(deformer, planner):
+    with pytest.raises(ValueError, match="keep_end must be True or False"):
+        deformer.deform(gen.straight((0.1, 0.0, 1.0), 100), keep_end="yes")
+    with pytest.raises(ValueError, match="'sliding' has no exact polish"):
+        planner.generate(commands.circle(0.02, 200), keep_end=True)

@@ -85,7 +85,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         if not hasattr(task, "apply_variant"):
             raise ValueError(f"task {args.task} has no variants")
         config = task.apply_variant(config, args.variant)
-    if args.epochs is not None:
+    if args.final_stage:  # fine-tuning: the schedule's end, held throughout (over --epochs if given)
+        config.curriculum = Curriculum.from_dict(config.curriculum).at_final_stage(args.epochs).to_dict()
+    elif args.epochs is not None:
         config.curriculum = Curriculum.from_dict(config.curriculum).scaled(args.epochs).to_dict()
     for name in ("seed", "batch_size", "batches_per_epoch", "lr", "lr_final_fraction", "checkpoint_every"):
         value = getattr(args, name)
@@ -108,7 +110,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     variant = f"-{args.variant}" if args.variant else ""
     out = Path(args.out if args.out is not None else f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
     check_writable_dir(out, "--out")
-    tasks.train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps)
+    tasks.train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps,
+                init_from=args.init_from)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, say it once
         print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
     return 0
@@ -121,7 +124,7 @@ def cmd_deform(args: argparse.Namespace) -> int:
     check_output(args.output)
     model = _trained_model(args.model)
     inputs = read_trajectory(args.input)
-    result = model.generate(inputs)
+    result = model.generate(inputs, keep_end=args.keep_end)
     columns, names = result_columns(result, model)
     write_arrays(args.output, columns, names)
     message = f"{model.task_def.name}: generated {len(inputs)} samples → {args.output}"
@@ -138,6 +141,10 @@ def cmd_deform(args: argparse.Namespace) -> int:
             if before is not None:
                 message += f" (input: {float(before.max()):.4f})"
     print(message)
+    if args.keep_end:
+        print("ends exactly at the input's end pose, at rest (polished)" if result.exact else
+              "warning: the polish could not make the motion end at the input's end pose at rest; this is the "
+              "learned motion")
     for line in model.trust_lines(result):
         print(line)
     return 0
@@ -266,6 +273,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a task option (a JSON value; text options also take bare words)")
     p.add_argument("--no-resume", action="store_true", help="start over even if the run has checkpoints")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--init-from", metavar="MODEL",
+                   help="fine-tune: start from this model's weights (a shipped name, model or run directory; "
+                        "same task and --config architecture) instead of fresh ones")
+    p.add_argument("--final-stage", action="store_true",
+                   help="hold the curriculum's final parameters for all --epochs (for fine-tuning with --init-from)")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("deform", help="encode a motion and regenerate it through the model (pancake: keep it on)")
@@ -274,6 +286,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=".npz (array 'states') or .csv: (K, input_dim) rows in the task's input layout "
                         "(pancake: y,z,θ,vy,vz,vθ)")
     p.add_argument("--output", required=True, help=".npz or .csv")
+    p.add_argument("--keep-end", action="store_true",
+                   help="end exactly where the input ends, at rest, with the constraint held (an IPOPT polish of "
+                        "the learned motion; tasks with an exact form, e.g. pancake)")
     p.set_defaults(func=cmd_deform)
 
     p = sub.add_parser("plan", help="plan pan shaking that slides an object along a command (ch. 3)")

@@ -31,9 +31,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--case", type=int, choices=[1, 2, 3], default=1, help="1 encoder z, 2 random z, 3 accelerations")
     p.add_argument("--steps", type=int, help="updates (default 100 for J1, 20 for J2)")
     p.add_argument("--lr", type=float, help="fixed step size η (default: chosen by a line search at every update)")
-    p.add_argument("--optimizer", choices=["sgd", "lm"],
-                   help="sgd: plain gradient descent (eq. 4.2); lm: Levenberg–Marquardt with penalty continuation "
-                        "(default for --target; J2 has no least-squares form, so sgd)")
+    p.add_argument("--optimizer", choices=["auto", "sgd", "lm"], default="auto",
+                   help="auto (default): Levenberg–Marquardt with penalty continuation for --target, gradient "
+                        "descent with a line search for J2 (no least-squares form); sgd: plain gradient descent "
+                        "(eq. 4.2); lm: Levenberg–Marquardt")
+    p.add_argument("--exact", action=argparse.BooleanOptionalAction, default=None,
+                   help="polish the result so the objective's goal and the task's constraint hold exactly (IPOPT; "
+                        "default: on for --preset j2, whose bands descent alone misses; off for --target)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--output", required=True, help=".npz or .csv for the adjusted trajectory")
     p.add_argument("--plot", help="PNG with the trajectory, the constraint and the objective's progress")
@@ -54,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output)
     if args.plot is not None:
         check_writable(args.plot, FIGURE_SUFFIXES, "--plot")
+    if args.exact is None:
+        args.exact = args.preset == "j2"
     if args.steps is not None and args.steps < 0:
         raise ValueError(f"--steps must be ≥ 0 (0: no update, the input's own motion), got {args.steps}")
     if args.lr is not None:
@@ -71,24 +77,22 @@ def run(args: argparse.Namespace) -> int:
     else:
         objective = EndPose(args.target)
         sketch_end = tuple(args.target)
-        steps = args.steps if args.steps is not None else 100
+        steps = args.steps  # the method's default
     objective = objective.bind(model)  # refuses a model of another layout, an end pose of another size, by name
     if args.input:
         states = read_trajectory(args.input)
     else:
         states = task.sketch(sketch_end, args.length, timing="linear" if args.preset == "j2" else "s_curve")
-    optimizer = args.optimizer or ("sgd" if args.preset == "j2" or args.lr is not None else "lm")
-    if optimizer == "lm" and args.lr is not None:
+    if args.optimizer == "lm" and args.lr is not None:
         raise ValueError("--lr is the step size of gradient descent; Levenberg–Marquardt (--optimizer lm) takes none")
-    method: dict = (
-        {"lr": args.lr if args.lr is not None else "auto"} if optimizer == "sgd"
-        else {"optimizer": "lm", "continuation": (1e-3, 4)}
-    )
+    method: dict = {"optimizer": args.optimizer, "lr": args.lr if args.lr is not None else "auto",
+                    "exact": args.exact}
     if args.case == 3:
         res = optimize_trajectory(model, states, objective, steps=steps, **method)
     else:
         res = optimize_latent(model, states, objective, steps=steps, init="encoder" if args.case == 1 else "random",
                               seed=args.seed, **method)
+    steps = len(res.history) - 1
     violation = model.violation_torch(torch.from_numpy(res.states)[None], torch.from_numpy(res.accel)[None])
     columns = {"states": res.states, "accel": res.accel, "history": res.history}
     if violation is not None:
@@ -105,6 +109,16 @@ def run(args: argparse.Namespace) -> int:
         at = f" at mu = {model.options.mu:g}" if "mu" in model.options.names() else ""
         message += f", max violation {float(violation.max()):.4f}{at}"
     print(message + f" → {args.output}")
+    for line in res.describe().splitlines():  # each stage, and each term of the objective: met or MISSED
+        print(f"  {line}")
+    missed = [name for name, term in res.terms.items() if not term.met]
+    if missed:
+        print(f"warning: the objective's {', '.join(missed)} not met" + ("" if args.exact else
+              " (--exact polishes the motion so they hold exactly)"))
+    if res.exact is False:
+        print("warning: the exact polish failed; the result is the latent stage's motion")
+    for line in model.trust_lines(res):  # errors against the input, predicted std, out-of-distribution
+        print(f"  {line}")
     if args.plot:
         _plot(model, res, columns.get("violation"), Path(args.plot))
     return 0

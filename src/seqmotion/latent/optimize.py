@@ -81,6 +81,9 @@ class OptimizationResult:
             (value, limit, ``met``); empty for a plain function.
         exact: with ``exact=True``: whether the polish made the objective's constraints and the task's
             constraint hold exactly (IPOPT converged, violation ≤ 1e-6), per trajectory; None otherwise.
+        errors, uncertainty, out_of_distribution, ood_reasons: the trust signals of the final motion
+            against the input (:meth:`~seqmotion.tasks.TrainedModel.assess`; uncertainty for cases 1–2:
+            the predicted std of what the optimised z decodes to).
     """
 
     states: np.ndarray
@@ -91,6 +94,10 @@ class OptimizationResult:
     stages: list[Stage] = field(default_factory=list)
     terms: dict[str, Term] = field(default_factory=dict)
     exact: Any = None
+    errors: dict[str, Any] | None = None
+    uncertainty: np.ndarray | None = None
+    out_of_distribution: Any = None
+    ood_reasons: list | None = None
 
     @property
     def met(self) -> bool:
@@ -402,7 +409,8 @@ def optimize_latent(
         _continuation(relax, optimizer), tol,
     )
     stages = [_stage("latent", history, time.perf_counter() - start, steps, tol)]
-    return _finish(model, objective, x0, out_states, out_accel, z, history, seconds, stages, constraints, single)
+    return _finish(model, objective, x, x0, out_states, out_accel, z, history, seconds, stages, constraints, single,
+                   physics)
 
 
 def optimize_trajectory(
@@ -434,7 +442,8 @@ def optimize_trajectory(
         _continuation(relax, optimizer), tol,
     )
     stages = [_stage("trajectory", history, time.perf_counter() - start, steps, tol)]
-    return _finish(model, objective, x0, out_states, out_accel, None, history, seconds, stages, constraints, single)
+    return _finish(model, objective, x, x0, out_states, out_accel, None, history, seconds, stages, constraints,
+                   single, physics)
 
 
 def _check_steps(steps: object) -> None:
@@ -459,11 +468,11 @@ def _stage(name: str, history: np.ndarray, seconds: float, steps: int, tol: floa
 
 
 def _finish(
-    model: TrainedModel, objective: Objective, x0: torch.Tensor, states: torch.Tensor, accel: torch.Tensor,
-    latent: torch.Tensor | None, history: np.ndarray, seconds: float, stages: list[Stage],
-    constraints: list | None, single: bool,
+    model: TrainedModel, objective: Objective, inputs: torch.Tensor, x0: torch.Tensor, states: torch.Tensor,
+    accel: torch.Tensor, latent: torch.Tensor | None, history: np.ndarray, seconds: float, stages: list[Stage],
+    constraints: list | None, single: bool, physics: dict[str, Any],
 ) -> OptimizationResult:
-    """Polish (with ``exact=True``), judge each term, and shape the result."""
+    """Polish (with ``exact=True``), judge each term and the trust signals, and shape the result."""
     states, accel = states.double(), accel.double()
     exact = None
     if constraints is not None:
@@ -473,6 +482,9 @@ def _finish(
     res = _result(states, accel, latent, history, seconds, single)
     res.stages, res.terms = stages, terms
     res.exact = None if exact is None else (bool(exact[0]) if single else exact)
+    trust = model.assess(inputs.numpy()[0] if single else inputs.numpy(), res.states, res.accel,
+                         None if latent is None else res.latent, **physics)
+    res.errors, res.out_of_distribution, res.ood_reasons, res.uncertainty = trust
     if single:
         res.terms = {name: Term(np.asarray(t.value).reshape(-1)[0], t.limit, t.unit) for name, t in terms.items()}
         for stage in res.stages:

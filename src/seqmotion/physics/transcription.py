@@ -103,6 +103,7 @@ class Transcription:
         self, dim: int, length: int, dt: float, constraints: tuple[Constraint, ...],
         accel_weights: tuple[float, ...] | None, end_columns: tuple[int, ...] | None,
         end_weights: tuple[float, ...] | None, warm: bool, tol: float, max_iter: int, symbolic: str,
+        smoothness: float = 0.0,
     ) -> None:
         ca = casadi()
         start = time.perf_counter()
@@ -132,6 +133,11 @@ class Transcription:
             params.append(ca.vec(ref))
             w = ca.repmat(ca.DM(np.sqrt(accel_weights)), 1, k - 1)
             cost += ca.sumsqr(w * (u - ref)) / k
+            if smoothness > 0:  # and smooth, from rest and back to rest: the arm cannot step its acceleration
+                zero = ca.DM.zeros(dim, 1)
+                jerk = ca.horzcat(zero, u, zero)
+                cost += smoothness * ca.sumsqr(ca.repmat(ca.DM(np.sqrt(accel_weights)), 1, k)
+                                               * (jerk[:, 1:] - jerk[:, :-1])) / k
         if end_columns is not None:  # the peer's weighted end error
             target = sym.sym("end_target", len(end_columns))
             params.append(target)
@@ -184,7 +190,7 @@ def transcription(
     dim: int, length: int, constraints: tuple[Constraint, ...], *, dt: float = DT,
     accel_weights: tuple[float, ...] | None = None, end_columns: tuple[int, ...] | None = None,
     end_weights: tuple[float, ...] | None = None, warm: bool = False, tol: float = 1e-9, max_iter: int = 3000,
-    symbolic: str = "auto",
+    symbolic: str = "auto", smoothness: float = 0.0,
 ) -> Transcription:
     """The (cached) NLP for a motion of ``length`` samples of a ``dim``-axis double integrator.
 
@@ -196,6 +202,9 @@ def transcription(
     but fast per IPOPT iteration) or ``"MX"`` (builds ~10× faster, iterations ~1.5× slower).
     ``"auto"`` (default): MX the first time a structure is asked for (a one-off length, as
     ``keep_end`` on motions of every length meets), SX from the second time on (it will be reused).
+    ``smoothness`` λ adds ``λ Σ_k |√w ⊙ (u[k+1] − u[k])|² / K`` to the distance cost, with ``u[-1] =
+    u[K-1] = 0`` (the motion starts and ends with zero acceleration): the correction is spread over
+    about √λ samples instead of packed into a few large inputs, which a real arm cannot follow.
     """
     if length < 2:
         raise ValueError(f"a transcribed motion needs at least 2 samples, got {length}")
@@ -203,21 +212,22 @@ def transcription(
         raise ValueError("a transcription needs a cost: accel_weights (polish) or end_columns (end error)")
     if symbolic not in ("auto", "SX", "MX"):
         raise ValueError(f"symbolic must be 'auto', 'SX' or 'MX', got {symbolic!r}")
-    key = (dim, length, constraints, dt, accel_weights, end_columns, end_weights, warm, tol, max_iter)
+    key = (dim, length, constraints, dt, accel_weights, end_columns, end_weights, warm, tol, max_iter,
+           float(smoothness))
     if symbolic == "auto":
         _requests[key] = _requests.get(key, 0) + 1
         symbolic = "MX" if _requests[key] == 1 else "SX"
-    return _build(*key, symbolic)
+    return _build(*key, symbolic=symbolic)
 
 
 @lru_cache(maxsize=64)
 def _build(
     dim: int, length: int, constraints: tuple[Constraint, ...], dt: float, accel_weights: tuple[float, ...] | None,
     end_columns: tuple[int, ...] | None, end_weights: tuple[float, ...] | None, warm: bool, tol: float,
-    max_iter: int, symbolic: str,
+    max_iter: int, smoothness: float, symbolic: str,
 ) -> Transcription:
     return Transcription(dim, length, dt, constraints, accel_weights, end_columns, end_weights, warm, tol, max_iter,
-                         symbolic)
+                         symbolic, smoothness)
 
 
 def scale_rows(expression: Any, factors: Sequence[float]) -> Any:

@@ -242,12 +242,14 @@ class ExactForm:
         constraints: the task's own constraints in CasADi form (pancake: the friction cone in force form).
         accel_weights: the polish's metric, ``Σ_k |√w ⊙ (u[k] − u_ref[k])|² / K`` (pancake: 1, 1, 0.01 —
             radians count a tenth of metres, as in D).
+        smoothness: λ of the polish's jerk term (:func:`seqmotion.physics.transcription.transcription`).
     """
 
     dim: int
     dt: float
     constraints: tuple[Constraint, ...]
     accel_weights: tuple[float, ...]
+    smoothness: float = 0.0
 
 
 POLISH_VIOLATION_TOLERANCE = 1e-6
@@ -519,7 +521,7 @@ class TrainedModel(PretrainedModel):
         every = form.constraints + tuple(constraints)
         values = [np.zeros(0)] * len(form.constraints) + [np.asarray(p, np.float64) for p in params]
         length = len(accel) + 1
-        kwargs = {"dt": form.dt, "accel_weights": form.accel_weights}
+        kwargs = {"dt": form.dt, "accel_weights": form.accel_weights, "smoothness": form.smoothness}
         warm = transcription(form.dim, length, every, warm=True, max_iter=WARM_ITERATIONS, **kwargs)
         guess = accel if start is None else start
         solution = warm.solve(x0, guess, values, reference=accel)
