@@ -74,6 +74,19 @@ class Curriculum:
                     params[name] = float(value)
         return params
 
+    def final(self) -> dict[str, float]:
+        """The parameters in force once every stage has finished (the end of the last epoch)."""
+        params = dict(self.initial)
+        for stage in sorted(self.stages, key=lambda s: s.start):
+            for name, value in stage.set.items():
+                params[name] = float(value[1] if isinstance(value, (list, tuple)) else value)
+        return params
+
+    def at_final_stage(self, epochs: int | None = None) -> Curriculum:
+        """``epochs`` epochs (default: as many as this) that hold :meth:`final`'s parameters throughout:
+        for fine-tuning a model that has been through the whole schedule."""
+        return Curriculum(self.epochs if epochs is None else epochs, self.final(), [])
+
     def scaled(self, epochs: int) -> Curriculum:
         """The same schedule squeezed or stretched to ``epochs`` epochs (for small test runs).
 

@@ -118,6 +118,7 @@ def train(
     resume: bool = True,
     progress: bool = True,
     stop_at_step: int | None = None,
+    init_from: str | Path | None = None,
 ) -> Path:
     """Train (or continue training) a model; return the run directory.
 
@@ -131,6 +132,10 @@ def train(
         resume: continue from the run's latest checkpoint if there is one.
         progress: show a progress bar with the loss terms and the share of feasible outputs.
         stop_at_step: stop after this many optimiser steps in total (for timing and tests; ≥ 1).
+        init_from: fine-tune: start from the weights of this model or run directory (loaded strictly, verified;
+            its task and architecture must be ``config``'s) instead of fresh ones seeded by ``seed``. The
+            source and its weights' hash go into the run's identity (a checkpoint of another start is refused
+            on resume) and provenance. Adam's state and the step counter start fresh.
 
     Raises:
         ValueError: a bad setting (named), or ``run_dir`` cannot be written.
@@ -152,24 +157,51 @@ def train(
 
     torch.manual_seed(config.seed)
     model = task.build_model(config)
+    start = _load_initial_weights(model, config, init_from) if init_from is not None else None
     curriculum = task.curriculum(config)
     total = curriculum.epochs * config.batches_per_epoch
     loop = TrainingLoop(
         model, list(model.parameters()), lr=config.lr, total_steps=total,
         lr_final_fraction=config.lr_final_fraction, grad_clip=config.grad_clip, run_dir=run_dir,
-        identity={"training": config.to_dict()}, ignore=CADENCE, keep_checkpoints=config.keep_checkpoints,
+        identity={"training": config.to_dict(), **({"init_from": start} if start else {})},
+        ignore=CADENCE + ("init_from.path",), keep_checkpoints=config.keep_checkpoints,
         writer=rank == 0, reduce_gradients=(lambda params: _average_gradients(params, world)) if world > 1 else None,
     )
     try:
-        _run(task, config, model, curriculum, loop, run_dir, rank, world, resume, progress, stop_at_step)
+        _run(task, config, model, curriculum, loop, run_dir, rank, world, resume, progress, stop_at_step, start)
     finally:
         loop.close()
     return run_dir
 
 
+def _load_initial_weights(model: torch.nn.Module, config: TrainConfig, source: str | Path) -> dict:
+    """Load ``source``'s weights into ``model`` for fine-tuning (``init_from``); return what identifies them.
+
+    ``source`` is a model directory, a training run (its model, or its latest checkpoint) or a shipped model's
+    name. Raises ValueError (another task or architecture) or CheckpointError (missing, corrupt, misfit weights).
+    """
+    path = Path(source)
+    if not path.exists():
+        from ..api import pretrained_models  # a shipped model's name (imported late: the API imports the tasks)
+
+        if str(source) not in pretrained_models():
+            raise ValueError(f"--init-from {source}: neither a model/run directory nor a shipped model "
+                             f"({sorted(pretrained_models())})")
+        path = pretrained_models()[str(source)]
+    directory = ckpt.resolve_model_dir(path)
+    saved, tensors = ckpt.read_model(directory, expected_task=config.task)
+    if saved.get("model") != config.model:
+        differ = sorted(k for k in set(config.model) | set(saved.get("model") or {})
+                        if (saved.get("model") or {}).get(k) != config.model.get(k))
+        raise ValueError(f"--init-from {source}: its model config differs from this run's in {differ} "
+                         "(choose the preset it was trained with)")
+    ckpt.load_state_dict_strict(model, tensors, str(directory))
+    return {"path": str(source), "weights_sha256": saved.get("weights_sha256")}
+
+
 def _run(
     task: Any, config: TrainConfig, model: torch.nn.Module, curriculum: Any, loop: TrainingLoop, run_dir: Path,
-    rank: int, world: int, resume: bool, progress: bool, stop_at_step: int | None,
+    rank: int, world: int, resume: bool, progress: bool, stop_at_step: int | None, start: dict | None = None,
 ) -> None:
     """The body of :func:`train` (its loop is closed, and the run directory unlocked, by the caller)."""
     bpe = config.batches_per_epoch
@@ -181,6 +213,8 @@ def _run(
     elif program.endswith(os.path.join("seqmotion", "cli.py")):
         program = "python -m seqmotion.cli" if world == 1 else f"torchrun --nproc_per_node={world} -m seqmotion.cli"
     provenance = {"command": command_line(program), "machine": machine_description(), "world_size": world}
+    if start:
+        provenance["init_from"] = start
     saved = loop.start(resume)
     if saved:
         provenance = {**saved.get("provenance", {}), "resumed_with": provenance}
