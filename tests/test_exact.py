@@ -118,8 +118,7 @@ def test_reach_end_is_the_nearest_motion_that_ends_there():
 
 
 def test_keep_end_ends_exactly_at_rest_in_the_cone(deformer):
-    sketches = gen.position_type(3, np.random.default_rng(11))
-    batch = sketches.states[:, :150]  # a batch needs one length: the first 150 samples of each, still moving
+    batch = gen.position_type(3, np.random.default_rng(11), length=300).states  # (3, 300, 6), rest to rest
     plain = deformer.deform(batch)
     kept = deformer.deform(batch, keep_end=True)
     assert plain.exact is None and kept.exact.shape == (3,) and np.all(kept.exact)
@@ -130,7 +129,14 @@ def test_keep_end_ends_exactly_at_rest_in_the_cone(deformer):
                                atol=1e-12)
     assert np.all(kept.errors["end_position_error_m"] < 1e-7)  # the trust signals judge the polished motion
     one = deformer.deform(batch[0], keep_end=True)
-    assert one.exact is True and one.states.shape == (150, 6)
+    assert one.exact is True and one.states.shape == (300, 6)
+    # 0.3 m and 3 rad, rest to rest in 60 ms, needs ≥ 4 · 0.3 / 0.06² = 333 m/s², beyond the arm's 60:
+    # flagged, and the learned motion comes back, not a motion no arm executes
+    cut = gen.straight((0.3, 0.0, 3.0), 60)
+    with pytest.warns(RuntimeWarning, match="polish failed"):
+        flagged = deformer.deform(cut, keep_end=True)
+    assert flagged.exact is False
+    np.testing.assert_array_equal(flagged.states, deformer.deform(cut).states)
 
 
 def test_keep_end_is_refused_by_name(deformer, planner):

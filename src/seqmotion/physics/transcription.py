@@ -239,3 +239,11 @@ def end_values(columns: Sequence[int], name: str = "end") -> Constraint:
     """``x[K-1, columns] = p``: the motion ends at given values of some state fields (p: the values)."""
     cols = tuple(int(c) for c in columns)
     return Constraint(name, ("end_values", cols), lambda x, u, p: x[list(cols), -1] - p, 0.0, 0.0, len(cols))
+
+
+def input_limits(limits: Sequence[float], name: str = "input limits") -> Constraint:
+    """``|u[k, j]| ≤ limits[j]`` for every sample (scaled so each bound is ±1)."""
+    scale = 1.0 / np.asarray(limits, dtype=float)
+    if scale.ndim != 1 or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
+        raise ValueError(f"input limits must be positive and finite, one per input, got {limits!r}")
+    return Constraint(name, ("input_limits", *map(float, limits)), lambda x, u, p: scale_rows(u, scale), -1.0, 1.0)

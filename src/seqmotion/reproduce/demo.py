@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,17 +42,20 @@ def _pancake(out: Path) -> None:
     print(f"  path change (RMSE of y, z): {np.mean(shape):.1f} mm;  "
           f"deformation time {1000 * np.median(seconds):.2f} ms per motion (median)")
 
-    exact, end_mm, ends_still, polish = [], [], [], []
+    exact, end_mm, polish = [], [], []
     for b in range(20):  # keep_end: the same motions, polished to end exactly at the sketch's end, at rest
         x = sketches.states[b, : sketches.lengths[b]]
         start = time.perf_counter()
-        r = deformer.deform(x, keep_end=True)
+        with warnings.catch_warnings():  # the ones it cannot polish are counted below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            r = deformer.deform(x, keep_end=True)
         polish.append(time.perf_counter() - start)
-        exact.append(bool(r.exact) and r.violation.max() <= 1e-6)
-        end_mm.append(1000 * np.linalg.norm(r.states[-1, :2] - x[-1, :2]))
-        ends_still.append(np.abs(r.states[-1, 3:]).max() <= 1e-6)
-    print(f"  with keep_end=True (20 of them): {sum(exact)}/20 exactly feasible, end {max(end_mm):.1e} mm from the "
-          f"sketch's end, {sum(ends_still)}/20 at rest; {1000 * np.median(polish):.0f} ms per motion (median)")
+        exact.append(bool(r.exact) and r.violation.max() <= 1e-6 and np.abs(r.states[-1, 3:]).max() <= 1e-6)
+        end_mm.append(1000 * np.linalg.norm(r.states[-1, :2] - x[-1, :2]) if exact[-1] else 0.0)
+    print(f"  with keep_end=True (20 of them): {sum(exact)}/20 end exactly at the sketch's end (within "
+          f"{max(end_mm):.0e} mm), at rest, inside the cone; {20 - sum(exact)} would need more than the arm's "
+          f"acceleration limits in their time and keep the learned motion (flagged); "
+          f"{1000 * np.median(polish):.0f} ms per motion (median)")
 
     from .ch2 import figures
 

@@ -39,6 +39,7 @@ from ..physics.pancake import (
     violation_angle,
     violation_torch,
 )
+from ..physics.transcription import input_limits
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import (
@@ -60,6 +61,12 @@ POLISH_NORMAL_FLOOR = 4.0
 An exact motion that sits at the edge (free fall, ``n → 0``) holds in the model's physics but not on an
 arm that tracks it with any error: measured on 100 ``keep_end`` motions executed on the MuJoCo arm, a
 floor of 1e-3 m/s² kept the pancake on in 20, 4 m/s² with the smoothing below in 54."""
+POLISH_ACCEL_LIMITS = (60.0, 60.0, 800.0)
+"""[m/s², m/s², rad/s²] The exact polish keeps the spatula's accelerations within these: what the MuJoCo
+arm under PD + DOB follows with the pancake on. Measured on 40 ``keep_end`` motions on the arm: those it
+lost peaked at a median 140 m/s² and 2000 rad/s², those it kept at 21 m/s² and 240 rad/s². A sketch
+that cannot end where it ends, at rest, within them (e.g. 0.3 m and 3 rad in 0.15 s) is reported as
+not exact rather than returned as a motion no arm executes."""
 POLISH_SMOOTHNESS = 1000.0
 """λ of the polish's jerk term (starting and ending at zero acceleration): the correction spreads over
 ≈ 30 ms instead of steps an arm cannot follow."""
@@ -275,10 +282,11 @@ class PancakeTask(Task):
 
     def exact_form(self, options: PancakeOptions) -> ExactForm:
         """The double integrator with the friction cone in force form at the model's μ (for ``exact=True``
-        and ``keep_end=True``), pressing the pancake on with at least :data:`POLISH_NORMAL_FLOOR`, and
-        smoothed by :data:`POLISH_SMOOTHNESS`."""
+        and ``keep_end=True``), pressing the pancake on with at least :data:`POLISH_NORMAL_FLOOR`, within
+        :data:`POLISH_ACCEL_LIMITS`, smoothed by :data:`POLISH_SMOOTHNESS`."""
         cone = cone_constraint(options.mu, margin=POLISH_NORMAL_FLOOR)
-        return ExactForm(3, DT, (cone,), (1.0, 1.0, THETA_WEIGHT**2), POLISH_SMOOTHNESS)
+        limits = input_limits(POLISH_ACCEL_LIMITS, "the arm's acceleration limits")
+        return ExactForm(3, DT, (cone, limits), (1.0, 1.0, THETA_WEIGHT**2), POLISH_SMOOTHNESS)
 
     def sketch(self, end: tuple[float, ...], length: int, timing: str = "s_curve") -> np.ndarray:
         """A straight motion from rest at 0 to rest at ``end = (y, z, θ)`` (ch. 4's inputs)."""
