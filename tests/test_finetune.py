@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.data import pancake as inputs
 from seqmotion.tasks.pancake import PancakeOptions, chapter2_curriculum
@@ -46,7 +47,9 @@ def test_init_from_loads_the_weights_strictly_and_records_them(tmp_path):
     assert not torch.allclose(ckpt.read_model(fresh)[1]["head.net.0.weight"], want["head.net.0.weight"])
 
     with pytest.raises(ValueError, match="model config differs"):  # the shipped small model into a tiny run
-        tasks.train(config, tmp_path / "d", progress=False, stop_at_step=1, init_from="pancake")
+        tasks.train(config, tmp_path / "d", progress=False, stop_at_step=1, init_from=sm.pretrained_models()["pancake"])
+    with pytest.raises(ValueError, match="no such model"):  # names are resolved by `seqmotion train`
+        tasks.train(config, tmp_path / "e", progress=False, stop_at_step=1, init_from="pancake")
 
 
 def test_end_terms_are_off_by_default_and_leave_the_config_unchanged():

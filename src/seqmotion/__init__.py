@@ -14,7 +14,7 @@ from typing import Any
 from . import data, physics, tasks
 from .api import load, load_pretrained, pretrained_models
 from .errors import CheckpointError
-from .latent import objectives, optimize_latent, optimize_trajectory
+from .latent import objectives, optimize_latent, optimize_trajectory, refine_plan
 from .sim.registration import register_envs
 
 register_envs()  # gymnasium.make("seqmotion/PancakeArm-v0") (string entry points: MuJoCo is not imported)
@@ -22,7 +22,7 @@ register_envs()  # gymnasium.make("seqmotion/PancakeArm-v0") (string entry point
 __version__ = "0.1.0"
 __all__ = [
     "CheckpointError", "data", "lfd", "load", "load_pretrained", "objectives", "optimize_latent",
-    "optimize_trajectory", "physics", "pretrained_models", "sim", "tasks",
+    "optimize_trajectory", "physics", "pretrained_models", "refine_plan", "sim", "tasks",
 ]
 
 

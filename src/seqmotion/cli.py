@@ -110,8 +110,17 @@ def cmd_train(args: argparse.Namespace) -> int:
     variant = f"-{args.variant}" if args.variant else ""
     out = Path(args.out if args.out is not None else f"runs/{args.task}{variant}-{args.config}-seed{config.seed}")
     check_writable_dir(out, "--out")
+    init_from = args.init_from
+    if init_from is not None and not Path(init_from).exists():  # a shipped model's name
+        from seqmotion.api import pretrained_models
+
+        shipped = pretrained_models()
+        if init_from not in shipped:
+            raise ValueError(f"--init-from {init_from}: neither a model/run directory nor a shipped model "
+                             f"({sorted(shipped)})")
+        init_from = shipped[init_from]
     tasks.train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps,
-                init_from=args.init_from)
+                init_from=init_from)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, say it once
         print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
     return 0
@@ -170,7 +179,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
         command = commands.circle(args.circle, args.length)
     else:
         command = read_trajectory(args.command_file)
-    plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
+    if args.refine:  # ch. 4's machinery on the planner: refine z through the contact physics (seconds)
+        from seqmotion.latent import refine_plan
+
+        plan = refine_plan(planner, command, mu=args.mu, mu_dyn=args.mu_dyn)
+    else:
+        plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
     mu = planner.options.mu if args.mu is None else args.mu
     mu_dyn = planner.options.mu_dyn if args.mu_dyn is None else args.mu_dyn
     columns, names = result_columns(plan, planner)
@@ -301,6 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mu", type=float, help="static friction of the 2-D physics (default: the model's)")
     p.add_argument("--mu-dyn", type=float, help="dynamic friction of the 2-D physics (default: the model's)")
     p.add_argument("--int8", action="store_true", help="int8 weights for the big layers (faster on CPU, wide models)")
+    p.add_argument("--refine", action="store_true",
+                   help="refine the plan's latent through the contact physics (sm.refine_plan: seconds, not ms) for "
+                        "commands the planner alone does not follow, e.g. circles")
     p.add_argument("--tolerance", type=float, metavar="METRES",
                    help="warn when the object's RMS distance from the command exceeds this (default 0.005)")
     p.add_argument("--output", required=True, help=".npz or .csv")

@@ -26,6 +26,7 @@ rest at 0. Two families, seeded and vectorised:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import torch
@@ -172,6 +173,17 @@ def mixture(
     return batch
 
 
+def along_s_curve(path: Any, length: int, dt: float = DT) -> np.ndarray:
+    """A command ``(K, 4)`` following ``path(s) -> (position (K, 2), d position / ds (K, 2))`` for s from 0
+    to 1 on an S-curve in time: rest to rest, ``length`` samples."""
+    if length < 2:
+        raise ValueError(f"need length >= 2, got {length}")
+    tau = normalized_time(np.array([length]))[0]
+    s, ds, _ = s_curve(tau)
+    pos, dpos = path(s)
+    return np.concatenate([pos, dpos * (ds / ((length - 1) * dt))[:, None]], axis=1)
+
+
 def circle(radius: float = 0.05, length: int = 1200, dt: float = DT) -> np.ndarray:
     """A command moving the object once around a circle of ``radius`` [m], rest to rest: ``(K, 4)``.
 
@@ -179,9 +191,28 @@ def circle(radius: float = 0.05, length: int = 1200, dt: float = DT) -> np.ndarr
     """
     if not radius > 0 or length < 2:
         raise ValueError("need radius > 0 and length >= 2")
-    tau = normalized_time(np.array([length]))[0]
-    s, ds, _ = s_curve(tau)
-    phi, dphi = 2 * math.pi * s, 2 * math.pi * ds / ((length - 1) * dt)
-    pos = radius * np.stack([np.cos(phi) - 1.0, np.sin(phi)], axis=1)
-    vel = radius * dphi[:, None] * np.stack([-np.sin(phi), np.cos(phi)], axis=1)
-    return np.concatenate([pos, vel], axis=1)
+    return along_s_curve(lambda s: (radius * np.stack([np.cos(2 * math.pi * s) - 1.0, np.sin(2 * math.pi * s)], 1),
+                                    2 * math.pi * radius * np.stack([-np.sin(2 * math.pi * s),
+                                                                     np.cos(2 * math.pi * s)], 1)), length, dt)
+
+
+def line(distance: float = 0.05, length: int = 500, dt: float = DT) -> np.ndarray:
+    """A command moving the object ``distance`` [m] along x, rest to rest: ``(K, 4)``."""
+    if not distance > 0:
+        raise ValueError(f"need distance > 0, got {distance}")
+    return along_s_curve(lambda s: (np.stack([distance * s, 0 * s], 1), np.stack([distance + 0 * s, 0 * s], 1)),
+                         length, dt)
+
+
+def figure_eight(half_width: float = 0.02, length: int = 1200, dt: float = DT) -> np.ndarray:
+    """A figure-eight ``x = a sin φ, y = (a/2) sin 2φ``, φ from 0 to 2π, from the crossing at the origin:
+    ``(K, 4)``, ``a = half_width`` [m]."""
+    if not half_width > 0:
+        raise ValueError(f"need half_width > 0, got {half_width}")
+
+    def path(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        phi = 2 * math.pi * s
+        pos = np.stack([half_width * np.sin(phi), 0.5 * half_width * np.sin(2 * phi)], 1)
+        return pos, 2 * math.pi * half_width * np.stack([np.cos(phi), np.cos(2 * phi)], 1)
+
+    return along_s_curve(path, length, dt)

@@ -439,11 +439,13 @@ def _check_fields(fields: object) -> None:
         raise ValueError(f"fields must be a non-empty sequence of state field names, got {fields!r}")
 
 
-def _check_weight(name: str, value: Any, positive: bool = False) -> None:
+def _check_weight(name: str, value: Any, positive: bool = False) -> float:
+    """``value`` as a float; ``ValueError`` naming ``name`` unless it is a finite number ≥ 0 (> 0 if ``positive``)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.floating) or not math.isfinite(value):
         raise ValueError(f"{name} must be a finite number, got {value!r}")
     if value < 0 or (positive and value == 0):
         raise ValueError(f"{name} must be {'>' if positive else '≥'} 0, got {value!r}")
+    return float(value)
 
 
 class Ranges(Objective):

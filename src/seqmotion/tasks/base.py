@@ -258,6 +258,9 @@ WARM_ITERATIONS = 20
 """IPOPT iterations the warm (small-barrier) start gets before the polish falls back to a cold start:
 a nearly feasible motion needs 2–5; a far one (e.g. J2's, 1.25 rad outside its band) is faster from
 IPOPT's default barrier."""
+COLD_ITERATIONS = 300
+"""…and the cold start gets this many: J2's polish needs ~90; a sketch that cannot end at rest within
+the constraints (the arm's limits) is proved locally infeasible in ~50–150, or given up on here."""
 
 
 def first_of(result: Any) -> Any:
@@ -526,7 +529,8 @@ class TrainedModel(PretrainedModel):
         guess = accel if start is None else start
         solution = warm.solve(x0, guess, values, reference=accel)
         if not solution.success:
-            retry = transcription(form.dim, length, every, **kwargs).solve(x0, guess, values, reference=accel)
+            cold = transcription(form.dim, length, every, max_iter=COLD_ITERATIONS, **kwargs)
+            retry = cold.solve(x0, guess, values, reference=accel)
             retry.iterations += solution.iterations
             retry.seconds += solution.seconds
             solution = retry

@@ -177,17 +177,12 @@ def train(
 def _load_initial_weights(model: torch.nn.Module, config: TrainConfig, source: str | Path) -> dict:
     """Load ``source``'s weights into ``model`` for fine-tuning (``init_from``); return what identifies them.
 
-    ``source`` is a model directory, a training run (its model, or its latest checkpoint) or a shipped model's
-    name. Raises ValueError (another task or architecture) or CheckpointError (missing, corrupt, misfit weights).
+    ``source`` is a model directory or a training run (its model, or its latest checkpoint). Raises
+    ValueError (another task or architecture) or CheckpointError (missing, corrupt, misfit weights).
     """
     path = Path(source)
-    if not path.exists():
-        from ..api import pretrained_models  # a shipped model's name (imported late: the API imports the tasks)
-
-        if str(source) not in pretrained_models():
-            raise ValueError(f"--init-from {source}: neither a model/run directory nor a shipped model "
-                             f"({sorted(pretrained_models())})")
-        path = pretrained_models()[str(source)]
+    if not path.exists():  # a shipped model's name is resolved to its folder by the caller (seqmotion train)
+        raise ValueError(f"--init-from {source}: no such model or run directory")
     directory = ckpt.resolve_model_dir(path)
     saved, tensors = ckpt.read_model(directory, expected_task=config.task)
     if saved.get("model") != config.model:
