@@ -335,10 +335,14 @@ def test_the_config_is_covered_by_its_hash(tmp_path, deformer):
     (saved / "config.json").write_text(json.dumps(config))
     with pytest.raises(sm.CheckpointError, match="config_sha256"):
         sm.load(saved)
-    # the shipped models predate the config hash: they load without one
+    # shipped models from before the config hash load without one; newer ones (pancake-end) carry a matching one
     for name in sm.pretrained_models():
-        assert "config_sha256" not in json.loads((sm.api.pretrained_dir(name) / "config.json").read_text())
+        shipped = json.loads((sm.api.pretrained_dir(name) / "config.json").read_text())
+        assert "config_sha256" not in shipped or shipped["config_sha256"] == ckpt.config_digest(shipped)
+    assert "config_sha256" not in json.loads((sm.api.pretrained_dir("sliding") / "config.json").read_text())
+    assert "config_sha256" in json.loads((sm.api.pretrained_dir("pancake-end") / "config.json").read_text())
     sm.load_pretrained("sliding")
+    sm.load_pretrained("pancake-end")
 
 
 def test_corrupt_weights_are_refused(tmp_path):
