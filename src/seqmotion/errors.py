@@ -7,6 +7,8 @@ returns NaN.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -76,8 +78,11 @@ def check_number(
     kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds):
         raise ValueError(f"{name} must be {'an integer' if integer else 'a number'}, got {value!r}")
-    number = int(value) if integer else float(value)
-    if not np.isfinite(number):
+    try:
+        number = int(value) if integer else float(value)
+    except OverflowError:  # an int beyond float range
+        raise ValueError(f"{name} must be finite, got {value!r}") from None
+    if not integer and not math.isfinite(number):  # (an int of any size is finite: np.isfinite fails beyond 2⁶⁴)
         raise ValueError(f"{name} must be finite, got {value!r}")
     if minimum is not None and (number < minimum or (strict_minimum and number == minimum)):
         raise ValueError(f"{name} must be {'>' if strict_minimum else '≥'} {minimum:g}, got {value!r}")
