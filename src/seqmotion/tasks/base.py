@@ -40,7 +40,7 @@ from ..errors import CheckpointError, as_float_array, as_trajectories, check_fin
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig, rollout
 from ..physics.integrator import DoubleIntegratorDynamics, reach_end
 from ..physics.layout import StateLayout
-from ..physics.transcription import Constraint, Solution, end_values, transcription
+from ..physics.transcription import Constraint, Solution, end_values, input_limits, transcription
 from ..training import checkpoint as ckpt
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum
@@ -243,6 +243,7 @@ class ExactForm:
         accel_weights: the polish's metric, ``Σ_k |√w ⊙ (u[k] − u_ref[k])|² / K`` (pancake: 1, 1, 0.01 —
             radians count a tenth of metres, as in D).
         smoothness: λ of the polish's jerk term (:func:`seqmotion.physics.transcription.transcription`).
+        accel_limits: ``|u[k, j]| ≤ accel_limits[j]`` (the robot's), or None.
     """
 
     dim: int
@@ -250,6 +251,7 @@ class ExactForm:
     constraints: tuple[Constraint, ...]
     accel_weights: tuple[float, ...]
     smoothness: float = 0.0
+    accel_limits: tuple[float, ...] | None = None
 
 
 POLISH_VIOLATION_TOLERANCE = 1e-6
@@ -261,6 +263,27 @@ IPOPT's default barrier."""
 COLD_ITERATIONS = 300
 """…and the cold start gets this many: J2's polish needs ~90; a sketch that cannot end at rest within
 the constraints (the arm's limits) is proved locally infeasible in ~50–150, or given up on here."""
+
+
+def _rest_to_rest_accel(
+    x0: np.ndarray, columns: list[int], values: np.ndarray, steps: int, form: ExactForm
+) -> tuple[float, ...] | None:
+    """The accelerations an axis needs at least to go from rest at ``x0`` to rest at its end value in ``steps``
+    samples (bang-bang: ``4 |Δp| / T²``), when some axis needs more than ``form.accel_limits``; else None.
+
+    Only for axes that start and end at rest (otherwise no cheap bound is taken)."""
+    if form.accel_limits is None:
+        return None
+    d, span = form.dim, steps * form.dt
+    need, over = [], False
+    for j, limit in enumerate(form.accel_limits):
+        at_rest = d + j in columns and abs(x0[d + j]) < 1e-12 and abs(values[columns.index(d + j)]) < 1e-12
+        if j not in columns or not at_rest:
+            need.append(0.0)
+            continue
+        need.append(4 * abs(values[columns.index(j)] - x0[j]) / span**2)
+        over |= need[-1] > limit * (1 + 1e-9)
+    return tuple(round(float(n), 1) for n in need) if over else None
 
 
 def first_of(result: Any) -> Any:
@@ -521,8 +544,9 @@ class TrainedModel(PretrainedModel):
         (default ``accel``), e.g. ``accel`` already corrected to meet linear end conditions.
         """
         form = self.exact_form()
-        every = form.constraints + tuple(constraints)
-        values = [np.zeros(0)] * len(form.constraints) + [np.asarray(p, np.float64) for p in params]
+        limits = () if form.accel_limits is None else (input_limits(form.accel_limits, "acceleration limits"),)
+        every = form.constraints + limits + tuple(constraints)
+        values = [np.zeros(0)] * (len(form.constraints) + len(limits)) + [np.asarray(p, np.float64) for p in params]
         length = len(accel) + 1
         kwargs = {"dt": form.dt, "accel_weights": form.accel_weights, "smoothness": form.smoothness}
         warm = transcription(form.dim, length, every, warm=True, max_iter=WARM_ITERATIONS, **kwargs)
@@ -611,6 +635,12 @@ class TrainedModel(PretrainedModel):
         x0, reference = states[:, 0].numpy(), accel.numpy()
         form = self.exact_form()
         for b in range(len(states)):
+            need = _rest_to_rest_accel(x0[b], list(constraint.key[1]), values[b], len(reference[b]), form)
+            if need is not None:  # no motion can do it within the limits: say so without asking IPOPT
+                warnings.warn(f"keep_end: motion {b} cannot end at rest where its input ends within the acceleration "
+                              f"limits {form.accel_limits} (rest to rest in its time needs at least {need}); it keeps "
+                              "the learned motion", RuntimeWarning, stacklevel=4)
+                continue
             # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
             # starts from a motion that only the task's constraint still separates from exact
             start = reach_end(x0[b], reference[b], list(constraint.key[1]), values[b], np.array(form.accel_weights),

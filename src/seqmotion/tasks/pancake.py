@@ -39,7 +39,6 @@ from ..physics.pancake import (
     violation_angle,
     violation_torch,
 )
-from ..physics.transcription import input_limits
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import (
@@ -285,8 +284,7 @@ class PancakeTask(Task):
         and ``keep_end=True``), pressing the pancake on with at least :data:`POLISH_NORMAL_FLOOR`, within
         :data:`POLISH_ACCEL_LIMITS`, smoothed by :data:`POLISH_SMOOTHNESS`."""
         cone = cone_constraint(options.mu, margin=POLISH_NORMAL_FLOOR)
-        limits = input_limits(POLISH_ACCEL_LIMITS, "the arm's acceleration limits")
-        return ExactForm(3, DT, (cone, limits), (1.0, 1.0, THETA_WEIGHT**2), POLISH_SMOOTHNESS)
+        return ExactForm(3, DT, (cone,), (1.0, 1.0, THETA_WEIGHT**2), POLISH_SMOOTHNESS, POLISH_ACCEL_LIMITS)
 
     def sketch(self, end: tuple[float, ...], length: int, timing: str = "s_curve") -> np.ndarray:
         """A straight motion from rest at 0 to rest at ``end = (y, z, θ)`` (ch. 4's inputs)."""
