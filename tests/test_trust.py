@@ -122,8 +122,9 @@ def test_first_of_indexes_the_trust_fields():
     from seqmotion.tasks.pancake import DeformResult
 
     batch = DeformResult(np.zeros((2, 3, 6)), np.zeros((2, 2, 3)), np.zeros((2, 2)), np.zeros((2, 2)),
-                         np.zeros((2, 4)), np.zeros((2, 3, 3)), {"shape_rmse_m": np.array([1.0, 2.0])},
-                         np.array([False, True]), [[], ["length 9 < 100"]])
+                         np.zeros((2, 4)), uncertainty=np.zeros((2, 3, 3)),
+                         errors={"shape_rmse_m": np.array([1.0, 2.0])}, out_of_distribution=np.array([False, True]),
+                         ood_reasons=[[], ["length 9 < 100"]])
     one = first_of(batch)
     assert one.errors == {"shape_rmse_m": 1.0} and one.out_of_distribution is False and one.ood_reasons == []
 

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from ..errors import as_float_array, as_trajectories, check_finite_result, check_number
-from ..tasks.base import POLISH_VIOLATION_TOLERANCE, TrainedModel
+from ..tasks.base import POLISH_VIOLATION_TOLERANCE, TrainedModel, TrustSignals
 from .objectives import Objective, Term, as_objective
 
 MAX_STEPS = 1_000_000
@@ -64,7 +64,7 @@ class Stage:
 
 
 @dataclass
-class OptimizationResult:
+class OptimizationResult(TrustSignals):
     """The adjusted motion(s); a leading B axis when the input was batched.
 
     Attributes:
@@ -81,9 +81,10 @@ class OptimizationResult:
             (value, limit, ``met``); empty for a plain function.
         exact: with ``exact=True``: whether the polish made the objective's constraints and the task's
             constraint hold exactly (IPOPT converged, violation ≤ 1e-6), per trajectory; None otherwise.
-        errors, uncertainty, out_of_distribution, ood_reasons: the trust signals of the final motion
-            against the input (:meth:`~seqmotion.tasks.TrainedModel.assess`; uncertainty for cases 1–2:
-            the predicted std of what the optimised z decodes to).
+        errors, uncertainty, out_of_distribution, ood_reasons (:class:`~seqmotion.tasks.base.TrustSignals`):
+            the trust signals of the final motion against the input
+            (:meth:`~seqmotion.tasks.TrainedModel.assess`; uncertainty for cases 1–2: the predicted std of
+            what the optimised z decodes to).
     """
 
     states: np.ndarray
@@ -93,11 +94,6 @@ class OptimizationResult:
     seconds_per_update: float
     stages: list[Stage] = field(default_factory=list)
     terms: dict[str, Term] = field(default_factory=dict)
-    exact: Any = None
-    errors: dict[str, Any] | None = None
-    uncertainty: np.ndarray | None = None
-    out_of_distribution: Any = None
-    ood_reasons: list | None = None
 
     @property
     def met(self) -> bool:

@@ -29,7 +29,7 @@ import json
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -307,15 +307,10 @@ def _first(value: Any) -> Any:
 
 
 @dataclass
-class Motion:
-    """A generated motion (a leading B axis on every array for a batch).
+class TrustSignals:
+    """How far to trust a result: the fields every task's result shares (keyword-only, after the task's own).
 
     Attributes:
-        states: ``(K, S)`` states in the task's ``state_layout``; ``states[0]`` is the start state.
-        accel: ``(K-1, d)`` the decoder's outputs ``u[0..K-2]`` in the task's ``accel_layout``.
-        latent: ``(L·H,)`` the latent z the motion was decoded from.
-        violation: ``(K-1,)`` the task's constraint violation per transition (0 where it holds),
-            or None for a task without a constraint.
         uncertainty: ``(K, p)`` the predicted std of the generated positions per sample (the Gaussian
             head's covariance propagated through the physics; columns: the task's ``uncertainty_fields``,
             row 0 = 0), or None.
@@ -327,23 +322,47 @@ class Motion:
             pose, at rest, with the task's constraint held (≤ 1e-6); None otherwise.
     """
 
+    uncertainty: np.ndarray | None = field(default=None, kw_only=True)
+    errors: dict[str, Any] | None = field(default=None, kw_only=True)
+    out_of_distribution: Any = field(default=None, kw_only=True)
+    ood_reasons: list | None = field(default=None, kw_only=True)
+    exact: Any = field(default=None, kw_only=True)
+
+    def trust(self) -> dict[str, Any]:
+        """These fields by name, to pass on to another result (``Result(..., **motion.trust())``)."""
+        return {f.name: getattr(self, f.name) for f in fields(TrustSignals)}
+
+
+def feasible_of(violation: np.ndarray | None) -> np.ndarray | bool | None:
+    """Whether the largest violation ``(..., K-1)`` is ≤ :data:`FEASIBLE_TOLERANCE` (per trajectory for a
+    batch); None without a constraint."""
+    if violation is None:
+        return None
+    ok = violation.max(axis=-1) <= FEASIBLE_TOLERANCE
+    return bool(ok) if np.ndim(ok) == 0 else ok
+
+
+@dataclass
+class Motion(TrustSignals):
+    """A generated motion (a leading B axis on every array for a batch), with its trust signals.
+
+    Attributes:
+        states: ``(K, S)`` states in the task's ``state_layout``; ``states[0]`` is the start state.
+        accel: ``(K-1, d)`` the decoder's outputs ``u[0..K-2]`` in the task's ``accel_layout``.
+        latent: ``(L·H,)`` the latent z the motion was decoded from.
+        violation: ``(K-1,)`` the task's constraint violation per transition (0 where it holds),
+            or None for a task without a constraint.
+    """
+
     states: np.ndarray
     accel: np.ndarray
     latent: np.ndarray
     violation: np.ndarray | None = None
-    uncertainty: np.ndarray | None = None
-    errors: dict[str, Any] | None = None
-    out_of_distribution: Any = None
-    ood_reasons: list | None = None
-    exact: Any = None
 
     @property
     def feasible(self) -> np.ndarray | bool | None:
         """Whether the largest violation is ≤ 0.01 (per trajectory for a batch); None without a constraint."""
-        if self.violation is None:
-            return None
-        ok = self.violation.max(axis=-1) <= FEASIBLE_TOLERANCE
-        return bool(ok) if np.ndim(ok) == 0 else ok
+        return feasible_of(self.violation)
 
 
 class Assessment(NamedTuple):

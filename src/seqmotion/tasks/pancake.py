@@ -50,7 +50,7 @@ from ..training.losses import (
     per_trajectory,
     sample_mask,
 )
-from .base import FEASIBLE_TOLERANCE, ExactForm, Motion, Task, TrainedModel
+from .base import FEASIBLE_TOLERANCE, ExactForm, Motion, Task, TrainedModel, TrustSignals, feasible_of
 from .options import TaskOptions, check_count, check_length_range, check_positive
 
 THETA_WEIGHT = 0.1
@@ -295,8 +295,7 @@ class PancakeTask(Task):
     def make_result(self, motion: Motion, model: TrainedModel) -> DeformResult:
         theta = torch.from_numpy(motion.states[:, :-1, 2])
         psi = violation_angle(theta, torch.from_numpy(motion.accel)).numpy()
-        return DeformResult(motion.states, motion.accel, motion.violation, psi, motion.latent, motion.uncertainty,
-                            motion.errors, motion.out_of_distribution, motion.ood_reasons, motion.exact)
+        return DeformResult(motion.states, motion.accel, motion.violation, psi, motion.latent, **motion.trust())
 
     def errors(
         self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
@@ -323,7 +322,7 @@ TASK = PancakeTask()
 
 
 @dataclass
-class DeformResult:
+class DeformResult(TrustSignals):
     """A deformed trajectory (or a batch of them: a leading B axis on every field).
 
     Attributes:
@@ -333,15 +332,9 @@ class DeformResult:
         violation: ``(K-1,)`` F_c per sample [rad] at the model's μ (0 where the pancake holds).
         psi: ``(K-1,)`` the cone angle ψ per sample [rad] (Figs. 2.6, 4.3c).
         latent: ``(L·H,)`` the latent z the motion was decoded from.
-        uncertainty: ``(K, 3)`` the model's predicted std of y [m], z [m], θ [rad] per sample (its
-            Gaussian head's covariance propagated through the double integrator; row 0 = 0).
-        errors: ``shape_rmse_m``, ``end_position_error_m``, ``end_attitude_error_rad``, ``end_speed_m_s``,
-            ``max_violation_rad`` against the input (:meth:`PancakeTask.errors`; ``(B,)`` each for a batch).
-        out_of_distribution: whether the input lies outside what the model was trained on
-            (:mod:`seqmotion.tasks.trust`; ``(B,)`` for a batch); None when not judged.
-        ood_reasons: which input features were out, e.g. ``["length 1000 > 500"]``.
-        exact: with ``keep_end=True``: whether the motion was polished to end exactly at the input's end
-            pose, at rest, inside the cone (``(B,)`` for a batch); None otherwise.
+        (and :class:`~seqmotion.tasks.base.TrustSignals`: ``uncertainty`` ``(K, 3)`` std of y, z, θ; ``errors``
+        ``shape_rmse_m``, ``end_position_error_m``, ``end_attitude_error_rad``, ``end_speed_m_s``,
+        ``max_violation_rad``; ``out_of_distribution``, ``ood_reasons``; ``exact`` with ``keep_end``)
     """
 
     states: np.ndarray
@@ -349,17 +342,11 @@ class DeformResult:
     violation: np.ndarray
     psi: np.ndarray
     latent: np.ndarray
-    uncertainty: np.ndarray | None = None
-    errors: dict[str, Any] | None = None
-    out_of_distribution: Any = None
-    ood_reasons: list | None = None
-    exact: Any = None
 
     @property
     def feasible(self) -> np.ndarray | bool:
         """Whether max F_c ≤ 0.01 rad (per trajectory for a batch)."""
-        ok = self.violation.max(axis=-1) <= FEASIBLE_TOLERANCE
-        return bool(ok) if np.ndim(ok) == 0 else ok
+        return feasible_of(self.violation)  # type: ignore[return-value]
 
 
 class Deformer(TrainedModel):

@@ -39,7 +39,7 @@ from ..physics.integrator import DT
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, Stage
 from ..training.losses import encode_and_rollout, gaussian_nll_2d, masked_mean, per_trajectory, sample_mask
-from .base import Motion, Task, TrainedModel
+from .base import Motion, Task, TrainedModel, TrustSignals
 from .options import TaskOptions, check_choice, check_length_range, check_positive
 
 PAN_LIMIT = 0.2  # p_lim [m]
@@ -292,7 +292,7 @@ class SlidingTask(Task):
 
     def make_result(self, motion: Motion, model: TrainedModel) -> SlidingPlan:
         return SlidingPlan(motion.accel, motion.states[..., :4], motion.states[..., 4:], motion.latent,
-                           motion.uncertainty, motion.errors, motion.out_of_distribution, motion.ood_reasons)
+                           **motion.trust())
 
     def errors(
         self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
@@ -343,7 +343,7 @@ TASK = SlidingTask()
 
 
 @dataclass
-class SlidingPlan:
+class SlidingPlan(TrustSignals):
     """A planned pan motion (a leading B axis on every field for a batch).
 
     Attributes:
@@ -358,16 +358,13 @@ class SlidingPlan:
         out_of_distribution: whether the command lies outside what the model was trained on
             (:mod:`seqmotion.tasks.trust`; ``(B,)`` for a batch).
         ood_reasons: which command features were out, e.g. ``["peak_speed_m_s 1.9 > 0.62"]``.
+        (the last four, and ``exact``, are :class:`~seqmotion.tasks.base.TrustSignals`)
     """
 
     pan_accel: np.ndarray
     pan_states: np.ndarray
     rel_states: np.ndarray
     latent: np.ndarray
-    uncertainty: np.ndarray | None = None
-    errors: dict[str, Any] | None = None
-    out_of_distribution: Any = None
-    ood_reasons: list | None = None
 
 
 class SlidingPlanner(TrainedModel):
