@@ -13,7 +13,9 @@ covariances ``S_u`` (σ per dimension, correlation ρ for declared pairs, eq. 2.
 **Rollout.** :func:`rollout` closes the loop through a task's differentiable
 :class:`ChunkDynamics`: the C means are integrated (with their covariances) into the next
 C states, which feed the next decoder step — or, with probability ``teacher_forcing_prob``
-per trajectory and step, the true states do (scheduled sampling, ref. [24]).
+per trajectory and step, the true states do (scheduled sampling, ref. [24]). With dynamics that
+propagate covariances entrywise (the double integrator), the loop carries the means only and all
+chunks' covariances are made and propagated at once afterwards (same numbers, far fewer operations).
 
 Sequences of any length K ≥ 2 are handled: the encoder freezes a trajectory's state after
 its last (partly padded) chunk, so a trajectory's ``z`` does not depend on what it was
@@ -180,21 +182,63 @@ class GaussianHead(nn.Module):
         self.register_buffer("offset", torch.tensor(cfg.output_offset or [0.0] * self.dim))
 
     def forward(self, h: torch.Tensor, need_cov: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
-        raw = self.net(h).view(h.shape[0], self.chunk, self.per_sample)
-        mean = self.offset + self.scale * raw[..., : self.dim]
+        raw = self.raw(h)
+        mean = self.mean(raw)
         if not need_cov:
             return mean, None
-        sigma = self.scale * (nn.functional.softplus(raw[..., self.dim : 2 * self.dim]) + self.sigma_min)
-        rho = 0.99 * torch.tanh(raw[..., 2 * self.dim :])
-        # Assemble S_u entry by entry (one stack; cheaper than diag_embed + indexed writes).
-        zero = torch.zeros_like(sigma[..., 0])
-        entries = [[zero] * self.dim for _ in range(self.dim)]
-        for i in range(self.dim):
-            entries[i][i] = sigma[..., i] ** 2
-        for p, (i, j) in enumerate(self.pairs):
-            entries[i][j] = entries[j][i] = rho[..., p] * sigma[..., i] * sigma[..., j]
-        cov = torch.stack([e for row in entries for e in row], dim=-1).view(*sigma.shape, self.dim)
-        return mean, cov
+        return mean, self.expand(self.entries(raw))
+
+    # The pieces of forward, for a rollout that decodes the means chunk by chunk and the covariances once.
+
+    def raw(self, h: torch.Tensor) -> torch.Tensor:
+        """The head's raw output ``(B, C, 2d + pairs)`` for decoder outputs ``h`` (B, hidden)."""
+        return self.net(h).view(h.shape[0], self.chunk, self.per_sample)
+
+    def mean(self, raw: torch.Tensor) -> torch.Tensor:
+        """Means ``(..., d)`` of raw outputs ``(..., 2d + pairs)``."""
+        return self.offset + self.scale * raw[..., : self.dim]
+
+    @property
+    def entry_index(self) -> list[tuple[int, int]]:
+        """The entries of ``S_u`` that can be non-zero, in the order :meth:`entries` gives them: the variances
+        ``(i, i)``, then the declared pairs ``(i, j)`` (i.e. ``(j, i)`` too: ``S_u`` is symmetric)."""
+        return [(i, i) for i in range(self.dim)] + list(self.pairs)
+
+    def split(self, raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Raw outputs ``(..., 2d + pairs)`` → ``(the means' part (..., d), the covariances' part (..., d + pairs))``
+        (one split: its gradient is one concatenation, where slices would each fill a zero tensor)."""
+        first, rest = raw.split([self.dim, self.per_sample - self.dim], dim=-1)
+        return first, rest
+
+    def mean_of(self, first: torch.Tensor) -> torch.Tensor:
+        """Means ``(..., d)`` from the means' part of raw outputs."""
+        return self.offset + self.scale * first
+
+    def entries(self, raw: torch.Tensor, dim: int = -1) -> torch.Tensor:
+        """The non-zero entries of ``S_u`` ``(..., d + pairs)`` (:attr:`entry_index`) of raw outputs: ``σ_i²``
+        and ``ρ σ_i σ_j`` (eq. 2.11); ``dim``: where the entries' axis goes (1: ``(B, E, K)``)."""
+        return self.entries_of(self.split(raw)[1], dim)
+
+    def entries_of(self, rest: torch.Tensor, dim: int = -1) -> torch.Tensor:
+        """:meth:`entries` from the covariances' part of raw outputs (:meth:`split`)."""
+        sigma_raw, rho_raw = rest.split([self.dim, len(self.pairs)], dim=-1)
+        # softplus of a contiguous copy: PyTorch's strided softplus runs ~6x slower than copy + vectorised
+        sigma = self.scale * (nn.functional.softplus(sigma_raw.contiguous()) + self.sigma_min)
+        s = sigma.unbind(-1)  # unbind: one stack in the backward pass instead of a zero fill per slice
+        values = [s[i] ** 2 for i in range(self.dim)]
+        if self.pairs:
+            r = (0.99 * torch.tanh(rho_raw)).unbind(-1)
+            values += [r[p] * s[i] * s[j] for p, (i, j) in enumerate(self.pairs)]
+        return torch.stack(values, dim=dim)
+
+    def expand(self, entries: torch.Tensor) -> torch.Tensor:
+        """Full symmetric ``(..., d, d)`` matrices from their :attr:`entry_index` entries ``(..., d + pairs)``
+        (an exact 0/1 map: every entry is copied, the others are zero)."""
+        zero = torch.zeros_like(entries[..., 0])
+        full = [[zero] * self.dim for _ in range(self.dim)]
+        for e, (i, j) in enumerate(self.entry_index):
+            full[i][j] = full[j][i] = entries[..., e]
+        return torch.stack([v for row in full for v in row], dim=-1).view(*entries.shape[:-1], self.dim, self.dim)
 
 
 class ChunkedSeq2Seq(nn.Module):
@@ -266,10 +310,15 @@ class ChunkedSeq2Seq(nn.Module):
         Returns:
             ``(state, mean (B, C, d), cov (B, C, d, d) or None)``.
         """
-        flat = (inputs.to(self.decoder_scale.dtype) / self.decoder_scale).reshape(inputs.shape[0], -1)
-        out, state = self.decoder(self.decoder_in(flat), state)
+        state, out = self.decoder_output(state, inputs)
         mean, cov = self.head(out, need_cov)
         return state, mean, cov
+
+    def decoder_output(self, state: LSTMState, inputs: torch.Tensor) -> tuple[LSTMState, torch.Tensor]:
+        """The decoder's new state and top-layer output ``(B, H)`` for the last C states ``(B, C, dim)``."""
+        flat = (inputs.to(self.decoder_scale.dtype) / self.decoder_scale).reshape(inputs.shape[0], -1)
+        out, state = self.decoder(self.decoder_in(flat), state)
+        return state, out
 
 
 class ChunkDynamics(Protocol):
@@ -300,6 +349,19 @@ class ChunkDynamics(Protocol):
         ...
 
 
+class EntrywiseCovariance(Protocol):
+    """Optionally, dynamics whose covariance propagation acts on every entry of ``S_u`` alike (the double
+    integrator: a fixed linear map along time). :func:`rollout` then decodes the means chunk by chunk and
+    propagates all chunks' covariances at once afterwards — the same numbers with far fewer operations."""
+
+    def propagate_entrywise(self, entries: torch.Tensor, known: torch.Tensor, chunk: int) -> dict[str, torch.Tensor]:
+        """``entries`` ``(B, E, N·C)``: E entries of ``S_u`` per sample for N chunks of C; ``known`` ``(B, N)``:
+        chunk k starts from a known state (zero covariance: the start, or teacher forcing). Returns what
+        :meth:`ChunkDynamics.step` would have returned besides the states, per entry (``"pos_cov"``
+        ``(B, E, N·C)``), which the rollout expands to full matrices."""
+        ...
+
+
 @dataclass
 class Rollout:
     """Everything one decoding pass produced (length N·C + 1 states for N decoder steps).
@@ -310,12 +372,33 @@ class Rollout:
         accel_cov: ``(B, N·C, d, d)`` or None.
         outputs: further per-sample outputs of the dynamics (e.g. ``pos_cov`` ``(B, N·C, p, p)``
             of ``states[:, 1:]``), concatenated over chunks.
+        cov_entries: with ``rollout(..., expand_cov=False)`` on dynamics with entrywise covariances: the
+            covariances as their non-zero entries ``(B, E, N·C)`` only (``"accel_cov"`` and the dynamics'
+            covariance outputs, e.g. ``"pos_cov"``), in the order of ``entry_index`` (``(i, j)`` per entry);
+            ``accel_cov`` and those outputs are then not built. None otherwise.
     """
 
     states: torch.Tensor
     accel: torch.Tensor
     accel_cov: torch.Tensor | None
     outputs: dict[str, torch.Tensor]
+    cov_entries: dict[str, torch.Tensor] | None = None
+    entry_index: list[tuple[int, int]] | None = None
+
+    def cov_entry(self, key: str, i: int, j: int) -> torch.Tensor:
+        """Entry ``(i, j)`` ``(B, N·C)`` of the covariance ``key`` (``"accel_cov"``, ``"pos_cov"``…), from
+        ``cov_entries`` when the rollout kept only those, else from the full matrices."""
+        if self.cov_entries is not None and self.entry_index is not None:
+            # one unbind per key (its gradient is one stack; a select per entry would each fill a zero tensor)
+            cache = self.__dict__.setdefault("_unbound", {})
+            if key not in cache:
+                cache[key] = self.cov_entries[key].unbind(1)
+            for e, pair in enumerate(self.entry_index):
+                if pair in ((i, j), (j, i)):
+                    return cache[key][e]
+            return torch.zeros_like(cache[key][0])
+        full = self.accel_cov if key == "accel_cov" else self.outputs[key]
+        return full[..., i, j]
 
 
 def rollout(
@@ -329,6 +412,7 @@ def rollout(
     teacher: torch.Tensor | None = None,
     teacher_forcing_prob: float = 0.0,
     generator: torch.Generator | None = None,
+    expand_cov: bool = True,
 ) -> Rollout:
     """Run the decoder in closed loop with the dynamics (free running / scheduled sampling).
 
@@ -340,14 +424,20 @@ def rollout(
         teacher_forcing_prob: probability, per trajectory and decoder step, of feeding the true
             chunk (and continuing the physics from the true state) instead of the generated one.
         generator: random source for the teacher-forcing coin flips.
+        expand_cov: with dynamics that propagate covariances entrywise (:class:`EntrywiseCovariance`):
+            False keeps them as their non-zero entries (``Rollout.cov_entries``) instead of building
+            ``(d, d)`` matrices (a loss that reads a few entries saves the matrices' memory traffic).
     """
     c = model.chunk
-    state = model.initial_state(z)
-    carry = dynamics.start(x0)
-    inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
     use_teacher = teacher is not None and teacher_forcing_prob > 0.0
     if use_teacher and teacher.shape[1] < num_chunks * c + 1:
         raise ValueError(f"teacher needs {num_chunks * c + 1} samples, got {teacher.shape[1]}")
+    if need_cov and hasattr(dynamics, "propagate_entrywise"):
+        return _rollout_entrywise(model, z, x0, dynamics, num_chunks, teacher if use_teacher else None,
+                                  teacher_forcing_prob, generator, expand_cov)
+    state = model.initial_state(z)
+    carry = dynamics.start(x0)
+    inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
     states, accels, covs, outputs = [x0.unsqueeze(1)], [], [], {}
     for k in range(num_chunks):
         state, mean, cov = model.decode_step(state, inputs, need_cov)
@@ -371,4 +461,63 @@ def rollout(
         accel=torch.cat(accels, dim=1),
         accel_cov=torch.cat(covs, dim=1) if covs else None,
         outputs={key: torch.cat(value, dim=1) for key, value in outputs.items()},
+    )
+
+
+def _rollout_entrywise(
+    model: ChunkedSeq2Seq,
+    z: torch.Tensor,
+    x0: torch.Tensor,
+    dynamics: ChunkDynamics,
+    num_chunks: int,
+    teacher: torch.Tensor | None,
+    teacher_forcing_prob: float,
+    generator: torch.Generator | None,
+    expand: bool = True,
+) -> Rollout:
+    """:func:`rollout` with ``need_cov`` for dynamics with :meth:`EntrywiseCovariance.propagate_entrywise`.
+
+    The closed loop needs only the means: the decoder and the physics run chunk by chunk on them, the
+    head's raw outputs are kept, and after the loop the covariances of all N·C samples are made and
+    propagated in a few whole-sequence operations (the head's ``S_u`` entries, their propagation with
+    the restarts teacher forcing made, the expansion to matrices) instead of N rounds of small ones.
+    Same coin flips, same states, same covariances as the chunk-by-chunk loop.
+    """
+    c = model.chunk
+    head = model.head
+    state = model.initial_state(z)
+    carry = dynamics.start(x0)
+    inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
+    b = x0.shape[0]
+    states, means, rests = [x0.unsqueeze(1)], [], []
+    known = [torch.ones(b, dtype=torch.bool, device=x0.device)]  # chunk 0 starts from x0, covariance zero
+    for k in range(num_chunks):
+        state, out = model.decoder_output(state, inputs)
+        first, rest = head.split(head.raw(out))
+        mean = head.mean_of(first)
+        means.append(mean)
+        rests.append(rest)
+        carry, step_out = dynamics.step(carry, mean.to(x0.dtype), None)
+        generated = step_out["states"]
+        states.append(generated)
+        inputs = dynamics.decoder_input(generated)
+        if k + 1 < num_chunks:
+            if teacher is not None:
+                coin = torch.rand(b, generator=generator, device=x0.device) < teacher_forcing_prob
+                true_chunk = teacher[:, k * c + 1 : (k + 1) * c + 1]
+                inputs = torch.where(coin.view(-1, 1, 1), dynamics.decoder_input(true_chunk), inputs)
+                carry = dynamics.restart(carry, true_chunk[:, -1], coin)
+                known.append(coin)
+            else:
+                known.append(torch.zeros_like(known[0]))
+    entries = head.entries_of(torch.cat(rests, dim=1), dim=1)  # (B, E, N·C): each entry's series contiguous
+    propagated = dynamics.propagate_entrywise(entries.to(x0.dtype), torch.stack(known, dim=1), c)
+    if not expand:
+        return Rollout(states=torch.cat(states, dim=1), accel=torch.cat(means, dim=1), accel_cov=None, outputs={},
+                       cov_entries={"accel_cov": entries, **propagated}, entry_index=head.entry_index)
+    return Rollout(
+        states=torch.cat(states, dim=1),
+        accel=torch.cat(means, dim=1),
+        accel_cov=head.expand(entries.movedim(1, -1)),
+        outputs={key: head.expand(value.movedim(1, -1)) for key, value in propagated.items()},
     )

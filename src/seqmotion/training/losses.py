@@ -29,9 +29,16 @@ def gaussian_nll_1d(diff: torch.Tensor, var: torch.Tensor, floor: float = DEFAUL
 
 def gaussian_nll_2d(diff: torch.Tensor, cov: torch.Tensor, floor: float = DEFAULT_VARIANCE_FLOOR) -> torch.Tensor:
     """``-log N(diff | 0, cov + floor I)`` for ``diff (..., 2)``, ``cov (..., 2, 2)`` → ``(...)``."""
-    a = cov[..., 0, 0] + floor
-    b = 0.5 * (cov[..., 0, 1] + cov[..., 1, 0])
-    c = cov[..., 1, 1] + floor
+    return gaussian_nll_2d_entries(diff, cov[..., 0, 0], 0.5 * (cov[..., 0, 1] + cov[..., 1, 0]), cov[..., 1, 1], floor)
+
+
+def gaussian_nll_2d_entries(
+    diff: torch.Tensor, xx: torch.Tensor, xy: torch.Tensor, yy: torch.Tensor, floor: float = DEFAULT_VARIANCE_FLOOR
+) -> torch.Tensor:
+    """:func:`gaussian_nll_2d` of the symmetric covariance ``[[xx, xy], [xy, yy]]`` given by its entries ``(...)``."""
+    a = xx + floor
+    b = xy
+    c = yy + floor
     det = a * c - b * b
     dx, dy = diff[..., 0], diff[..., 1]
     quad = (c * dx * dx - 2 * b * dx * dy + a * dy * dy) / det
@@ -98,12 +105,13 @@ def encode_and_rollout(
     teacher: torch.Tensor | None = None,
     teacher_forcing_prob: float = 0.0,
     generator: torch.Generator | None = None,
+    expand_cov: bool = True,
 ) -> Rollout:
     """What every seq2seq loss starts with: encode the padded input motions ``(B, K_max, input_dim)``
     (each of its own length), decode the latents from ``x0`` ``(B, S)`` through ``dynamics`` for enough
     chunks to cover K_max samples, with covariances, and — with ``teacher`` ``(B, K_max, S)`` true
-    states — scheduled sampling at ``teacher_forcing_prob``. Slice the result to ``[:, :K_max]``
-    (states) and ``[:, :K_max-1]`` (inputs, per-sample outputs)."""
+    states — scheduled sampling at ``teacher_forcing_prob``; ``expand_cov`` as :func:`rollout`. Slice the
+    result to ``[:, :K_max]`` (states) and ``[:, :K_max-1]`` (inputs, per-sample outputs)."""
     k_max = inputs.shape[1]
     n_chunks = model.num_chunks(k_max)
     z = model.encode(inputs, lengths)
@@ -111,5 +119,5 @@ def encode_and_rollout(
         teacher = pad_to(teacher, n_chunks * model.chunk + 1)
     return rollout(
         model, z, x0, dynamics, n_chunks, teacher=teacher, teacher_forcing_prob=teacher_forcing_prob,
-        generator=generator,
+        generator=generator, expand_cov=expand_cov,
     )

@@ -1,0 +1,150 @@
+"""The faster training step (issue 21, part 3) computes what the chunk-by-chunk path computes."""
+
+import numpy as np
+import pytest
+import torch
+
+import seqmotion as sm
+from seqmotion.models.lstm import StackedLSTM
+from seqmotion.models.seq2seq import rollout
+from seqmotion.physics.integrator import (
+    CovarianceCarry,
+    DoubleIntegratorDynamics,
+    propagate_covariance,
+    propagate_entrywise,
+)
+from seqmotion.training.losses import pad_to
+
+
+class ChunkByChunk:
+    """The double integrator without ``propagate_entrywise``: :func:`rollout` takes its chunk-by-chunk loop."""
+
+    def __init__(self) -> None:
+        self.inner = DoubleIntegratorDynamics(3)
+
+    def start(self, x0):  # noqa: ANN001, ANN201
+        return self.inner.start(x0)
+
+    def step(self, carry, mean, cov):  # noqa: ANN001, ANN201
+        return self.inner.step(carry, mean, cov)
+
+    def decoder_input(self, states):  # noqa: ANN001, ANN201
+        return self.inner.decoder_input(states)
+
+    def restart(self, carry, state, mask):  # noqa: ANN001, ANN201
+        return self.inner.restart(carry, state, mask)
+
+
+@pytest.fixture(scope="module")
+def small_model_and_batch():
+    task = sm.tasks.get("pancake")
+    cfg = task.train_config("small")
+    torch.manual_seed(0)
+    model = task.build_model(cfg)
+    batch = task.sample(16, np.random.default_rng(3), task.curriculum(cfg).at(15, 0.5), cfg)
+    return model, torch.from_numpy(batch.states).float(), torch.from_numpy(batch.lengths)
+
+
+@pytest.mark.parametrize("teacher_forcing_prob", [0.0, 0.5, 1.0])
+def test_entrywise_rollout_equals_the_chunk_by_chunk_loop(small_model_and_batch, teacher_forcing_prob):
+    model, states, lengths = small_model_and_batch
+    with torch.no_grad():
+        z = model.encode(states, lengths)
+        n = model.num_chunks(states.shape[1])
+        teacher = pad_to(states, n * model.chunk + 1).double()
+        runs = [rollout(model, z, states[:, 0].double(), dyn, n, teacher=teacher,
+                        teacher_forcing_prob=teacher_forcing_prob, generator=torch.Generator().manual_seed(7))
+                for dyn in (DoubleIntegratorDynamics(3), ChunkByChunk())]
+    fast, loop = runs
+    assert torch.equal(fast.states, loop.states) and torch.equal(fast.accel, loop.accel)
+    torch.testing.assert_close(fast.accel_cov, loop.accel_cov.to(fast.accel_cov.dtype), rtol=1e-6, atol=0)
+    torch.testing.assert_close(fast.outputs["pos_cov"], loop.outputs["pos_cov"], rtol=1e-9, atol=1e-30)
+    compact = rollout(model, z, states[:, 0].double(), DoubleIntegratorDynamics(3), n, teacher=teacher,
+                      teacher_forcing_prob=teacher_forcing_prob, generator=torch.Generator().manual_seed(7),
+                      expand_cov=False)
+    assert compact.accel_cov is None and "pos_cov" not in compact.outputs
+    for i, j in [(0, 0), (0, 1), (1, 0), (1, 1), (2, 2), (0, 2)]:
+        torch.testing.assert_close(compact.cov_entry("pos_cov", i, j), loop.outputs["pos_cov"][..., i, j],
+                                   rtol=1e-9, atol=1e-30)
+
+
+def test_propagate_entrywise_matches_the_chunk_recursion_with_restarts():
+    torch.manual_seed(1)
+    b, n, c = 5, 4, 7
+    cov = torch.randn(b, n * c, 3, 3, dtype=torch.float64)
+    cov = cov @ cov.transpose(-1, -2)
+    known = torch.rand(b, n) < 0.4
+    known[:, 0] = True
+    carry, expected = CovarianceCarry.zeros(b, 3, torch.float64, torch.device("cpu")), []
+    for k in range(n):
+        if k:
+            carry = carry.reset_where(known[:, k])
+        pos, carry = propagate_covariance(carry, cov[:, k * c : (k + 1) * c])
+        expected.append(pos)
+    expected = torch.cat(expected, dim=1)
+    entries = torch.stack([cov[..., i, j] for i, j in [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2)]], dim=1)
+    got = propagate_entrywise(entries, known, c)
+    for e, (i, j) in enumerate([(0, 0), (1, 1), (2, 2), (0, 1), (0, 2)]):
+        torch.testing.assert_close(got[:, e], expected[..., i, j], rtol=1e-10, atol=1e-25)
+    with pytest.raises(ValueError, match="chunks"):
+        propagate_entrywise(entries[..., :-1], known, c)
+
+
+def test_encoder_freezing_by_selection_equals_masking():
+    torch.manual_seed(2)
+    lstm = StackedLSTM(8, 6, 2)
+    x = torch.randn(4, 5, 8)
+    active = torch.arange(5).unsqueeze(0) < torch.tensor([[5], [1], [3], [0]])
+    got = lstm.run_sequence(x, active)
+    inputs = x  # reference: the same batch step by step, each state frozen past its trajectory's end (masking)
+    for cell, (h_got, c_got) in zip(lstm.cells, got, strict=True):
+        projected = cell.project_input(inputs)
+        h = c = torch.zeros(4, 6)
+        outputs = []
+        for step in range(5):
+            h_new, c_new = cell.step_projected(projected[:, step], (h, c))
+            keep = active[:, step].unsqueeze(1)
+            h, c = torch.where(keep, h_new, h), torch.where(keep, c_new, c)
+            outputs.append(h)
+        inputs = torch.stack(outputs, dim=1)
+        assert torch.equal(h_got, h) and torch.equal(c_got, c)
+
+
+def test_gaussian_head_covariance_is_the_entry_by_entry_one():
+    task = sm.tasks.get("pancake")
+    torch.manual_seed(3)
+    model = task.build_model(task.train_config("tiny"))
+    h = torch.randn(6, model.cfg.hidden)
+    mean, cov = model.head(h)
+    raw = model.head.net(h).view(6, model.chunk, -1)
+    sigma = model.head.scale * (torch.nn.functional.softplus(raw[..., 3:6]) + model.head.sigma_min)
+    rho = 0.99 * torch.tanh(raw[..., 6])
+    ref = torch.zeros(6, model.chunk, 3, 3)
+    for i in range(3):
+        ref[..., i, i] = sigma[..., i] ** 2
+    ref[..., 0, 1] = ref[..., 1, 0] = rho * sigma[..., 0] * sigma[..., 1]
+    torch.testing.assert_close(cov, ref, rtol=1e-6, atol=0)
+    torch.testing.assert_close(mean, model.head.offset + model.head.scale * raw[..., :3], rtol=0, atol=0)
+
+
+def test_lstm_tanh_through_sigmoid_is_tanh():
+    from seqmotion.models import lstm
+
+    x = torch.linspace(-30, 30, 100_001)
+    assert float((lstm._tanh(x) - torch.tanh(x)).abs().max()) < 3e-7
+
+
+def test_cached_maps_made_in_inference_mode_serve_autograd():
+    from seqmotion.physics import integrator
+
+    integrator._integration_maps.cache_clear()
+    integrator._chunk_covariance_map.cache_clear()
+    x0, u = torch.zeros(2, 6), torch.ones(2, 5, 3)
+    entries, known = torch.ones(2, 4, 10), torch.ones(2, 2, dtype=torch.bool)
+    with torch.inference_mode():
+        integrator.integrate_chunk(x0, u)
+        integrator.propagate_entrywise(entries, known, 5)
+    u.requires_grad_(True)
+    entries.requires_grad_(True)
+    (integrator.integrate_chunk(x0, u).sum() + integrator.propagate_entrywise(entries, known, 5).sum()).backward()
+    assert u.grad is not None and entries.grad is not None
