@@ -9,8 +9,9 @@ On ``--n`` fresh position-type sketches (the ch. 2 generator, K = 100–500, res
 * the closed-form end correction alone (``physics.integrator.reach_end``: the inputs nearest the
   learned ones that end at the sketch's end at rest, ignoring the cone — ~1 ms): the other end of
   the fast path's trade-off;
-* ``deform(keep_end=True)``: the same, plus the share within 2 mm / 0.5° / 0.05 m/s / 0.5 rad/s and
-  the time per motion (deformation + correction + IPOPT polish).
+* ``deform(keep_end=True)``: the same, plus the share within 2 mm / 0.5° / 0.05 m/s / 0.5 rad/s, the
+  time per motion (deformation + correction + IPOPT polish) and how many motions needed more time than
+  their sketch to stop within the arm's acceleration limits (and how much: 1 sample = 1 ms).
 
 Then the first ``--arm`` keep_end motions run on the simulated arm (PD + DOB, ch. 2 gains, the
 model's μ): how many keep the pancake through the motion, and whether any leaves the workspace.
@@ -64,6 +65,7 @@ def main() -> None:
     parser.add_argument("--arm", type=int, default=100)
     parser.add_argument("--seed", type=int, default=2027)
     parser.add_argument("--out", default="bench_keep_end.json")
+    parser.add_argument("--skip", type=int, default=0, help="run the arm on motions skip .. skip + arm")
     args = parser.parse_args()
     torch.set_num_threads(1)
     deformer = sm.load_pretrained("pancake")
@@ -85,7 +87,7 @@ def main() -> None:
             start = time.perf_counter()
             r = deformer.deform(x, keep_end=True)
             seconds.append(time.perf_counter() - start)
-        kept.append(end_metrics(x, r.states, r.accel, mu))
+        kept.append(end_metrics(x, r.states, r.accel, mu) | {"added_samples": int(r.length - len(x))})
         exact.append(bool(r.exact))
         motions.append(r.states)
     record = {
@@ -95,7 +97,11 @@ def main() -> None:
         "keep_end": summarise(kept) | {"exact_share": float(np.mean(exact)),
                                        "seconds_median": float(np.median(seconds)),
                                        "seconds_p95": float(np.percentile(seconds, 95)),
-                                       "seconds_max": float(np.max(seconds))},
+                                       "seconds_max": float(np.max(seconds)),
+                                       "extended_share": float(np.mean([r["added_samples"] > 0 for r in kept])),
+                                       "added_ms_median_of_extended": float(np.median(
+                                           [r["added_samples"] for r in kept if r["added_samples"] > 0] or [0])),
+                                       "added_ms_max": float(max(r["added_samples"] for r in kept))},
     }
     print(json.dumps({k: record[k] for k in ("plain", "end_correction_only", "keep_end")}), flush=True)
     if args.arm:
@@ -103,7 +109,7 @@ def main() -> None:
 
         arm = {"runs": 0, "kept_during_motion": 0, "on_spatula_at_end": 0, "left_workspace": 0, "diverged": 0,
                "executed_max_fc": []}
-        for states in motions[: args.arm]:
+        for states in motions[args.skip : args.skip + args.arm]:
             arm["runs"] += 1
             try:
                 result = sim.run_pancake(states, gains="ch2", mu=mu)

@@ -129,14 +129,28 @@ def test_keep_end_ends_exactly_at_rest_in_the_cone(deformer):
                                atol=1e-12)
     assert np.all(kept.errors["end_position_error_m"] < 1e-7)  # the trust signals judge the polished motion
     one = deformer.deform(batch[0], keep_end=True)
-    assert one.exact is True and one.states.shape == (300, 6)
-    # 0.3 m and 3 rad, rest to rest in 59 ms, needs ≥ 4 · 0.3 / 0.059² = 345 m/s², beyond the arm's 60:
-    # flagged, and the learned motion comes back, not a motion no arm executes
+    assert one.exact is True and one.states.shape == (one.length, 6)
+    assert one.length == 300 and kept.states.shape[1] == kept.length.max() >= 300  # never shorter than the sketch
+    # 0.3 m and 3 rad, rest to rest in 59 ms, needs ≥ 4 · 0.3 / 0.059² = 345 m/s², beyond the arm's 30:
+    # the motion gets the time it needs, within the limits, and ends exactly there at rest
     cut = gen.straight((0.3, 0.0, 3.0), 60)
+    longer = deformer.deform(cut, keep_end=True)
+    limits = np.array(deformer.exact_form().accel_limits)
+    assert longer.exact is True and longer.length > 60 and longer.states.shape == (longer.length, 6)
+    np.testing.assert_allclose(longer.states[-1], np.r_[cut[-1, :3], np.zeros(3)], atol=1e-7)
+    assert longer.violation.max() <= 1e-6 and np.all(np.abs(longer.accel) <= limits * (1 + 1e-6))
+    assert longer.errors["end_position_error_m"] < 1e-7
+    # extend=False keeps the sketch's time: flagged, and the learned motion comes back, not a motion no arm executes
     with pytest.warns(RuntimeWarning, match=r"acceleration limits .* needs at least \(344\.7, 0\.0, 3447\.3\)"):
-        flagged = deformer.deform(cut, keep_end=True)
-    assert flagged.exact is False
+        flagged = deformer.deform(cut, keep_end=True, extend=False)
+    assert flagged.exact is False and flagged.length == 60
     np.testing.assert_array_equal(flagged.states, deformer.deform(cut).states)
+    # in a batch, the shorter motion holds its end (at rest, zero input, no violation counted) up to the longer
+    mixed = deformer.deform(np.stack([batch[0, :60], cut]), keep_end=True)
+    assert np.all(mixed.exact) and mixed.states.shape[1] == mixed.length.max()
+    short = int(mixed.length.argmin())
+    np.testing.assert_array_equal(mixed.accel[short, mixed.length[short] - 1:], 0.0)
+    assert mixed.violation.max() <= 1e-6
 
 
 def test_keep_end_is_refused_by_name(deformer, planner):

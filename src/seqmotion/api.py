@@ -15,29 +15,43 @@ from typing import Any
 from . import tasks
 from .errors import CheckpointError
 from .training import checkpoint as ckpt
+from .training.device import resolve_device
 
 
-def load(path: str | Path, expected_task: str | None = None) -> Any:
+def load(path: str | Path, expected_task: str | None = None, device: str | Any | None = None) -> Any:
     """Load a trained model as its task's user-facing object (``Deformer``, ``SlidingPlanner``...).
 
     Args:
         path: a model directory (``model.safetensors`` + ``config.json``) or a training run
             directory (its latest checkpoint is used).
         expected_task: if given, refuse a checkpoint of any other task.
+        device: run the network there (``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``; default None: the CPU).
+            Weights are stored as CPU tensors whatever device trained them, and load on any device.
 
     Raises:
         CheckpointError: missing, corrupt or mismatched files, or another task's model.
+        ValueError: an unknown device, a CUDA device this machine does not have, or a model that cannot move.
     """
     path = _as_path(path, "path")
+    target = None if device is None else resolve_device(device)  # refused before any file is read
     for attempt in range(3):
         directory = ckpt.resolve_model_dir(path)
         try:
-            return _load_directory(directory, expected_task)
+            return _on(_load_directory(directory, expected_task), target)
         except CheckpointError:
             # a training writing this run may have replaced `latest` and pruned the checkpoint just resolved
             if attempt == 2 or directory == path or directory.exists():
                 raise
     raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _on(model: Any, device: Any) -> Any:
+    """``model`` moved to ``device`` (None: left on the CPU it was loaded on)."""
+    if device is None or (device.type == "cpu" and not hasattr(model, "to")):
+        return model
+    if not hasattr(model, "to"):
+        raise ValueError(f"a {type(model).__name__} runs on the CPU only; drop device={str(device)!r}")
+    return model.to(device)
 
 
 def _load_directory(directory: Path, expected_task: str | None) -> Any:
@@ -92,10 +106,11 @@ def pretrained_dir(name: str) -> Path:
     return models[name]
 
 
-def load_pretrained(name: str) -> Any:
+def load_pretrained(name: str, device: str | Any | None = None) -> Any:
     """A shipped model: ``"pancake"`` → Deformer, ``"sliding"`` → SlidingPlanner, ``"pushing"`` → the
-    learning-from-demonstration policy, and any model a plug-in task's package ships."""
-    return load(pretrained_dir(name))
+    learning-from-demonstration policy, and any model a plug-in task's package ships. ``device``: as
+    :func:`load`."""
+    return load(pretrained_dir(name), device=device)
 
 
 def resolve_model(value: str | Path, expected_task: str | None = None) -> Any:

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli", "seqmotion.deploy.cli")
+PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli", "seqmotion.deploy.cli",
+                   "seqmotion.view.cli")
 
 
 def _trained_model(value: str, expected_task: str | None = None):  # noqa: ANN202 - a task's TrainedModel
@@ -80,6 +81,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-steps must be at least 1, got {args.max_steps}")
     if args.epochs is not None and args.epochs < 1:
         raise ValueError(f"--epochs must be at least 1, got {args.epochs}")
+    from seqmotion.training.device import resolve_device
+
+    try:
+        device = resolve_device(args.device)  # refused before anything is written
+    except ValueError as exc:
+        raise ValueError(f"--device: {exc}") from None
     config = task.train_config(args.config)
     if args.variant:
         if not hasattr(task, "apply_variant"):
@@ -120,7 +127,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                              f"({sorted(shipped)})")
         init_from = shipped[init_from]
     tasks.train(config, out, resume=not args.no_resume, progress=not args.quiet, stop_at_step=args.max_steps,
-                init_from=init_from)
+                init_from=init_from, device=device)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, say it once
         print(f"model written to {out} (load it with seqmotion.load({str(out)!r}))")
     return 0
@@ -136,7 +143,7 @@ def cmd_deform(args: argparse.Namespace) -> int:
     result = model.generate(inputs, keep_end=args.keep_end)
     columns, names = result_columns(result, model)
     write_arrays(args.output, columns, names)
-    message = f"{model.task_def.name}: generated {len(inputs)} samples → {args.output}"
+    message = f"{model.task_def.name}: generated {len(result.states)} samples → {args.output}"
     violation = getattr(result, "violation", None)
     if violation is not None:
         what = "F_c" if model.task_def.name == "pancake" else "constraint violation"
@@ -154,6 +161,9 @@ def cmd_deform(args: argparse.Namespace) -> int:
         print("ends exactly at the input's end pose, at rest (polished)" if result.exact else
               "warning: the polish could not make the motion end at the input's end pose at rest; this is the "
               "learned motion")
+        if result.length > len(inputs):
+            print(f"  it takes {result.length - len(inputs)} samples more than the input: ending at rest within the "
+                  f"arm's acceleration limits {model.exact_form().accel_limits} needs that time")
     for line in model.trust_lines(result):
         print(line)
     return 0
@@ -292,6 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "same task and --config architecture) instead of fresh ones")
     p.add_argument("--final-stage", action="store_true",
                    help="hold the curriculum's final parameters for all --epochs (for fine-tuning with --init-from)")
+    p.add_argument("--device", default="auto", metavar="auto|cpu|cuda|cuda:N",
+                   help="where to train (default auto: the GPU if PyTorch sees one, else the CPU); under torchrun on "
+                        "GPUs one process per GPU (nccl), on CPUs gloo; checkpoints resume on any device")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("deform", help="encode a motion and regenerate it through the model (pancake: keep it on)")
@@ -301,8 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(pancake: y,z,θ,vy,vz,vθ)")
     p.add_argument("--output", required=True, help=".npz or .csv")
     p.add_argument("--keep-end", action="store_true",
-                   help="end exactly where the input ends, at rest, with the constraint held (an IPOPT polish of "
-                        "the learned motion; tasks with an exact form, e.g. pancake)")
+                   help="end exactly where the input ends, at rest, with the constraint held and within the arm's "
+                        "acceleration limits (an IPOPT polish of the learned motion; tasks with an exact form, e.g. "
+                        "pancake); an input too short for that gets the time it needs (the output is longer)")
     p.set_defaults(func=cmd_deform)
 
     p = sub.add_parser("plan", help="plan pan shaking that slides an object along a command (ch. 3)")

@@ -384,8 +384,8 @@ class EndPose(Objective):
                 raise ValueError("EndPose with fields= must be bound to a model first (optimize_latent does)")
             # called directly, unbound: the dissertation's J1 on pancake states
             self._bind_columns(STATE_LAYOUT, ("y", "z", "theta"), D_WEIGHTS, "pancake")
-        target = torch.as_tensor(self.target, dtype=states.dtype)
-        d = torch.tensor(self.weights, dtype=states.dtype)
+        target = torch.as_tensor(self.target, dtype=states.dtype, device=states.device)
+        d = torch.tensor(self.weights, dtype=states.dtype, device=states.device)
         return d * (states[:, -1, self._columns] - target)
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
@@ -493,8 +493,8 @@ class Ranges(Objective):
         end = states[:, -1]
         position_band = torch.relu(torch.sqrt(end[:, 0] ** 2 + end[:, 1] ** 2 + 1e-30) - self.p_lim)
         attitude_band = 0.1 * torch.relu((end[:, 2] - self.theta_end).abs() - self.theta_lim)
-        d = torch.tensor(D_WEIGHTS, dtype=states.dtype)
-        v_lim = torch.tensor(self.v_lim, dtype=states.dtype)
+        d = torch.tensor(D_WEIGHTS, dtype=states.dtype, device=states.device)
+        v_lim = torch.tensor(self.v_lim, dtype=states.dtype, device=states.device)
         excess = torch.relu(d * (states[..., 3:].abs() - v_lim))
         velocity = self.beta / states.shape[1] * (excess**2).sum((1, 2))
         cone = dynamic_penalty(states, accel, MU if self.mu is None else self.mu)
@@ -503,7 +503,7 @@ class Ranges(Objective):
     def _excess(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, torch.Tensor]:
         """How far each band is overstepped, ``(B,)`` each (0 where it holds)."""
         end = states[:, -1]
-        v_lim = torch.tensor(self.v_lim, dtype=states.dtype)
+        v_lim = torch.tensor(self.v_lim, dtype=states.dtype, device=states.device)
         return {
             "end position band": torch.relu(torch.sqrt(end[:, 0] ** 2 + end[:, 1] ** 2) - self.p_lim),
             "end attitude band": torch.relu((end[:, 2] - self.theta_end).abs() - self.theta_lim),
@@ -580,7 +580,7 @@ class AtRest(Objective):
 
     def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         columns, weights = self._bound()
-        return weights.to(states.dtype) * states[:, -1, columns]
+        return weights.to(states.device, states.dtype) * states[:, -1, columns]
 
     def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
         return torch.zeros(states.shape[0], dtype=states.dtype, device=states.device)
@@ -612,5 +612,5 @@ def _np(value: torch.Tensor) -> np.ndarray:
 def _max_per_trajectory(violation: torch.Tensor) -> torch.Tensor:
     """The largest value per trajectory of ``(B, N)`` (0 for N = 0)."""
     if violation.shape[-1] == 0:
-        return torch.zeros(violation.shape[0], dtype=violation.dtype)
+        return torch.zeros(violation.shape[0], dtype=violation.dtype, device=violation.device)
     return violation.amax(-1)

@@ -128,8 +128,8 @@ def _prepare(
     if not (isinstance(lr, str) and lr == "auto"):
         check_number("lr", lr, minimum=0, strict_minimum=True)
     batch, single = as_trajectories(states, model.input_dim, "states")
-    x = torch.from_numpy(batch)
-    return as_objective(objective).bind(model), x, model.start_state(x), x.shape[1], single
+    x = torch.from_numpy(batch)  # stays on the CPU (the trust signals read it); x0 goes to the model's device
+    return as_objective(objective).bind(model), x, model.start_state(x).to(model.device), x.shape[1], single
 
 
 def _check_method(optimizer: object, lr: object, continuation: object) -> None:
@@ -160,7 +160,7 @@ def _descend(
     variable = variable.detach().clone().requires_grad_(True)
     states, accel = evaluate(variable)
     value = objective(states, accel)
-    history = [value.detach().double().numpy().copy()]
+    history = [value.detach().double().cpu().numpy().copy()]
     if optimizer not in ("sgd", "adam", "lm"):
         raise ValueError(f"optimizer must be 'sgd', 'adam' or 'lm', got {optimizer!r}")
     if lr == "auto" and optimizer == "adam":
@@ -176,7 +176,7 @@ def _descend(
             weight, ramp = relax
             w = 1.0 if step >= ramp else weight ** (1.0 - step / ramp)
             variable, value, states, accel, eta = _lm_step(variable, states, accel, eta, evaluate, objective, w)
-            history.append(value.detach().double().numpy().copy())
+            history.append(value.detach().double().cpu().numpy().copy())
             continue
         (grad,) = torch.autograd.grad(value.sum(), variable)
         if not torch.isfinite(grad).all():
@@ -187,11 +187,11 @@ def _descend(
             next_variable = variable
         else:
             variable, value, states, accel, eta = _armijo_step(variable, value, grad, eta, evaluate, objective)
-            history.append(value.detach().double().numpy().copy())
+            history.append(value.detach().double().cpu().numpy().copy())
             continue
         states, accel = evaluate(next_variable)
         value = objective(states, accel)
-        history.append(value.detach().double().numpy().copy())
+        history.append(value.detach().double().cpu().numpy().copy())
     seconds = (time.perf_counter() - start) / max(len(history) - 1, 1)
     return variable.detach(), states.detach(), accel.detach(), np.stack(history), seconds
 
@@ -250,7 +250,7 @@ def _lm_step(
         g_pen = torch.zeros_like(jac[:, 0])
     rhs = (jac.transpose(1, 2) @ residuals.detach().double().unsqueeze(-1)).squeeze(-1) + 0.5 * g_pen  # (B, n)
     gram = jac @ jac.transpose(1, 2)  # (B, m, m)
-    eye = torch.eye(gram.shape[-1], dtype=gram.dtype)
+    eye = torch.eye(gram.shape[-1], dtype=gram.dtype, device=gram.device)
     lam = 1e-3 * gram.diagonal(dim1=1, dim2=2).mean(-1).clamp_min(1e-12) if damping is None else damping
     current = ((residuals.detach() ** 2).sum(-1) + penalty.detach()).double()
     for _ in range(40):
@@ -272,7 +272,8 @@ def _jacobian(residuals: torch.Tensor, variable: torch.Tensor) -> torch.Tensor:
     backward graph), or one after another where an operation has no batching rule."""
     b, m = residuals.shape
     try:
-        seeds = torch.eye(m, dtype=residuals.dtype).unsqueeze(1).expand(m, b, m)  # seed j picks residual j
+        seeds = torch.eye(m, dtype=residuals.dtype, device=residuals.device)  # seed j picks residual j
+        seeds = seeds.unsqueeze(1).expand(m, b, m)
         (jac,) = torch.autograd.grad(residuals, variable, grad_outputs=seeds, retain_graph=True,
                                      is_grads_batched=True)
         return jac.reshape(m, b, -1).transpose(0, 1).double()
@@ -338,6 +339,7 @@ def optimize_latent(
     continuation: tuple[float, int] | str | None = "auto",
     exact: bool = False,
     tol: float | None = None,
+    device: str | torch.device | None = None,
     **physics: Any,
 ) -> OptimizationResult:
     """Cases 1 and 2: optimise the latent z of ``states`` for ``objective``; with ``exact=True``, then polish.
@@ -380,7 +382,11 @@ def optimize_latent(
             task's dynamics do not take is refused (``ValueError``). The pancake's μ is an option
             of the model (``model.options.mu``), used by its objectives; ``EndPose(..., mu=...)``
             judges at another μ.
+        device: run the decoder and the updates there (``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``; default
+            None: where ``model`` runs). ``model`` itself is not moved (a copy on ``device`` is used). The
+            polish and the trust signals run on the CPU; results are NumPy arrays either way.
     """
+    model = _on_device(model, device)
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
     check_number("seed", seed, minimum=0, maximum=2**63 - 1, integer=True)
     optimizer, relax, steps, tol = _resolve_method(objective, optimizer, lr, continuation, steps, exact, tol)
@@ -391,12 +397,13 @@ def optimize_latent(
             z0 = model.encode_torch(x)
         elif isinstance(init, str) and init == "random":
             gen = torch.Generator().manual_seed(seed)
-            z0 = torch.randn(len(x), model.model.latent_dim, generator=gen)
+            z0 = torch.randn(len(x), model.model.latent_dim, generator=gen).to(x0.device)  # the CPU's draw anywhere
         elif not isinstance(init, str):  # continue from given latents
             with np.errstate(over="ignore"):
                 z0 = torch.as_tensor(np.atleast_2d(as_float_array(init, "init").astype(np.float32)))
             if z0.shape != (len(x), model.model.latent_dim) or not torch.isfinite(z0).all():
                 raise ValueError(f"init latent must be finite with shape ({len(x)}, {model.model.latent_dim})")
+            z0 = z0.to(x0.device)
         else:
             raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
     start = time.perf_counter()
@@ -419,13 +426,15 @@ def optimize_trajectory(
     continuation: tuple[float, int] | str | None = "auto",
     exact: bool = False,
     tol: float | None = None,
+    device: str | torch.device | None = None,
     **physics: Any,
 ) -> OptimizationResult:
     """Case 3: optimise the decoder's output accelerations directly (states by integration).
 
     Starts from the motion the decoder generates for ``states``; ``lr`` is η (1000 in the
-    dissertation) or ``"auto"``. Arguments and defaults as :func:`optimize_latent`.
+    dissertation) or ``"auto"``. Arguments (``device`` too) and defaults as :func:`optimize_latent`.
     """
+    model = _on_device(model, device)
     objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
     optimizer, relax, steps, tol = _resolve_method(objective, optimizer, lr, continuation, steps, exact, tol)
     _check_steps(steps)
@@ -440,6 +449,15 @@ def optimize_trajectory(
     stages = [_stage("trajectory", history, time.perf_counter() - start, steps, tol)]
     return _finish(model, objective, x, x0, out_states, out_accel, None, history, seconds, stages, constraints,
                    single, physics)
+
+
+def _on_device(model: object, device: object) -> Any:
+    """``model`` (a copy of it) on ``device``; None: as it is. Checks the model and the device by name."""
+    if device is None:
+        return model
+    if not isinstance(model, TrainedModel):
+        raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
+    return model.on_device(device)
 
 
 def _check_steps(steps: object) -> None:
@@ -469,7 +487,9 @@ def _finish(
     constraints: list | None, single: bool, physics: dict[str, Any],
 ) -> OptimizationResult:
     """Polish (with ``exact=True``), judge each term and the trust signals, and shape the result."""
-    states, accel = states.double(), accel.double()
+    # back on the CPU (a no-op there): the polish, the terms and the result are host-side
+    states, accel, x0 = states.double().cpu(), accel.double().cpu(), x0.cpu()
+    latent = None if latent is None else latent.cpu()
     exact = None
     if constraints is not None:
         states, accel, exact, polish_stage = _polish(model, objective, x0, states, accel, constraints)

@@ -247,3 +247,16 @@ def input_limits(limits: Sequence[float], name: str = "input limits") -> Constra
     if scale.ndim != 1 or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
         raise ValueError(f"input limits must be positive and finite, one per input, got {limits!r}")
     return Constraint(name, ("input_limits", *map(float, limits)), lambda x, u, p: scale_rows(u, scale), -1.0, 1.0)
+
+
+def within_reach(columns: Sequence[int], radius: float, name: str = "within reach") -> Constraint:
+    """``|x[k, columns]| ≤ radius`` for every sample: the positions stay in a disc (ball) about the origin
+    — a robot's workspace, conservatively (scaled so the bound is 1)."""
+    cols = tuple(int(c) for c in columns)
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"a reach radius must be positive and finite, got {radius!r}")
+
+    def build(x: Any, u: Any, p: Any) -> Any:
+        return sum(x[c, :] ** 2 for c in cols) / radius**2
+
+    return Constraint(name, ("within_reach", cols, float(radius)), build, -np.inf, 1.0)

@@ -25,7 +25,9 @@ latent optimisation uses. Tasks may subclass it for friendly verbs (``Deformer.d
 
 from __future__ import annotations
 
+import copy
 import json
+import math
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -44,6 +46,7 @@ from ..physics.transcription import Constraint, Solution, end_values, input_limi
 from ..training import checkpoint as ckpt
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum
+from ..training.device import model_device, resolve_device
 from ..training.pretrained import PretrainedModel
 from . import registry, trust
 from .options import TaskOptions
@@ -286,6 +289,34 @@ def _rest_to_rest_accel(
     return tuple(round(float(n), 1) for n in need) if over else None
 
 
+EXTEND_MARGIN = 0.5
+"""``keep_end`` plans the time a too-short input needs as the bang-bang time at this share of the arm's
+acceleration limits (the task's constraint — the cone — takes part of them: measured on 40 sketches the
+full limits left most such polishes infeasible)…"""
+EXTEND_GROWTH = 1.4
+"""…and, when the polish is still infeasible, tries again with this many times more samples…"""
+EXTEND_ATTEMPTS = 4
+"""…up to this many polishes in all (the last 1.4³ ≈ 2.7× the first time)…"""
+EXTEND_COLD_ITERATIONS = 100
+"""…each but the last with this cap on IPOPT's iterations: a feasible polish converges in ~15–30, a local
+proof of infeasibility takes 50–150, and a longer horizon is the cheaper way on. (Searching the time on a
+coarser transcription first — inputs held for 3 or 10 samples — was tried: holding the inputs makes the
+cone much harder to keep while the spatula turns, so it asked for far more time and took longer.)"""
+
+
+def _steps_to_stop(x0: np.ndarray, columns: list[int], values: np.ndarray, steps: int, form: ExactForm) -> int:
+    """Input samples (``K - 1``) a rest-to-rest motion needs so each axis's bang-bang acceleration,
+    ``4 |Δp| / T²``, stays within :data:`EXTEND_MARGIN` of ``form.accel_limits``: at least ``steps``."""
+    if form.accel_limits is None:
+        return steps
+    need = steps
+    for j, limit in enumerate(form.accel_limits):
+        if j in columns:
+            span = math.sqrt(4 * abs(values[columns.index(j)] - x0[j]) / (EXTEND_MARGIN * limit))
+            need = max(need, math.ceil(span / form.dt))
+    return need
+
+
 def first_of(result: Any) -> Any:
     """The same result dataclass with every array field indexed by ``[0]`` (drop a batch axis of 1)."""
     values = {f.name: getattr(result, f.name) for f in fields(result)}
@@ -320,6 +351,9 @@ class TrustSignals:
         ood_reasons: which features were out, e.g. ``["length 2000 > 500"]`` (a list per motion for a batch).
         exact: with ``keep_end=True``: whether the polish made the motion end exactly at the input's end
             pose, at rest, with the task's constraint held (≤ 1e-6); None otherwise.
+        length: with ``keep_end=True``: the motion's length in samples (``(B,)`` for a batch) — the input's K,
+            or more where ending at rest within the arm's acceleration limits took longer than the input
+            (a batch holds a shorter motion's end state, with zero input, up to its longest); None otherwise.
     """
 
     uncertainty: np.ndarray | None = field(default=None, kw_only=True)
@@ -327,6 +361,7 @@ class TrustSignals:
     out_of_distribution: Any = field(default=None, kw_only=True)
     ood_reasons: list | None = field(default=None, kw_only=True)
     exact: Any = field(default=None, kw_only=True)
+    length: Any = field(default=None, kw_only=True)
 
     def trust(self) -> dict[str, Any]:
         """These fields by name, to pass on to another result (``Result(..., **motion.trust())``)."""
@@ -402,6 +437,41 @@ class TrainedModel(PretrainedModel):
         if not isinstance(training, dict):
             raise ValueError(f"the config's training record must be a JSON object, got {type(training).__name__}")
         self.options = self.task_def.options(training.get("options", {}))
+
+    # --- the device ---------------------------------------------------------------------------
+
+    @property
+    def device(self) -> torch.device:
+        """Where the network runs (the CPU unless moved with :meth:`to` or loaded with ``device=``)."""
+        return model_device(self.model)
+
+    def to(self, device: str | torch.device) -> TrainedModel:
+        """Run the network (encoder, decoder, physics of the rollout) on ``device`` — ``"auto"``, ``"cpu"``,
+        ``"cuda"``, ``"cuda:N"`` — from now on; returns ``self``. Inputs and results stay NumPy arrays on the
+        host: inputs are copied to the device, results back. The exact polish, the trust signals' bookkeeping
+        and the online generator (:meth:`generator`, batch 1, latency-bound) run on the CPU.
+
+        Raises:
+            ValueError: an unknown device, or a CUDA device this machine does not have.
+        """
+        target = resolve_device(device)
+        if getattr(self, "is_quantized", False) and target.type != "cpu":
+            raise ValueError("a quantized copy runs on the CPU only (int8 CPU kernels)")
+        self.model.to(target)
+        return self
+
+    def on_device(self, device: str | torch.device | None) -> TrainedModel:
+        """This model if it already runs on ``device`` (None: wherever it is), else a copy moved there (the
+        ``device=`` argument of latent optimisation: the caller's model stays where it was)."""
+        if device is None:
+            return self
+        target = resolve_device(device)
+        if target == self.device:
+            return self
+        moved = object.__new__(type(self))
+        moved.__dict__.update(self.__dict__)
+        moved.model = copy.deepcopy(self.model)
+        return moved.to(target)
 
     # --- the save/load contract --------------------------------------------------------------
 
@@ -551,7 +621,8 @@ class TrainedModel(PretrainedModel):
 
     def polish(
         self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint] = (),
-        params: Sequence[np.ndarray] = (), start: np.ndarray | None = None,
+        params: Sequence[np.ndarray] = (), start: np.ndarray | None = None, cold_iterations: int = COLD_ITERATIONS,
+        warm: bool = True,
     ) -> Solution:
         """The motion closest to ``accel`` that meets the task's constraint and ``constraints`` exactly.
 
@@ -561,6 +632,8 @@ class TrainedModel(PretrainedModel):
         start far from feasible can even look locally infeasible), it runs once more from the same
         motion with IPOPT's default barrier. ``start``: other inputs ``(K-1, d)`` to start IPOPT from
         (default ``accel``), e.g. ``accel`` already corrected to meet linear end conditions.
+        ``cold_iterations``: IPOPT's iteration cap for the cold start; ``warm=False``: only the cold start (a
+        start outside the acceleration limits, as ``keep_end``'s usually is, never converges warm).
         """
         form = self.exact_form()
         limits = () if form.accel_limits is None else (input_limits(form.accel_limits, "acceleration limits"),)
@@ -568,22 +641,25 @@ class TrainedModel(PretrainedModel):
         values = [np.zeros(0)] * (len(form.constraints) + len(limits)) + [np.asarray(p, np.float64) for p in params]
         length = len(accel) + 1
         kwargs = {"dt": form.dt, "accel_weights": form.accel_weights, "smoothness": form.smoothness}
-        warm = transcription(form.dim, length, every, warm=True, max_iter=WARM_ITERATIONS, **kwargs)
         guess = accel if start is None else start
-        solution = warm.solve(x0, guess, values, reference=accel)
-        if not solution.success:
-            cold = transcription(form.dim, length, every, max_iter=COLD_ITERATIONS, **kwargs)
-            retry = cold.solve(x0, guess, values, reference=accel)
+        solution = None
+        if warm:
+            nlp = transcription(form.dim, length, every, warm=True, max_iter=WARM_ITERATIONS, **kwargs)
+            solution = nlp.solve(x0, guess, values, reference=accel)
+            if solution.success:
+                return solution
+        cold = transcription(form.dim, length, every, max_iter=cold_iterations, **kwargs)
+        retry = cold.solve(x0, guess, values, reference=accel)
+        if solution is not None:
             retry.iterations += solution.iterations
             retry.seconds += solution.seconds
-            solution = retry
-        return solution
+        return retry
 
     # --- differentiable maps (latent optimisation works on these) -------------------------------
 
     def encode_torch(self, inputs: torch.Tensor) -> torch.Tensor:
-        """``(B, K, input_dim)`` → latents ``(B, L·H)``."""
-        return self.model.encode(inputs.float())
+        """``(B, K, input_dim)`` → latents ``(B, L·H)`` (on the model's device)."""
+        return self.model.encode(inputs.float().to(self.device))
 
     def decode_torch(
         self, latent: torch.Tensor, x0: torch.Tensor, length: int, **physics: Any
@@ -603,14 +679,17 @@ class TrainedModel(PretrainedModel):
 
     # --- NumPy API -----------------------------------------------------------------------------
 
-    def generate(self, inputs: object, keep_end: bool = False, **physics: Any) -> Any:
+    def generate(self, inputs: object, keep_end: bool = False, extend: bool = True, **physics: Any) -> Any:
         """Encode ``(K, input_dim)`` or ``(B, K, input_dim)`` motions (any K ≥ 2) and decode them
         through the task's physics: the task's result (a :class:`Motion` unless the task says otherwise).
 
         ``keep_end=True``: then polish each motion (:meth:`polish`) so it ends exactly at the input's
         end pose (the task's ``end_pose`` fields of the input's last sample), at rest, with the task's
-        constraint held — the learned motion changed as little as possible. Needs a task with an
-        exact form and an end pose; ``result.exact`` says, per motion, whether the polish succeeded
+        constraint held and within the arm's acceleration limits (:attr:`ExactForm.accel_limits`) — the
+        learned motion changed as little as possible. An input too short for that (e.g. 0.3 m and 3 rad
+        in 0.15 s) gets the time it needs: the motion is longer than the input (``result.length``), unless
+        ``extend=False``, which keeps the input's length and flags such a motion instead. Needs a task with
+        an exact form and an end pose; ``result.exact`` says, per motion, whether the polish succeeded
         (one that fails keeps the learned motion and warns).
 
         Raises:
@@ -619,13 +698,15 @@ class TrainedModel(PretrainedModel):
         """
         self.check_physics(physics)
         batch, single = as_trajectories(inputs, self.input_dim, self.input_layout.kind)
-        if not isinstance(keep_end, bool):
-            raise ValueError(f"keep_end must be True or False, got {keep_end!r}")
+        for name, flag in (("keep_end", keep_end), ("extend", extend)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"{name} must be True or False, got {flag!r}")
         end = self._end_constraint(batch, physics) if keep_end else None
         with torch.inference_mode():
             x = torch.from_numpy(batch)
             z = self.encode_torch(x)
-            result = self._decode(z, self.start_state(x).double(), batch.shape[1], physics, inputs=batch, end=end)
+            result = self._decode(z, self.start_state(x).double(), batch.shape[1], physics, inputs=batch, end=end,
+                                  extend=extend)
         return first_of(result) if single else result
 
     def _end_constraint(self, inputs: np.ndarray, physics: dict[str, Any]) -> tuple[Constraint, np.ndarray]:
@@ -645,35 +726,54 @@ class TrainedModel(PretrainedModel):
         return end_values(pose + rates, "end at the input's end pose, at rest"), values
 
     def _polish_ends(
-        self, states: torch.Tensor, accel: torch.Tensor, end: tuple[Constraint, np.ndarray]
-    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
-        """Polish each motion onto ``end`` (see :meth:`generate`); ``(states, accel, exact (B,))``."""
+        self, states: torch.Tensor, accel: torch.Tensor, end: tuple[Constraint, np.ndarray], extend: bool = True,
+    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray]:
+        """Polish each motion onto ``end`` (see :meth:`generate`): ``(states, accel, exact (B,), length (B,))``,
+        padded to the longest motion by holding its end state with zero input."""
         constraint, values = end
-        states, accel = states.clone(), accel.clone()
+        columns = list(constraint.key[1])
         exact = np.zeros(len(states), dtype=bool)
         x0, reference = states[:, 0].numpy(), accel.numpy()
         form = self.exact_form()
+        motions = []
         for b in range(len(states)):
-            need = _rest_to_rest_accel(x0[b], list(constraint.key[1]), values[b], len(reference[b]), form)
-            if need is not None:  # no motion can do it within the limits: say so without asking IPOPT
-                warnings.warn(f"keep_end: motion {b} cannot end at rest where its input ends within the acceleration "
-                              f"limits {form.accel_limits} (rest to rest in its time needs at least {need}); it keeps "
-                              "the learned motion", RuntimeWarning, stacklevel=4)
-                continue
-            # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
-            # starts from a motion that only the task's constraint still separates from exact
-            start = reach_end(x0[b], reference[b], list(constraint.key[1]), values[b], np.array(form.accel_weights),
-                              form.dt)
-            solution = self.polish(x0[b], reference[b], [constraint], [values[b]], start=start)
-            new_states, new_accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
-            violation = self.violation_torch(new_states, new_accel)
-            worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
-            if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
-                states[b], accel[b], exact[b] = new_states[0], new_accel[0], True
-            else:
+            motions.append((states[b].numpy(), reference[b]))
+            steps = len(reference[b])
+            if not extend:
+                need = _rest_to_rest_accel(x0[b], columns, values[b], steps, form)
+                if need is not None:  # no motion can do it within the limits in its time: say so without IPOPT
+                    warnings.warn(f"keep_end: motion {b} cannot end at rest where its input ends within the "
+                                  f"acceleration limits {form.accel_limits} (rest to rest in its time needs at least "
+                                  f"{need}); it keeps the learned motion", RuntimeWarning, stacklevel=4)
+                    continue
+            steps = _steps_to_stop(x0[b], columns, values[b], steps, form) if extend else steps
+            attempts = EXTEND_ATTEMPTS if extend else 1
+            for attempt in range(attempts):
+                # after the input's end the polish stays near rest (zero input) while it brings the motion to a stop
+                ref = np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
+                # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
+                # starts from a motion that only the task's constraint still separates from exact
+                start = reach_end(x0[b], ref, columns, values[b], np.array(form.accel_weights), form.dt)
+                last = attempt == attempts - 1  # a failing try is cut short: a longer one will likely succeed
+                solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
+                                       cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS)
+                new_states, new_accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
+                violation = self.violation_torch(new_states, new_accel)
+                worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
+                if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
+                    motions[b], exact[b] = (solution.states, solution.accel), True
+                    break
+                steps = math.ceil(steps * EXTEND_GROWTH)
+            if not exact[b]:
                 warnings.warn(f"keep_end: the polish failed on motion {b} ({solution.status}); it keeps the learned "
                               "motion", RuntimeWarning, stacklevel=4)
-        return states, accel, exact
+        length = np.array([len(s) for s, _ in motions])
+        longest = int(length.max())
+        states = torch.from_numpy(np.stack([np.concatenate([s, np.repeat(s[-1:], longest - len(s), 0)])
+                                            for s, _ in motions]))
+        accel = torch.from_numpy(np.stack([np.concatenate([a, np.zeros((longest - 1 - len(a), a.shape[1]))])
+                                           for _, a in motions]))
+        return states, accel, exact, length
 
     def decode(self, latent: object, x0: object, length: int, **physics: Any) -> Any:
         """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples."""
@@ -714,6 +814,8 @@ class TrainedModel(PretrainedModel):
         """
         dynamics = self.dynamics(**physics)
         steps = self.model.num_chunks(length)
+        device = self.device  # run where the network is; hand the results back on the CPU
+        z, x0 = z.to(device), x0.to(device)
         out = rollout(self.model, z, x0, trust.HeadCovarianceOnly(dynamics), steps, need_cov=True)
         states, accel = out.states[:, :length], out.accel[:, : length - 1].to(x0.dtype)
         outputs = {k: v[:, : length - 1] for k, v in out.outputs.items()}
@@ -724,24 +826,30 @@ class TrainedModel(PretrainedModel):
         if cov is None:  # no closed form: the dynamics' own propagation
             cov = rollout(self.model, z, x0, dynamics, steps, need_cov=True).outputs.get("pos_cov")
         ok = cov is not None and cov.shape[-1] == len(self.uncertainty_names)
-        return states, accel, position_std(cov, length) if ok else None
+        return states.cpu(), accel.cpu(), position_std(cov, length) if ok else None
 
     def _decode(
         self, z: torch.Tensor, x0: torch.Tensor, length: int, physics: dict[str, Any], inputs: np.ndarray | None = None,
-        end: tuple[Constraint, np.ndarray] | None = None,
+        end: tuple[Constraint, np.ndarray] | None = None, extend: bool = True,
     ) -> Any:
         """Decode (with the predicted std, :meth:`rollout_with_std`), polish onto ``end`` when given
-        (``keep_end``), and judge the motion against ``inputs`` ``(B, K, input_dim)`` when given (errors,
-        out-of-distribution flag)."""
+        (``keep_end``; ``extend``: see :meth:`generate`), and judge the motion against ``inputs``
+        ``(B, K, input_dim)`` when given (errors, out-of-distribution flag)."""
         x0 = x0.double()
         states, accel, std = self.rollout_with_std(z, x0, length, **physics)
-        exact = None
+        exact = own_length = None
         if end is not None:
-            states, accel, exact = self._polish_ends(states, accel, end)
+            states, accel, exact, own_length = self._polish_ends(states, accel, end, extend)
         violation = self.violation_torch(states, accel)
+        if own_length is not None and violation is not None:  # a batch's padding past a motion's end is not part of it
+            past = torch.arange(violation.shape[1]) >= torch.from_numpy(own_length - 1)[:, None]
+            violation = violation.masked_fill(past, 0.0)
+        if std is not None and std.shape[1] < states.shape[1]:  # the model predicted the input's time only
+            std = np.concatenate([std, np.repeat(std[:, -1:], states.shape[1] - std.shape[1], axis=1)], axis=1)
         states_np = check_finite_result(states.numpy(), f"{self.task_def.name} generation")
-        motion = Motion(states_np, accel.numpy(), z.float().numpy(), None if violation is None else violation.numpy(),
-                        uncertainty=std, exact=exact)
+        latent_np = z.float().cpu().numpy()
+        motion = Motion(states_np, accel.numpy(), latent_np, None if violation is None else violation.numpy(),
+                        uncertainty=std, exact=exact, length=own_length)
         if inputs is not None:
             motion.errors, motion.out_of_distribution, motion.ood_reasons = self._judge(
                 inputs, states_np, motion.accel, motion.violation, std)
@@ -751,8 +859,11 @@ class TrainedModel(PretrainedModel):
         self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
         std: np.ndarray | None,
     ) -> tuple[dict[str, np.ndarray], np.ndarray | None, list[list[str]]]:
-        """Errors ``(B,)`` each, out-of-distribution flags ``(B,)`` and reasons for a batch."""
-        errors = self.task_def.errors(np.asarray(inputs, dtype=np.float64), states, accel, violation, self.options)
+        """Errors ``(B,)`` each, out-of-distribution flags ``(B,)`` and reasons for a batch (``keep_end`` may have
+        made the motions longer than the inputs: the input then holds its end, where the motion comes to rest)."""
+        inputs = np.asarray(inputs, dtype=np.float64)
+        held = np.concatenate([inputs, np.repeat(inputs[:, -1:], states.shape[1] - inputs.shape[1], axis=1)], axis=1)
+        errors = self.task_def.errors(held, states, accel, violation, self.options)
         try:
             calibration = trust.calibration_for(self)
         except Exception as exc:  # noqa: BLE001 - a task whose generator cannot calibrate: say so, never fail
@@ -837,7 +948,7 @@ class TrainedModel(PretrainedModel):
             batch, single = as_trajectories(inputs, self.input_dim, self.input_layout.kind)
             with torch.inference_mode():
                 x = torch.from_numpy(batch)
-                z = self.encode_torch(x).numpy()
+                z = self.encode_torch(x).cpu().numpy()
                 start = self.start_state(x).double().numpy()
             length = batch.shape[1] if length is None else length
         elif latent is not None and x0 is not None:
@@ -846,7 +957,9 @@ class TrainedModel(PretrainedModel):
         else:
             raise ValueError("give either the input motion, or both latent and x0")
         dynamics = self.dynamics(**physics)
-        return OnlineGenerator(self.model, dynamics, stepper_contract(self, dynamics), z, start, single,
+        # batch 1, one chunk at a time: latency-bound, so the online generator steps on the CPU
+        network = self.model if self.device.type == "cpu" else copy.deepcopy(self.model).cpu()
+        return OnlineGenerator(network, dynamics, stepper_contract(self, dynamics), z, start, single,
                                length=length, violation=self.violation_torch, replan=replan)
 
     def quantized(self, min_features: int = 256) -> TrainedModel:

@@ -261,7 +261,8 @@ def predicted_std(model: Any, inputs: np.ndarray, lengths: np.ndarray | None = N
     with torch.inference_mode():
         for i in range(0, len(x_all), batch):
             x = x_all[i : i + batch]
-            z = model.model.encode(x, torch.from_numpy(lengths[i : i + batch]))
+            device = getattr(model, "device", x.device)  # where the network runs (TrainedModel.device)
+            z = model.model.encode(x.to(device), torch.from_numpy(lengths[i : i + batch]).to(device))
             _, _, std = model.rollout_with_std(z, model.start_state(x).double(), k_max)
             if std is None:
                 raise KeyError("the model's dynamics give no position covariance")

@@ -55,17 +55,21 @@ from tqdm import tqdm
 from ..errors import check_number
 from . import checkpoint as ckpt
 from .config import TrainConfig
+from .device import backend_for, process_device, resolve_device
 from .loop import TrainingLoop
 from .provenance import command_line, machine_description
 
 
-def _distributed() -> tuple[int, int]:
-    """Join the process group torchrun set up, if any; return ``(rank, world_size)``."""
+def _distributed(device: torch.device) -> tuple[int, int]:
+    """Join the process group torchrun set up, if any; return ``(rank, world_size)``. The backend follows
+    the chosen device (``nccl`` on GPUs, ``gloo`` on CPUs), not whether a GPU happens to be visible."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world <= 1:
         return 0, 1
     if not dist.is_initialized():
-        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+        if device.type == "cuda":
+            torch.cuda.set_device(device)
+        dist.init_process_group(backend_for(device))
     return dist.get_rank(), dist.get_world_size()
 
 
@@ -119,6 +123,7 @@ def train(
     progress: bool = True,
     stop_at_step: int | None = None,
     init_from: str | Path | None = None,
+    device: str | torch.device | None = "auto",
 ) -> Path:
     """Train (or continue training) a model; return the run directory.
 
@@ -136,9 +141,16 @@ def train(
             its task and architecture must be ``config``'s) instead of fresh ones seeded by ``seed``. The
             source and its weights' hash go into the run's identity (a checkpoint of another start is refused
             on resume) and provenance. Adam's state and the step counter start fresh.
+        device: where the model, the batches, the physics and the scheduled-sampling coins live:
+            ``"auto"`` (default: the GPU if PyTorch sees one, else the CPU), ``"cpu"``, ``"cuda"``, ``"cuda:N"``
+            (:func:`.device.resolve_device`). Under torchrun on GPUs every process takes ``cuda:LOCAL_RANK``
+            and the gradients are all-reduced with ``nccl``; on CPUs with ``gloo``. Not part of the run's
+            identity: checkpoints hold CPU tensors, and a run resumes on any device (a GPU's random
+            coins and kernels differ from the CPU's, so a run is bit-for-bit repeatable per device).
 
     Raises:
-        ValueError: a bad setting (named), or ``run_dir`` cannot be written.
+        ValueError: a bad setting (named; an unknown device or ``cuda`` without a GPU too), or ``run_dir``
+            cannot be written.
         seqmotion.CheckpointError: the run directory holds another training's checkpoints.
         seqmotion.errors.RunInUseError: another training is writing into ``run_dir``.
     """
@@ -148,7 +160,10 @@ def train(
     if stop_at_step is not None:
         check_number("stop_at_step (--max-steps)", stop_at_step, minimum=1, integer=True)
     task.options(config)  # refuse unknown or bad options before anything is written
-    rank, world = _distributed()
+    device = resolve_device(device)
+    world_env = int(os.environ.get("WORLD_SIZE", "1"))
+    device = process_device(device, world_env)
+    rank, world = _distributed(device)
     if config.batch_size % world:
         raise ValueError(f"batch_size {config.batch_size} is not divisible by {world} processes")
     run_dir = Path(run_dir)
@@ -158,6 +173,7 @@ def train(
     torch.manual_seed(config.seed)
     model = task.build_model(config)
     start = _load_initial_weights(model, config, init_from) if init_from is not None else None
+    model.to(device)  # after building (and loading) on the CPU: the initial weights do not depend on the device
     curriculum = task.curriculum(config)
     total = curriculum.epochs * config.batches_per_epoch
     loop = TrainingLoop(
@@ -168,7 +184,8 @@ def train(
         writer=rank == 0, reduce_gradients=(lambda params: _average_gradients(params, world)) if world > 1 else None,
     )
     try:
-        _run(task, config, model, curriculum, loop, run_dir, rank, world, resume, progress, stop_at_step, start)
+        _run(task, config, model, curriculum, loop, run_dir, rank, world, resume, progress, stop_at_step, start,
+             device)
     finally:
         loop.close()
     return run_dir
@@ -197,6 +214,7 @@ def _load_initial_weights(model: torch.nn.Module, config: TrainConfig, source: s
 def _run(
     task: Any, config: TrainConfig, model: torch.nn.Module, curriculum: Any, loop: TrainingLoop, run_dir: Path,
     rank: int, world: int, resume: bool, progress: bool, stop_at_step: int | None, start: dict | None = None,
+    device: torch.device | None = None,
 ) -> None:
     """The body of :func:`train` (its loop is closed, and the run directory unlocked, by the caller)."""
     bpe = config.batches_per_epoch
@@ -207,7 +225,10 @@ def _run(
         program = "seqmotion"
     elif program.endswith(os.path.join("seqmotion", "cli.py")):
         program = "python -m seqmotion.cli" if world == 1 else f"torchrun --nproc_per_node={world} -m seqmotion.cli"
+    device = torch.device("cpu") if device is None else device
     provenance = {"command": command_line(program), "machine": machine_description(), "world_size": world}
+    if device.type != "cpu":  # (CPU runs' records stay what they were)
+        provenance["device"] = str(device)
     if start:
         provenance["init_from"] = start
     saved = loop.start(resume)
@@ -231,7 +252,7 @@ def _run(
         epoch = step // bpe + 1
         stage, batch = draw(step)
         # the single-process coins of step `step`; on a data-parallel rank, _RankSlice hands out this rank's share
-        coins = torch.Generator().manual_seed(int(np.random.default_rng([config.seed, step, 1]).integers(2**62)))
+        coins = torch.Generator(device).manual_seed(int(np.random.default_rng([config.seed, step, 1]).integers(2**62)))
 
         if world > 1:
             with _RankSlice(coins, rank, world):
@@ -245,7 +266,7 @@ def _run(
 
         terms = {"loss": float(loss.detach()), **terms}
         if world > 1:
-            values = torch.tensor(list(terms.values()), dtype=torch.float64)
+            values = torch.tensor(list(terms.values()), dtype=torch.float64, device=device)  # nccl: on the GPU
             dist.all_reduce(values)
             terms = dict(zip(terms, (values / world).tolist(), strict=True))
         loop.log({**terms, **{f"param_{k}": v for k, v in stage.items()}}, epoch=epoch)
