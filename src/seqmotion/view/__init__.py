@@ -1,0 +1,39 @@
+"""An interactive viewer in the browser: ``seqmotion view [MODEL]`` (viser).
+
+Panels: **Pancake** (a sketch from end-pose sliders, the deformed motion, θ(t) and ψ(t) against the
+friction-cone band, the trust signals, ``keep_end``, latent adjustment toward a dragged end pose, a 3-D
+replay of the MuJoCo arm, export as CSV/NPZ or MP4), **Sliding** (a command path → the planned pan
+motion and the object's path under chosen friction), **Latent space** (sliders over the main PCA
+directions of a model's latents, decoded live; the pushing model's images and ẑ clusters), and for
+any other task (a plug-in) a generic panel built from its state layout.
+
+What is drawn is computed by plain classes in :mod:`.sessions` (testable without a browser); the
+viser layer (:mod:`.app`, imported only when the server starts) only moves their arrays to the page.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .sessions import (
+    LatentSession,
+    PancakeControls,
+    PancakeSession,
+    PushingLatentSession,
+    SlidingControls,
+    SlidingSession,
+    TaskSession,
+)
+
+__all__ = [
+    "LatentSession", "PancakeControls", "PancakeSession", "PushingLatentSession", "SlidingControls",
+    "SlidingSession", "TaskSession", "serve",
+]
+
+
+def serve(model: str = "pancake", **kwargs: Any) -> Any:
+    """Start the web app (:class:`seqmotion.view.app.ViewerApp`) and return it; the server runs in background
+    threads until ``app.stop()``. Needs ``viser`` (``pip install 'seqmotion[view]'``)."""
+    from .app import ViewerApp
+
+    return ViewerApp(model, **kwargs)

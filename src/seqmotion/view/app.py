@@ -1,0 +1,882 @@
+"""The viser layer: the page's controls, plots and 3-D scene, wired to the sessions (:mod:`.sessions`).
+
+Everything here only moves data between the page and a session: a control's callback posts a job to
+the panel's :class:`Worker` (one thread; a newer job replaces a pending one, so a dragged slider never
+queues stale work), the job asks the session for a frame and pushes its arrays to the page. Timings of
+every redraw are kept in :attr:`ViewerApp.timings` (the benchmark reads them).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import commands, figures, scene3d
+from .sessions import (
+    LatentSession,
+    PancakeControls,
+    PancakeFrame,
+    PancakeSession,
+    PushingLatentSession,
+    SlidingControls,
+    SlidingFrame,
+    SlidingSession,
+    TaskSession,
+)
+
+MAX_LINE_POINTS = 200
+"""Polylines sent to the 3-D scene are resampled to this many points."""
+
+
+class Worker:
+    """One background thread running the latest job posted to it (a pending job is replaced by a newer one)."""
+
+    def __init__(self, name: str, on_error: Callable[[str], None]) -> None:
+        self.on_error = on_error
+        self._cond = threading.Condition()
+        self._pending: Callable[[], None] | None = None
+        self._running = False
+        self._closed = False
+        self._thread = threading.Thread(target=self._loop, name=f"seqmotion-view-{name}", daemon=True)
+        self._thread.start()
+
+    def submit(self, job: Callable[[], None]) -> None:
+        with self._cond:
+            self._pending = job
+            self._cond.notify()
+
+    @property
+    def has_pending(self) -> bool:
+        return self._pending is not None
+
+    def idle(self, timeout: float = 30.0) -> bool:
+        """Wait until no job runs or waits (tests, benchmarks); False on timeout."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._cond:
+                if self._pending is None and not self._running:
+                    return True
+            time.sleep(0.005)
+        return False
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                job, self._pending = self._pending, None
+                self._running = True
+            try:
+                job()
+            except Exception as exc:  # noqa: BLE001 - shown on the page, the server keeps running
+                self.on_error(f"{type(exc).__name__}: {exc}")
+                traceback.print_exc()
+            finally:
+                with self._cond:
+                    self._running = False
+
+
+def polyline(points: np.ndarray, n: int = MAX_LINE_POINTS) -> np.ndarray:
+    """``(N, 3)`` points → ``(n - 1, 2, 3)`` segments for ``add_line_segments``, resampled to ``n`` points: always
+    the same count, so a redraw updates the line's points in place (no new scene node for the browser to build)."""
+    s = np.linspace(0, len(points) - 1, n)
+    p = np.stack([np.interp(s, np.arange(len(points)), points[:, i]) for i in range(3)], axis=1)
+    return np.stack([p[:-1], p[1:]], axis=1).astype(np.float32)
+
+
+class SceneLine:
+    """A polyline in the 3-D scene whose points are replaced in place on every redraw."""
+
+    def __init__(self, server: Any, name: str, rgb: tuple[int, int, int], thickness: float) -> None:
+        self.server, self.name, self.rgb, self.thickness = server, name, rgb, thickness
+        self.handle: Any = None
+
+    def set(self, points: np.ndarray, visible: bool = True) -> None:
+        if not visible:  # the page's "paths in 3D" is off: leave the scene alone (no 3-D redraw)
+            if self.handle is not None and self.handle.visible:
+                self.handle.visible = False
+            return
+        segments = polyline(points)
+        if self.handle is not None and not self.handle.visible:
+            self.handle.visible = True
+        if self.handle is None:
+            self.handle = self.server.scene.add_line_segments(self.name, segments, self.rgb, thickness=self.thickness,
+                                                              thickness_units="screen")
+        else:
+            self.handle.points = segments
+
+
+def about_x(theta: float) -> tuple[float, float, float, float]:
+    return (math.cos(theta / 2), math.sin(theta / 2), 0.0, 0.0)
+
+
+class ArmView:
+    """The MuJoCo arm of one scene in viser: a frame per body, the body's geoms as meshes under it; replays
+    move the frames."""
+
+    def __init__(self, server: Any, root: str, kind: str) -> None:
+        from ..sim.arm import get_scene
+
+        self.server, self.root, self.kind = server, root, kind
+        model = get_scene(kind).model
+        self.frames = {}
+        pos, quat = scene3d.rest_poses(kind)
+        for geom in scene3d.scene_geoms(model):
+            b = geom.body
+            if b not in self.frames:
+                self.frames[b] = server.scene.add_frame(f"{root}/arm/body{b}", show_axes=False, position=pos[b],
+                                                        wxyz=quat[b])
+            server.scene.add_mesh_simple(f"{root}/arm/body{b}/{geom.name}", geom.vertices, geom.faces,
+                                         color=geom.rgb, flat_shading=False, cast_shadow=False,
+                                         receive_shadow=False)  # no shadow pass: cheap redraws
+        self.playing = False
+        self.replay: scene3d.Replay | None = None
+
+    def pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        with self.server.atomic():
+            for b, frame in self.frames.items():
+                if b == 0:
+                    continue
+                frame.position, frame.wxyz = pos[b], quat[b]
+
+    def rest(self, start: np.ndarray | None = None) -> None:
+        self.pose(*scene3d.rest_poses(self.kind, start))
+
+
+class ViewerApp:
+    """The ``seqmotion view`` web app.
+
+    Args:
+        model: the main model — a shipped name or a model/run directory (any task; ``"pushing"`` too).
+        sliding_model: with the pancake model, the planner of the sliding panel (None: no sliding panel).
+        host, port: where the server listens (port 0: a free one).
+        out: where exports go (created on the first export).
+        latent_n: encodings behind the latent panel's PCA.
+        simulate: show the 3-D arm (False: no MuJoCo, no scene).
+    """
+
+    def __init__(self, model: str = "pancake", *, sliding_model: str | None = "sliding", host: str = "127.0.0.1",
+                 port: int = 8080, out: str | Path = "seqmotion-view", latent_n: int = 96,
+                 simulate: bool = True) -> None:
+        import viser
+
+        from ..api import resolve_model
+
+        self.out = Path(out)
+        self.timings: dict[str, list[float]] = {}
+        self.marks: dict[str, float] = {}
+        self.errors: list[str] = []
+        main = resolve_model(model)  # every model is loaded before the server starts: a bad name starts nothing
+        task = getattr(getattr(main, "task_def", None), "name", None)
+        if sliding_model is not None and sliding_model.lower() == "none":
+            sliding_model = None
+        planner = resolve_model(sliding_model, "sliding") if task == "pancake" and sliding_model else None
+        self.server = viser.ViserServer(host=host, port=port, label="seqmotion view", verbose=False)
+        self.server.gui.configure_theme(control_width="large", show_logo=False, dark_mode=False)
+        self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.position = (1.45, -1.35, 1.0)
+        self.server.initial_camera.look_at = (0.5, 0.2, 0.15)
+        self.server.scene.configure_environment_map(None)  # no HDRI download: plain lights, works offline
+        self.server.scene.configure_default_lights(True, cast_shadow=False)
+        self.server.scene.add_light_ambient("/light/ambient", intensity=0.6)
+        self.server.scene.add_light_directional("/light/key", intensity=1.6, position=(0.8, -0.6, 2.0))
+        self.server.scene.add_grid("/grid", width=2.0, height=2.0, cell_size=0.1, position=(0.35, 0.0, -0.2))
+        self.simulate, self.latent_n = simulate, latent_n
+        self.panels: dict[str, Any] = {}
+        try:
+            self._build(model, main, task, sliding_model, planner)
+        except BaseException:
+            self.stop()  # a panel that cannot be built leaves no server running
+            raise
+
+    def _build(self, model: str, main: Any, task: str | None, sliding_model: str | None, planner: Any) -> None:
+        from ..tasks import TrainedModel
+
+        self.status = self.server.gui.add_markdown("")
+        tabs = self.server.gui.add_tab_group()
+        latent_models: dict[str, Any] = {}
+        if isinstance(main, TrainedModel):
+            latent_models[model] = main
+        if task == "pancake":
+            self.panels["pancake"] = PancakePanel(self, tabs.add_tab("Pancake"), PancakeSession(main))
+        elif task == "sliding":
+            self.panels["sliding"] = SlidingPanel(self, tabs.add_tab("Sliding"), SlidingSession(main))
+        elif isinstance(main, TrainedModel):
+            self.panels["task"] = TaskPanel(self, tabs.add_tab(f"Task: {task}"), TaskSession(main))
+        if planner is not None:
+            self.panels["sliding"] = SlidingPanel(self, tabs.add_tab("Sliding"), SlidingSession(planner))
+            latent_models[sliding_model] = planner
+        pushing = main if not isinstance(main, TrainedModel) else None
+        self.panels["latent"] = LatentPanel(self, tabs.add_tab("Latent space"), latent_models, pushing)
+        self.scene_choice = None
+        scenes = [name for name, p in self.panels.items() if getattr(p, "arm", None) is not None]
+        if scenes:
+            self.scene_choice = self.server.gui.add_dropdown("3D scene", tuple(scenes), initial_value=scenes[0],
+                                                             order=-1)
+            self.scene_choice.on_update(lambda _: self.show_scene(self.scene_choice.value))
+            self.paths_box = self.server.gui.add_checkbox(
+                "paths in 3D", True, order=-0.5,
+                hint="draw the paths in the 3-D view on every redraw (off: faster on a browser without a GPU)")
+            self.paths_box.on_update(lambda _: [p.request() for p in self.panels.values() if p.arm is not None])
+            self.show_scene(scenes[0])
+
+    # --- plumbing ----------------------------------------------------------------------------------
+
+    @property
+    def paths_in_3d(self) -> bool:
+        box = getattr(self, "paths_box", None)
+        return True if box is None else bool(box.value)
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.server.get_host()}:{self.server.get_port()}"
+
+    def show_scene(self, name: str) -> None:
+        if getattr(self, "scene_choice", None) is None:  # still building
+            return
+        for key, panel in self.panels.items():
+            root = getattr(panel, "root", None)
+            if root is not None:
+                root.visible = key == name
+        if self.scene_choice.value != name:
+            self.scene_choice.value = name
+
+    def error(self, message: str) -> None:
+        self.errors.append(message)
+        self.status.content = f"⚠ {message}"
+
+    def record(self, what: str, seconds: float) -> None:
+        self.timings.setdefault(what, []).append(seconds)
+
+    def mark(self, what: str) -> None:
+        """Note when ``what`` last happened (``time.perf_counter``): a control's event reached the server
+        (``<panel>.event``), its redraw was pushed (``<panel>.pushed``)."""
+        self.marks[what] = time.perf_counter()
+
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        return all(p.worker.idle(timeout) for p in self.panels.values())
+
+    def export_file(self, name: str, write: Callable[[Path], Path]) -> Path:
+        """Write an export into :attr:`out` and offer it to every browser as a download."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        path = write(self.out / name)
+        for client in self.server.get_clients().values():
+            client.send_file_download(path.name, path.read_bytes())
+        return path
+
+    def stop(self) -> None:
+        for panel in self.panels.values():
+            panel.worker.close()
+        self.server.stop()
+
+
+# --- panels --------------------------------------------------------------------------------------------
+
+
+def _uplot_series(labels: list[tuple[str, str]], x_label: str = "t [s]") -> tuple[dict, ...]:
+    import viser.uplot as up
+
+    out = [up.Series(label=x_label)]
+    for label, colour in labels:
+        s = up.Series(label=label, stroke=colour, width=2)
+        if label.startswith("·"):  # band edges: thin, dashed
+            s = up.Series(label=label, stroke=colour, width=1, dash=[4, 4])
+        out.append(s)
+    return tuple(out)
+
+
+NUMERIC_X = {"x": {"time": False}}
+"""uPlot reads x as seconds since 1970 unless told otherwise."""
+
+
+def _band(upper: int, lower: int, fill: str) -> Any:
+    import viser.uplot as up
+
+    return up.Band(series=(upper, lower), fill=fill)
+
+
+class PancakePanel:
+    """Sketch → deformed motion, θ(t), ψ(t) in the cone band, trust signals, latent adjustment, replay, export."""
+
+    def __init__(self, app: ViewerApp, tab: Any, session: PancakeSession) -> None:
+        self.app, self.session, self.server = app, session, app.server
+        self.worker = Worker("pancake", app.error)
+        self.controls = PancakeControls()
+        self.frame: PancakeFrame | None = None
+        self.target = (0.1, 0.0, math.pi)
+        gui = self.server.gui
+        with tab:
+            gui.add_markdown("Move the sketch's end pose: the model deforms it so the pancake stays on the spatula "
+                             "(ch. 2). Drag the gizmo at the spatula in the 3-D view (arrows: y, z; ring: θ) to "
+                             "adjust the motion's latent toward that end pose (ch. 4).")
+            with gui.add_folder("Sketch"):
+                self.end_y = gui.add_slider("end y [m]", -0.3, 0.3, 0.005, self.controls.end_y)
+                self.end_z = gui.add_slider("end z [m]", -0.3, 0.3, 0.005, self.controls.end_z)
+                self.end_theta = gui.add_slider("end θ [rad]", -3.5, 3.5, 0.05, self.controls.end_theta)
+                self.length = gui.add_slider("duration K [ms]", 100, 1000, 10, self.controls.length)
+                self.timing = gui.add_dropdown("timing", ("s_curve", "linear"), initial_value="s_curve")
+                self.keep_end = gui.add_checkbox("keep_end (exact end, IPOPT)", False,
+                                                 hint="polish the learned motion so it ends exactly at the sketch's "
+                                                      "end, at rest, inside the cone (~0.3-1.5 s)")
+            self.readout = gui.add_markdown("computing…")
+            self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="path (z vs y)",
+                                            format="png")
+            k = np.arange(2, dtype=float)
+            self.theta_plot = gui.add_uplot(
+                (k, k, k, k, k),
+                _uplot_series([("θ sketch", "#8c8c8c"), ("θ deformed", "#1f77b4"), ("·θ+2σ", "#9ecae1"),
+                               ("·θ−2σ", "#9ecae1")]),
+                bands=(_band(3, 4, "rgba(31,119,180,0.15)"),), title="θ(t) [rad] ± 2σ predicted", aspect=1.6,
+                scales=NUMERIC_X)
+            self.psi_plot = gui.add_uplot(
+                (k, k, k, k, k),
+                _uplot_series([("·+atan μ", "#2ca02c"), ("·−atan μ", "#2ca02c"), ("ψ sketch", "#8c8c8c"),
+                               ("ψ deformed", "#d62728")]),
+                bands=(_band(1, 2, "rgba(44,160,44,0.12)"),), title="ψ(t) [rad] in the friction cone", aspect=1.6,
+                scales=NUMERIC_X)
+            with gui.add_folder("Latent adjustment (ch. 4)"):
+                self.target_in = gui.add_vector3("target y, z, θ", self.target, step=0.005,
+                                                 hint="the end pose to reach (also set by dragging the gizmo)")
+                self.updates = gui.add_slider("LM updates", 1, 20, 1, 6)
+                self.adjust_button = gui.add_button("Adjust latent to target")
+                self.learned_button = gui.add_button("Back to the learned motion")
+            with gui.add_folder("Arm replay (MuJoCo)"):
+                self.sim_button = gui.add_button("Simulate on the arm", disabled=not app.simulate)
+                self.speed = gui.add_slider("speed × real time", 0.05, 1.0, 0.05, 0.25)
+                self.play_button = gui.add_button("Play again")
+                self.sim_readout = gui.add_markdown("")
+            with gui.add_folder("Export"):
+                self.format = gui.add_dropdown("format", ("csv", "npz"), initial_value="csv")
+                self.export_button = gui.add_button("Export motion")
+                self.video_button = gui.add_button("Export video (MP4)", disabled=not app.simulate)
+                self.export_readout = gui.add_markdown("")
+        self.root = self.server.scene.add_frame("/pancake", show_axes=False)
+        self.lines = {"sketch": SceneLine(self.server, "/pancake/sketch", (140, 140, 140), 2.0),
+                      "deformed": SceneLine(self.server, "/pancake/deformed", (31, 119, 180), 4.0)}
+        self.arm = ArmView(self.server, "/pancake", "pancake") if app.simulate else None
+        self.gizmo = self.server.scene.add_transform_controls(
+            "/pancake/target", scale=0.2, active_axes=(False, True, True), depth_test=False,
+            position=scene3d.planar_to_world(np.array([self.target[:2]]))[0], wxyz=about_x(self.target[2]))
+        for control in (self.end_y, self.end_z, self.end_theta, self.length, self.timing, self.keep_end):
+            control.on_update(lambda _: self.request())
+        self.gizmo.on_update(self._gizmo_event)
+        self.target_in.on_update(lambda _: self._target_typed())
+        self.adjust_button.on_click(lambda _: self.request_adjust())
+        self.learned_button.on_click(lambda _: self.request())
+        self.sim_button.on_click(lambda _: self.worker.submit(self._simulate))
+        self.play_button.on_click(lambda _: self._play())
+        self.export_button.on_click(lambda _: self.worker.submit(self._export))
+        self.video_button.on_click(lambda _: self.worker.submit(self._video))
+        self.request()
+
+    # controls → jobs
+    def read_controls(self) -> PancakeControls:
+        return PancakeControls(float(self.end_y.value), float(self.end_z.value), float(self.end_theta.value),
+                               int(self.length.value), str(self.timing.value), bool(self.keep_end.value))
+
+    def request(self) -> None:
+        self.app.mark("pancake.event")
+        self.app.show_scene("pancake")
+        self.worker.submit(self._redraw_learned)
+
+    def request_adjust(self) -> None:
+        self.app.show_scene("pancake")
+        self.worker.submit(self._adjust)
+
+    def _redraw_learned(self) -> None:
+        start = time.perf_counter()
+        self.controls = self.read_controls()
+        frame = self.session.update(self.controls)
+        self.draw(frame)
+        self.app.record("pancake.keep_end" if self.controls.keep_end else "pancake.redraw", time.perf_counter() - start)
+
+    def _adjust(self) -> None:
+        self.controls = self.read_controls()
+
+        def show(frame: PancakeFrame) -> bool:
+            self.draw(frame)
+            return self.worker.has_pending  # a newer request: stop here
+
+        start = time.perf_counter()
+        self.session.adjust(self.controls, self.target, int(self.updates.value), on_update=show)
+        self.app.record("pancake.adjust", time.perf_counter() - start)
+
+    def _gizmo_event(self, event: Any) -> None:
+        self._gizmo_moved()
+        if getattr(event, "phase", "end") == "end":  # released: adjust toward where it was left
+            self.request_adjust()
+
+    def _gizmo_moved(self) -> None:
+        p, q = np.asarray(self.gizmo.position), np.asarray(self.gizmo.wxyz)
+        origin = scene3d.planar_to_world(np.zeros((1, 2)))[0]
+        theta = 2 * math.atan2(q[1], q[0])
+        theta += 2 * math.pi * round((self.target[2] - theta) / (2 * math.pi))  # continuous with the last value
+        self.target = (float(p[1] - origin[1]), float(p[2] - origin[2]), float(theta))
+        self.target_in.value = tuple(round(v, 4) for v in self.target)
+
+    def _target_typed(self) -> None:
+        t = tuple(float(v) for v in self.target_in.value)
+        if np.allclose(t, self.target, atol=1e-4):
+            return
+        self.target = t
+        self.gizmo.position = scene3d.planar_to_world(np.array([t[:2]]))[0]
+        self.gizmo.wxyz = about_x(t[2])
+
+    # frame → page
+    def draw(self, frame: PancakeFrame) -> None:
+        self.frame = frame
+        t, st, sk = frame.time, frame.states, frame.sketch
+        lo, hi = frame.std_band(2)
+        img = figures.path_figure(
+            [figures.Line(sk[:, :2], figures.GREY, "sketch", dashed=True),
+             figures.Line(st[:, :2], figures.BLUE, f"{frame.source} (±1σ)",
+                          band=None if frame.std is None else np.hypot(frame.std[:, 0], frame.std[:, 1]))],
+            "y", "z", markers=[((sk[-1, 0], sk[-1, 1]), figures.GREY, "sketch end")]
+            + ([((frame.target[0], frame.target[1]), figures.ORANGE, "target")] if frame.target else []))
+        tp = t[:-1]
+        cone = np.full(len(tp), frame.cone)
+        world = scene3d.planar_to_world
+        with self.server.atomic():
+            self.readout.content = frame.readout()
+            self.path_image.image = img
+            self.theta_plot.data = (t, sk[:, 2], st[:, 2], hi, lo)
+            self.psi_plot.data = (tp, cone, -cone, frame.sketch_psi, frame.psi)
+        self.server.flush()  # the panel first: the 3-D view redraws after it (slow in software WebGL)
+        with self.server.atomic():
+            self.lines["sketch"].set(world(sk), self.app.paths_in_3d)
+            self.lines["deformed"].set(world(st), self.app.paths_in_3d)
+        self.server.flush()
+        self.app.mark("pancake.pushed")
+
+    # replay, export
+    def _simulate(self) -> None:
+        if self.frame is None or self.arm is None:
+            return
+        self.app.show_scene("pancake")
+        self.sim_readout.content = "simulating on the arm…"
+        start = time.perf_counter()
+        try:
+            self.arm.replay = scene3d.replay("pancake", self.frame.states)
+        except ValueError as exc:
+            self.sim_readout.content = f"⚠ {exc}"
+            return
+        self.app.record("pancake.simulate", time.perf_counter() - start)
+        self.sim_readout.content = f"{self.arm.replay.summary} (simulated {self.arm.replay.realtime:.1f}× real time)"
+        self._play()
+
+    def _play(self) -> None:
+        play(self.arm, self.speed)
+
+    def _export(self) -> None:
+        if self.frame is None:
+            return
+        fmt = self.format.value
+        name = f"pancake-{self.frame.source.replace(' ', '-').replace('/', 'of')}.{fmt}"
+        path = self.app.export_file(name, lambda p: self.session.export(self.frame, p))
+        self.export_readout.content = f"wrote `{path}` ({len(self.frame.states)} samples; also sent to the browser)"
+
+    def _video(self) -> None:
+        if self.frame is None:
+            return
+        from ..sim import run_pancake
+
+        self.export_readout.content = "rendering the video…"
+        states = self.frame.states
+        try:
+            path = self.app.export_file("pancake.mp4", lambda p: (run_pancake(states, video=p), Path(p))[1])
+        except ValueError as exc:  # e.g. a motion that leaves the arm's workspace
+            self.export_readout.content = f"⚠ no video: {exc}"
+            return
+        self.export_readout.content = f"wrote `{path}` (MuJoCo render, 4× slowed; also sent to the browser)"
+
+
+def play(arm: ArmView | None, speed: Any) -> None:
+    """Play the arm's latest replay in a thread, at ``speed.value`` × real time."""
+    if arm is None or arm.replay is None or arm.playing:
+        return
+    replay = arm.replay
+
+    def run() -> None:
+        arm.playing = True
+        try:
+            dt = float(replay.time[1] - replay.time[0]) if len(replay.time) > 1 else 0.01
+            for i in range(len(replay.time)):
+                began = time.perf_counter()
+                arm.pose(replay.pos[i], replay.quat[i])
+                time.sleep(max(0.0, dt / max(float(speed.value), 1e-3) - (time.perf_counter() - began)))
+        finally:
+            arm.playing = False
+
+    threading.Thread(target=run, daemon=True, name="seqmotion-view-replay").start()
+
+
+class SlidingPanel:
+    """Command path → planned pan motion, the object's path under (μ, μ'), tracking error; replay and export."""
+
+    def __init__(self, app: ViewerApp, tab: Any, session: SlidingSession) -> None:
+        self.app, self.session, self.server = app, session, app.server
+        self.worker = Worker("sliding", app.error)
+        c = session.defaults()
+        self.frame: SlidingFrame | None = None
+        gui = self.server.gui
+        with tab:
+            gui.add_markdown("Choose or draw the path the object should slide along on the pan: the planner (ch. 3) "
+                             "shakes the pan so that it does, under the friction you set.")
+            with gui.add_folder("Command"):
+                self.shape = gui.add_dropdown("shape", commands.SHAPES, initial_value=c.shape)
+                self.size = gui.add_slider("size [mm]", 10, 100, 1, round(1000 * c.size),
+                                           hint="line length, arc/circle radius, figure-eight half width")
+                self.angle = gui.add_slider("angle [deg]", -180, 180, 5, 0,
+                                            hint="line/circle: direction; arc: the angle it sweeps (0 = 90°)")
+                self.length = gui.add_slider("duration K [ms]", 200, 1500, 50, c.length)
+                self.points = gui.add_text("points x,y [mm]", c.points,
+                                           hint="spline: the points it passes through from (0, 0), e.g. "
+                                                "'30,0; 40,20; 20,40'")
+                self.draw_mode = gui.add_checkbox("click the pan to add points", False,
+                                                  hint="each click on the pan in the 3-D view appends a point to "
+                                                       "the spline")
+                self.clear_button = gui.add_button("Clear points")
+            with gui.add_folder("Friction of the 2-D physics"):
+                self.mu = gui.add_slider("μ (static)", 0.1, 1.0, 0.01, c.mu)
+                self.mu_dyn = gui.add_slider("μ' (dynamic)", 0.0, 1.0, 0.01, c.mu_dyn)
+            self.readout = gui.add_markdown("computing…")
+            self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="paths on the pan (y vs x)",
+                                            format="png")
+            k = np.arange(2, dtype=float)
+            self.error_plot = gui.add_uplot(
+                (k, k, k, k), _uplot_series([("|object − command| [mm]", "#d62728"), ("·2σ x [mm]", "#9ecae1"),
+                                             ("·2σ y [mm]", "#c6dbef")]),
+                title="tracking error and predicted std", aspect=1.6, scales=NUMERIC_X)
+            self.accel_plot = gui.add_uplot(
+                (k, k, k), _uplot_series([("pan u_x [m/s²]", "#ff7f0e"), ("pan u_y [m/s²]", "#9467bd")]),
+                title="planned pan acceleration", aspect=1.6, scales=NUMERIC_X)
+            with gui.add_folder("Arm replay (MuJoCo)"):
+                self.sim_button = gui.add_button("Simulate on the arm", disabled=not app.simulate)
+                self.speed = gui.add_slider("speed × real time", 0.05, 1.0, 0.05, 0.5)
+                self.play_button = gui.add_button("Play again")
+                self.sim_readout = gui.add_markdown("")
+            with gui.add_folder("Export"):
+                self.format = gui.add_dropdown("format", ("csv", "npz"), initial_value="csv")
+                self.export_button = gui.add_button("Export plan")
+                self.export_readout = gui.add_markdown("")
+        self.root = self.server.scene.add_frame("/sliding", show_axes=False)
+        self.lines = {"command": SceneLine(self.server, "/sliding/command", (140, 140, 140), 2.0),
+                      "object": SceneLine(self.server, "/sliding/object", (31, 119, 180), 4.0),
+                      "pan": SceneLine(self.server, "/sliding/pan", (255, 127, 14), 2.0)}
+        self.arm = ArmView(self.server, "/sliding", "sliding") if app.simulate else None
+        for control in (self.shape, self.size, self.angle, self.length, self.points, self.mu, self.mu_dyn):
+            control.on_update(lambda _: self.request())
+        self.clear_button.on_click(lambda _: self._clear())
+        self.sim_button.on_click(lambda _: self.worker.submit(self._simulate))
+        self.play_button.on_click(lambda _: play(self.arm, self.speed))
+        self.export_button.on_click(lambda _: self.worker.submit(self._export))
+        self.draw_mode.on_update(lambda _: self._toggle_drawing())
+        self.request()
+
+    def read_controls(self) -> SlidingControls:
+        mu = float(self.mu.value)
+        return SlidingControls(str(self.shape.value), float(self.size.value) / 1000, float(self.angle.value),
+                               int(self.length.value), str(self.points.value), mu, min(float(self.mu_dyn.value), mu))
+
+    def request(self) -> None:
+        self.app.mark("sliding.event")
+        self.app.show_scene("sliding")
+        self.worker.submit(self._redraw)
+
+    def _redraw(self) -> None:
+        start = time.perf_counter()
+        try:
+            frame = self.session.update(self.read_controls())
+        except ValueError as exc:  # a bad point list, friction out of range: say so, keep the last plan
+            self.readout.content = f"⚠ {exc}"
+            return
+        self.draw(frame)
+        self.app.record("sliding.redraw", time.perf_counter() - start)
+
+    def draw(self, frame: SlidingFrame) -> None:
+        self.frame = frame
+        std = frame.std
+        img = figures.path_figure(
+            [figures.Line(frame.command[:, :2], figures.GREY, "command", dashed=True),
+             figures.Line(frame.obj[:, :2], figures.BLUE, "object, planned (±1σ)",
+                          band=None if std is None else np.hypot(std[:, 0], std[:, 1])),
+             figures.Line(frame.pan[:, :2], figures.ORANGE, "pan centre", width=1)],
+            "x", "y", markers=[((frame.command[-1, 0], frame.command[-1, 1]), figures.GREY, "command end")])
+        zeros = np.zeros(len(frame.time))
+        sx = zeros if std is None else 2000 * std[:, 0]
+        sy = zeros if std is None else 2000 * std[:, 1]
+        with self.server.atomic():
+            self.readout.content = frame.readout()
+            self.path_image.image = img
+            self.error_plot.data = (frame.time, 1000 * frame.tracking, sx, sy)
+            self.accel_plot.data = (frame.time[:-1], frame.pan_accel[:, 0], frame.pan_accel[:, 1])
+        self.server.flush()  # the panel first: the 3-D view redraws after it (slow in software WebGL)
+        with self.server.atomic():
+            shown = self.app.paths_in_3d
+            self.lines["command"].set(scene3d.pan_to_world(np.zeros_like(frame.command), frame.command), shown)
+            self.lines["object"].set(scene3d.pan_to_world(frame.pan, frame.obj, lift=0.008), shown)
+            self.lines["pan"].set(scene3d.pan_to_world(frame.pan, lift=0.012), shown)
+        self.server.flush()
+        self.app.mark("sliding.pushed")
+
+    def _toggle_drawing(self) -> None:
+        if self.draw_mode.value:
+            self.server.scene.on_pointer_event("click")(self._clicked)
+        else:
+            self.server.scene.remove_pointer_callback()
+
+    def _clicked(self, event: Any) -> None:
+        from ..sim.scene import PAN_ORIGIN
+
+        o, d = np.asarray(event.ray_origin), np.asarray(event.ray_direction)
+        if abs(d[2]) < 1e-9:
+            return
+        s = (PAN_ORIGIN[2] - o[2]) / d[2]
+        hit = o + s * d
+        x, y = hit[0] - PAN_ORIGIN[0], hit[1] - PAN_ORIGIN[1]
+        if math.hypot(x, y) > 0.1:
+            return
+        text = str(self.points.value).strip()
+        if self.shape.value != "spline":
+            self.shape.value, text = "spline", ""
+        self.points.value = (text + "; " if text else "") + f"{1000 * x:.0f},{1000 * y:.0f}"
+
+    def _clear(self) -> None:
+        self.points.value = ""
+
+    def _simulate(self) -> None:
+        if self.frame is None or self.arm is None:
+            return
+        self.app.show_scene("sliding")
+        self.sim_readout.content = "simulating on the arm…"
+        try:
+            self.arm.replay = scene3d.replay("sliding", self.frame.pan, self.frame.command)
+        except ValueError as exc:
+            self.sim_readout.content = f"⚠ {exc}"
+            return
+        self.sim_readout.content = f"{self.arm.replay.summary} (simulated {self.arm.replay.realtime:.1f}× real time)"
+        play(self.arm, self.speed)
+
+    def _export(self) -> None:
+        if self.frame is None:
+            return
+        path = self.app.export_file(f"sliding-{self.frame.controls.shape}.{self.format.value}",
+                                    lambda p: self.session.export(self.frame, p))
+        self.export_readout.content = f"wrote `{path}` (also sent to the browser)"
+
+
+class TaskPanel:
+    """Any task: inputs from its generator, the generated motion field by field (layout names), its path."""
+
+    def __init__(self, app: ViewerApp, tab: Any, session: TaskSession) -> None:
+        self.app, self.session, self.server = app, session, app.server
+        self.worker = Worker("task", app.error)
+        self.root = None
+        self.arm = None
+        gui = self.server.gui
+        fields = session.fields
+        with tab:
+            gui.add_markdown(f"Task `{session.model.task_def.name}`: inputs drawn from its own training generator, "
+                             "and what the model generates from each (fields by the task's state layout).")
+            self.index = gui.add_slider("input #", 0, len(session.inputs) - 1, 1, 0)
+            self.field = gui.add_dropdown("field", fields, initial_value=fields[0])
+            self.readout = gui.add_markdown("computing…")
+            self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="path", format="png")
+            k = np.arange(2, dtype=float)
+            self.plot = gui.add_uplot((k, k, k), _uplot_series([("input", "#8c8c8c"), ("generated", "#1f77b4")]),
+                                      title="the chosen field over time", aspect=1.6, scales=NUMERIC_X)
+        for control in (self.index, self.field):
+            control.on_update(lambda _: self.worker.submit(self._redraw))
+        self.worker.submit(self._redraw)
+
+    def _redraw(self) -> None:
+        start = time.perf_counter()
+        frame = self.session.update(int(self.index.value))
+        name = str(self.field.value)
+        gen, inp = frame.series(name)
+        unit = frame.state_units[frame.state_names.index(name)]
+        with self.server.atomic():
+            self.readout.content = frame.readout() + f"\n\nplotted: **{name}** [{unit}]"
+            self.plot.data = (frame.time, gen if inp is None else inp, gen)
+            if frame.state_path is not None:
+                lines = [figures.Line(frame.state_path, figures.BLUE, "generated")]
+                if frame.input_path is not None:
+                    lines.insert(0, figures.Line(frame.input_path, figures.GREY, "input", dashed=True))
+                self.path_image.image = figures.path_figure(lines, "first metre field", "second")
+            self.path_image.visible = frame.state_path is not None
+        self.app.record("task.redraw", time.perf_counter() - start)
+
+
+class LatentPanel:
+    """Sliders over the main PCA directions of a model's latents (encodings of its task's data), decoded live;
+    for the pushing model its 64×64 webcam images, ẑ and the six position clusters."""
+
+    def __init__(self, app: ViewerApp, tab: Any, models: dict[str, Any], pushing: Any = None) -> None:
+        self.app, self.server = app, app.server
+        self.worker = Worker("latent", app.error)
+        self.root = None
+        self.arm = None
+        self.models, self.pushing_model = dict(models), pushing
+        self.sessions: dict[str, Any] = {}
+        names = list(models) + (["pushing"] if pushing is not None or "pushing" not in models else [])
+        gui = self.server.gui
+        with tab:
+            gui.add_markdown("The latent z of each input a model encodes; the sliders move along the main "
+                             "directions of a set of encodings (in standard deviations) and decode live.")
+            self.choice = gui.add_dropdown("model", tuple(names), initial_value=names[0])
+            self.sliders = [gui.add_slider(f"PC{i + 1} [σ]", -3.0, 3.0, 0.1, 0.0) for i in range(5)]
+            self.reset_button = gui.add_button("Back to the mean")
+            self.readout = gui.add_markdown("computing…")
+            self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="decoded path", format="png")
+            self.scatter = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="encodings (PC1, PC2)",
+                                         format="png")
+            self.webcam = gui.add_image(np.full((192, 192, 3), 255, np.uint8), label="webcam 64×64", format="png",
+                                        visible=False)
+            k = np.arange(2, dtype=float)
+            self.plot = gui.add_uplot((k, k, k, k), _uplot_series([("field 1", "#1f77b4"), ("field 2", "#ff7f0e"),
+                                                                   ("field 3", "#2ca02c")]),
+                                      title="decoded: the first three state fields", aspect=1.6, scales=NUMERIC_X)
+        self.choice.on_update(lambda _: self.request())
+        for s in self.sliders:
+            s.on_update(lambda _: self.request())
+        self.reset_button.on_click(lambda _: self._reset())
+        self.worker.submit(self._redraw)
+
+    def request(self) -> None:
+        self.app.mark("latent.event")
+        self.worker.submit(self._redraw)
+
+    def _reset(self) -> None:
+        for s in self.sliders:
+            s.value = 0.0
+
+    def session(self, name: str) -> Any:
+        if name not in self.sessions:
+            self.readout.content = f"encoding a data set with `{name}`…"
+            if name == "pushing":
+                from ..api import load_pretrained
+
+                policy = self.pushing_model or load_pretrained("pushing")
+                self.sessions[name] = PushingLatentSession(policy)
+            else:
+                self.sessions[name] = LatentSession(self.models[name], n=self.app.latent_n)
+        return self.sessions[name]
+
+    def _redraw(self) -> None:
+        start = time.perf_counter()
+        name = str(self.choice.value)
+        session = self.session(name)
+        coords = tuple(float(s.value) for s in self.sliders)
+        if isinstance(session, PushingLatentSession):
+            self._draw_pushing(session, coords[:3])
+        else:
+            self._draw_seq2seq(session, coords)
+        self.server.flush()
+        self.app.mark("latent.pushed")
+        self.app.record("latent.redraw", time.perf_counter() - start)
+
+    def _draw_seq2seq(self, session: LatentSession, coords: tuple[float, ...]) -> None:
+        frame = session.update(coords)
+        scores = session.pca.scores / session.pca.std
+        point = np.array(coords[:2])
+        lines = []
+        if frame.path is not None:
+            near = session.inputs[frame.nearest, : session.lengths[frame.nearest]]
+            pf = [session.model.input_layout.names.index(n) for n in ("y", "z", "x")
+                  if n in session.model.input_layout.names][:2]
+            if len(pf) == 2:
+                lines.append(figures.Line(near[:, pf], figures.GREY, f"nearest encoded input #{frame.nearest}",
+                                          dashed=True))
+            lines.append(figures.Line(frame.path, figures.BLUE, "decoded"))
+        names = frame.state_names[:3]
+        with self.server.atomic():
+            for i, s in enumerate(self.sliders):
+                s.visible = i < len(session.pca.std)
+            self.readout.content = frame.readout(session.pca) + f" Fields 1–3: {', '.join(names)}."
+            if lines:
+                self.path_image.image = figures.path_figure(lines, "x" if "x" in names else "y",
+                                                            "y" if "x" in names else "z")
+            self.path_image.visible = bool(lines)
+            self.scatter.image = scatter_figure(scores[:, :2], None, point)
+            self.webcam.visible = False
+            self.plot.data = (frame.time, *(frame.states[:, i] for i in range(3)))
+            if not self.plot.visible:
+                self.plot.visible = True
+
+    def _draw_pushing(self, session: PushingLatentSession, coords: tuple[float, ...]) -> None:
+        from ..sim.pushing import POSITIONS
+
+        nearest = session.nearest_position(coords)
+        scores = session.pca.scores / session.pca.std
+        image = np.kron(session.image_for(nearest), np.ones((3, 3, 1), np.uint8))
+        with self.server.atomic():
+            for i, s in enumerate(self.sliders):
+                s.visible = i < 3
+            self.readout.content = (
+                f"pushing model: ẑ = CNN(64×64 webcam image), {session.z.shape[1]} numbers; "
+                f"{len(session.z)} images (6 block positions × scene variations). The point "
+                f"({', '.join(f'{v:+.1f}σ' for v in coords)}) is nearest the cluster of **{POSITIONS[nearest].name}**."
+                " Variance explained: " + ", ".join(f"PC{i + 1} {100 * e:.0f} %"
+                                                     for i, e in enumerate(session.pca.explained)))
+            self.webcam.image = image
+            self.webcam.visible = True
+            self.path_image.visible = False
+            self.scatter.image = scatter_figure(scores[:, :2], session.labels, np.array(coords[:2]))
+            if self.plot.visible:
+                self.plot.visible = False
+
+
+PALETTE = [figures.BLUE, figures.ORANGE, figures.GREEN, figures.RED, figures.PURPLE, (140, 86, 75)]
+
+
+def scatter_figure(points: np.ndarray, labels: np.ndarray | None, current: np.ndarray,
+                   size: tuple[int, int] = (440, 330)) -> np.ndarray:
+    """Encodings in the first two principal directions (σ units), coloured by ``labels``, and the current point."""
+    from PIL import Image, ImageDraw
+
+    w, h = size
+    img = Image.new("RGB", size, (255, 255, 255))
+    draw = ImageDraw.Draw(img)
+    lim = max(3.2, float(np.abs(points).max()) * 1.05 if len(points) else 3.2)
+
+    def px(p: np.ndarray) -> tuple[float, float]:
+        return (w / 2 + p[0] / lim * (w / 2 - 20), h / 2 - p[1] / lim * (h / 2 - 20))
+
+    draw.line([(20, h / 2), (w - 20, h / 2)], fill=(220, 220, 220))
+    draw.line([(w / 2, 20), (w / 2, h - 20)], fill=(220, 220, 220))
+    draw.text((w - 60, h / 2 + 4), "PC1 [σ]", fill=(60, 60, 60))
+    draw.text((w / 2 + 4, 6), "PC2 [σ]", fill=(60, 60, 60))
+    for i, p in enumerate(points):
+        x, y = px(p)
+        rgb = figures.GREY if labels is None else PALETTE[int(labels[i]) % len(PALETTE)]
+        draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=rgb)
+    x, y = px(current)
+    draw.ellipse([x - 7, y - 7, x + 7, y + 7], outline=figures.RED, width=3)
+    if labels is not None:
+        from ..sim.pushing import POSITIONS
+
+        for i, pos in enumerate(POSITIONS):
+            draw.text((8, 8 + 13 * i), f"● {pos.name}", fill=PALETTE[i % len(PALETTE)])
+    return np.asarray(img)
+
+
+def serve(model: str = "pancake", **kwargs: Any) -> ViewerApp:
+    """Start the viewer (returns at once; the server runs in background threads)."""
+    return ViewerApp(model, **kwargs)
+
+
+__all__ = ["ViewerApp", "serve"]

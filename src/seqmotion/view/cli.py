@@ -1,0 +1,55 @@
+"""``seqmotion view [MODEL]``: the interactive viewer in the browser (:mod:`seqmotion.view`)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add ``view`` to the main parser's subcommands."""
+    p = subparsers.add_parser("view", help="interactive viewer in the browser: deform, plan, adjust, replay (viser)",
+                              description="Start a local web app (viser) and print its address: the pancake "
+                                          "deformer, the sliding planner and the latent space, live, with the "
+                                          "MuJoCo arm in 3-D. Any other task's model gets a panel built from its "
+                                          "state layout.")
+    p.add_argument("model", nargs="?", default="pancake",
+                   help="shipped model name or model/run directory, of any task (default: pancake)")
+    p.add_argument("--sliding-model", default="sliding",
+                   help="with the pancake model: the planner of the Sliding panel ('none': no Sliding panel)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: reachable from elsewhere)")
+    p.add_argument("--port", type=int, default=8080, help="port (0: any free one)")
+    p.add_argument("--out", default="seqmotion-view", help="folder for exported motions and videos")
+    p.add_argument("--no-sim", action="store_true", help="no MuJoCo arm in the 3-D scene (and no replay/video)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch CPU threads (default 1: on a small machine the server's own threads need the rest)")
+    p.add_argument("--seconds", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        import viser  # noqa: F401
+    except ImportError:
+        raise ValueError("the viewer needs viser: pip install 'seqmotion[view]'") from None
+    import torch
+
+    if args.threads < 1:
+        raise ValueError(f"--threads must be at least 1, got {args.threads}")
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port must be in 0..65535, got {args.port}")
+    torch.set_num_threads(args.threads)
+    from .app import ViewerApp
+
+    sliding = None if args.sliding_model.lower() == "none" else args.sliding_model
+    app = ViewerApp(args.model, sliding_model=sliding, host=args.host, port=args.port, out=args.out,
+                    simulate=not args.no_sim)
+    print(f"seqmotion view: open {app.url} in a browser (Ctrl-C stops)", flush=True)
+    try:
+        end = None if args.seconds is None else time.monotonic() + args.seconds
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2)
+    finally:
+        app.stop()
+    return 0
