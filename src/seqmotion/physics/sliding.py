@@ -22,6 +22,15 @@ chapter-3 curriculum exists for; through sliding and breakaway it is not.
 ``J = ∂u_d/∂u_p`` per sample (−I while sliding, 0 while stuck, ``−I + μg (I − m mᵀ)/|u_p|``
 at breakaway) is returned to propagate covariances, ``S_ud = J S_up Jᵀ`` (SPEC §2); it is
 treated as a constant in the backward pass.
+
+**Backends.** The same step loop also exists in batched PyTorch (``backend="torch"``), for tensors
+on any device (a GPU above all): the loop over samples stays sequential, each step a handful of
+elementwise ops over the batch, the stick/slip cases chosen by ``torch.where`` with the numba
+kernel's float64 arithmetic in the same order (so the same case every sample, bit for bit, and the
+same states); its backward is the same hand derivation, written in torch, with the local
+Jacobians of all samples built at once and only a 2 × 2 product per sample left sequential.
+``backend=None`` picks numba for CPU tensors (:data:`CPU_BACKEND`; many times faster there, see
+``benchmarks/results_sliding_physics.md``) and torch for any other device (:data:`DEVICE_BACKEND`).
 """
 
 from __future__ import annotations
@@ -187,9 +196,188 @@ class ContactChunk(torch.autograd.Function):
                 torch.as_tensor(grad_u, **as_t), None, None, None)
 
 
+# --- the same contact model in batched torch (any device) -----------------------------------------
+
+BACKENDS = ("numba", "torch", "torch_autograd")
+"""``numba``: the CPU kernel above; ``torch``: batched torch with the hand-derived backward
+(:class:`TorchContactChunk`); ``torch_autograd``: the same torch forward, differentiated by autograd
+(slower; kept to cross-check the hand derivation)."""
+
+
+CPU_BACKEND = "numba"
+"""What ``backend=None`` means for CPU tensors (numba: many times faster there, see
+``benchmarks/results_sliding_physics.md``); set it to ``"torch"`` to run the torch path on the CPU
+everywhere (a benchmark, a check)."""
+
+DEVICE_BACKEND = "torch"
+"""What ``backend=None`` means for tensors on any other device (a GPU). ``"numba"`` works there too:
+the kernel runs on the CPU with a copy each way per chunk, which may beat the launch-bound torch
+loop on a GPU (see the results file)."""
+
+
+def resolve_backend(backend: str | None, device: torch.device) -> str:
+    """The backend to use for tensors on ``device``: ``backend`` itself, or for ``None``
+    :data:`CPU_BACKEND` on the CPU and :data:`DEVICE_BACKEND` anywhere else."""
+    if backend is None:
+        backend = CPU_BACKEND if device.type == "cpu" else DEVICE_BACKEND
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown contact backend {backend!r}; choose from {BACKENDS}")
+    return backend
+
+
+def _friction_t(value: float | torch.Tensor, batch: int, device: torch.device) -> torch.Tensor:
+    """Friction as float64 ``(B, 1)`` on ``device`` (the cast the numba path makes, then broadcast)."""
+    t = torch.as_tensor(value.detach() if torch.is_tensor(value) else value, dtype=torch.float64, device=device)
+    return t.broadcast_to((batch,)).reshape(batch, 1)
+
+
+def _sqrt(x: torch.Tensor) -> torch.Tensor:
+    """``sqrt`` rounded to nearest, as the numba kernel's ``math.sqrt`` (IEEE 754) is. torch's float64
+    ``sqrt`` on the CPU is not (torch 2.13: about 1 % of results 1 ulp off; of speeds within a few ulps
+    of the one-step stop, about 1 in 2000 would then stop or slide unlike the kernel), so there the
+    value comes from NumPy (the gradient still from torch); CUDA's ``sqrt`` is IEEE round-to-nearest."""
+    if x.device.type != "cpu":
+        return x.sqrt()
+    exact = torch.from_numpy(np.sqrt(x.detach().numpy()))
+    if not (x.requires_grad and torch.is_grad_enabled()):
+        return exact
+    s = x.sqrt()
+    return s + (exact - s.detach())  # exact - s is 0 or ±1 ulp: the sum is exact
+
+
+def _breakaway_t(u: torch.Tensor, stick_limit: torch.Tensor, dt: float) -> tuple[torch.Tensor, ...]:
+    """For every sample at once (it depends on ``u_p`` alone): whether a sticking object would break
+    away ``(B, C, 1)``, the velocity it would then take ``(B, C, 2)`` (0 where it would not), and the
+    breakaway Jacobian entries ``jxx, jxy, jyy`` ``(B, C)`` — the kernel's arithmetic, in its order."""
+    limit = stick_limit.unsqueeze(1)  # (B, 1, 1)
+    sq = (u * u).sum(-1, keepdim=True)
+    pushed = sq > 0.0  # |u| > 0
+    un = _sqrt(torch.where(pushed, sq, 1.0))  # a finite gradient at |u| = 0 too
+    can = pushed & (un >= limit)
+    safe = torch.where(can, un, 1.0)  # no 0/0, and a finite gradient, where it cannot
+    m = u / safe
+    vel = torch.where(can, dt * (-u + limit * m), 0.0)
+    with torch.no_grad():
+        f = (limit / safe).squeeze(-1)
+        mx, my = m[..., 0].detach(), m[..., 1].detach()
+        jac = (-1.0 + f * (1.0 - mx * mx), -f * mx * my, -1.0 + f * (1.0 - my * my))
+    return (can, vel, *jac)
+
+
+def _torch_forward(
+    p0: torch.Tensor, v0: torch.Tensor, u: torch.Tensor, stick_limit: torch.Tensor, slide_decel: torch.Tensor,
+    dt: float,
+) -> tuple[torch.Tensor, ...]:
+    """The numba forward kernel in torch, over the batch a sample at a time (float64 ``(B, 2)``,
+    ``(B, 2)``, ``(B, C, 2)``, ``(B, 1)``, ``(B, 1)``). Every op is differentiable and finite (safe
+    norms), so autograd may run through it; the branch choices match the kernel's bit for bit.
+
+    Returns ``(p (B, C, 2), v (B, C, 2), jac (B, C, 2, 2), branch (B, C) int8)``."""
+    b, c, _ = u.shape
+    can, break_vel, jxx, jxy, jyy = _breakaway_t(u, stick_limit, dt)
+    neg_u, breaks = (-u).unbind(1), break_vel.unbind(1)
+    one, zero = torch.ones((), dtype=u.dtype, device=u.device), torch.zeros((), dtype=u.dtype, device=u.device)
+    v, vs, movings, reverses = v0, [], [], []
+    for k in range(c):  # each op here is a kernel launch on a GPU: no Python scalars in torch.where
+        sq = (v * v).sum(-1, keepdim=True)
+        moving = sq > 0.0
+        w = v + dt * (neg_u[k] - slide_decel * (v / _sqrt(torch.where(moving, sq, one))))
+        reverse = (w * v).sum(-1, keepdim=True) <= 0.0  # friction would reverse the motion: it stops
+        v = torch.where(moving, torch.where(reverse, zero, w), breaks[k])
+        vs.append(v)
+        movings.append(moving)
+        reverses.append(reverse)
+    v_out = torch.stack(vs, 1)
+    v_prev = torch.cat([v0.unsqueeze(1), v_out[:, :-1]], 1)
+    step = (0.5 * dt) * (v_prev + v_out)
+    p_out = torch.cumsum(torch.cat([p0.unsqueeze(1), step], 1), 1)[:, 1:]  # p' = p + dt (v + v') / 2
+    with torch.no_grad():
+        moving, reverse, can = torch.stack(movings, 1)[..., 0], torch.stack(reverses, 1)[..., 0], can[..., 0]
+        slide, breakaway = moving & ~reverse, ~moving & can
+        code = torch.full((b, c), STICK, dtype=torch.int8, device=u.device)  # masked_fill: no host sync
+        code = code.masked_fill(slide, SLIDE).masked_fill(moving & reverse, STOP).masked_fill(breakaway, BREAKAWAY)
+        zero = torch.zeros_like(jxx)
+        sgn = torch.where(slide, -1.0, zero)
+        jac = torch.stack([
+            torch.where(breakaway, jxx, sgn), torch.where(breakaway, jxy, zero),
+            torch.where(breakaway, jxy, zero), torch.where(breakaway, jyy, sgn),
+        ], -1).view(b, c, 2, 2)
+    return p_out, v_out, jac, code
+
+
+def _torch_backward(
+    v_prev: torch.Tensor, jac: torch.Tensor, branch: torch.Tensor, slide_decel: torch.Tensor, dt: float,
+    grad_p: torch.Tensor, grad_v: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The numba backward kernel's derivation in torch: the local Jacobians of every sample at once
+    (``dv'/du_p = dt J``; ``dv'/dv = (1 − s) I + s n nᵀ``, ``s = dt μ' g / |v|``, while sliding, else 0),
+    the position adjoint as a reverse cumulative sum (``dp'/dp = I``), and the velocity adjoint a
+    2 × 2 product per sample, back to front. Returns ``(grad_p0, grad_v0, grad_u)``."""
+    b, c, _ = v_prev.shape
+    half = 0.5 * dt
+    slide = (branch == SLIDE).unsqueeze(-1)
+    speed = _sqrt(torch.where(slide, (v_prev * v_prev).sum(-1, keepdim=True), 1.0))
+    n = v_prev / speed
+    s = dt * slide_decel.unsqueeze(1) / speed  # (B, C, 1)
+    nx, ny, s = n[..., 0], n[..., 1], s[..., 0]
+    cross = s * nx * ny
+    dvdv = torch.stack([1.0 - s * (1.0 - nx * nx), cross, cross, 1.0 - s * (1.0 - ny * ny)], -1)
+    dvdv = torch.where(slide, dvdv, 0.0).view(b, c, 2, 2)
+    lp = grad_p.flip(1).cumsum(1).flip(1)  # adjoint of p after sample k
+    half_lp = (half * lp).unsqueeze(-1)  # (B, C, 2, 1)
+    shifted = (half_lp + grad_v.unsqueeze(-1)).unbind(1)
+    mats, half_lps = dvdv.unbind(1), half_lp.unbind(1)
+    lv = torch.zeros_like(half_lps[0])
+    qs = [lv] * c
+    for k in range(c - 1, -1, -1):
+        q = shifted[k] + lv  # dt/2 λ_p + λ_v after sample k
+        qs[k] = q
+        lv = torch.baddbmm(half_lps[k], mats[k], q)  # λ_v before it: dt/2 λ_p + (dv'/dv)ᵀ q
+    grad_u = ((dt * jac) @ torch.stack(qs, 1)).squeeze(-1)
+    return lp[:, 0], lv.squeeze(-1), grad_u
+
+
+class TorchContactChunk(torch.autograd.Function):
+    """:class:`ContactChunk` in torch on the inputs' device: same forward, same hand-derived backward."""
+
+    @staticmethod
+    def forward(ctx, p0, v0, u, mu, mu_dyn, dt):  # noqa: ANN001, ANN205
+        b = u.shape[0]
+        f64 = torch.float64
+        slide_decel = _friction_t(mu_dyn, b, u.device) * GRAVITY
+        stick_limit = _friction_t(mu, b, u.device) * GRAVITY
+        v0_64 = v0.detach().to(f64)
+        p, v, jac, branch = _torch_forward(p0.detach().to(f64), v0_64, u.detach().to(f64), stick_limit,
+                                           slide_decel, float(dt))
+        ctx.save_for_backward(torch.cat([v0_64.unsqueeze(1), v[:, :-1]], 1), jac, branch, slide_decel)
+        ctx.dt, ctx.dtypes = float(dt), (p0.dtype, v0.dtype, u.dtype)
+        jac_out = jac.to(u.dtype)
+        ctx.mark_non_differentiable(jac_out, branch)
+        return p.to(u.dtype), v.to(u.dtype), jac_out, branch
+
+    @staticmethod
+    def backward(ctx, grad_p, grad_v, _grad_jac, _grad_branch):  # noqa: ANN001, ANN205
+        v_prev, jac, branch, slide_decel = ctx.saved_tensors
+        zeros = torch.zeros_like(v_prev)
+        gp = zeros if grad_p is None else grad_p.to(torch.float64)
+        gv = zeros if grad_v is None else grad_v.to(torch.float64)
+        grad_p0, grad_v0, grad_u = _torch_backward(v_prev, jac, branch, slide_decel, ctx.dt, gp, gv)
+        dp, dv, du = ctx.dtypes
+        return grad_p0.to(dp), grad_v0.to(dv), grad_u.to(du), None, None, None
+
+
+def _torch_autograd_chunk(p0, v0, u, mu, mu_dyn, dt):  # noqa: ANN001, ANN202
+    """:func:`_torch_forward` differentiated by autograd (friction treated as constant, like the others)."""
+    b, f64 = u.shape[0], torch.float64
+    slide_decel = _friction_t(mu_dyn, b, u.device) * GRAVITY
+    stick_limit = _friction_t(mu, b, u.device) * GRAVITY
+    p, v, jac, branch = _torch_forward(p0.to(f64), v0.to(f64), u.to(f64), stick_limit, slide_decel, float(dt))
+    return p.to(u.dtype), v.to(u.dtype), jac.to(u.dtype), branch
+
+
 def contact_chunk(
     rel_state: torch.Tensor, pan_accel: torch.Tensor, mu: float | torch.Tensor = MU,
-    mu_dyn: float | torch.Tensor = MU_DYN, dt: float = DT,
+    mu_dyn: float | torch.Tensor = MU_DYN, dt: float = DT, backend: str | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Advance the object's relative state through C pan accelerations.
 
@@ -197,16 +385,22 @@ def contact_chunk(
         rel_state: ``(B, 4)`` relative state before the chunk.
         pan_accel: ``(B, C, 2)`` pan accelerations ``u_p``.
         mu, mu_dyn: friction coefficients, scalars or ``(B,)`` per trajectory.
+        backend: ``"numba"``, ``"torch"`` or ``"torch_autograd"`` (:data:`BACKENDS`); ``None``: numba for
+            CPU tensors, torch on any other device (:func:`resolve_backend`). Results are on
+            ``pan_accel``'s device either way.
 
     Returns:
         ``(rel_states (B, C, 4), jacobian (B, C, 2, 2) = ∂u_d/∂u_p, branch (B, C) int8)``.
     """
-    p, v, jac, branch = ContactChunk.apply(rel_state[:, :2], rel_state[:, 2:], pan_accel, mu, mu_dyn, dt)
+    backend = resolve_backend(backend, pan_accel.device)
+    chunk = {"numba": ContactChunk.apply, "torch": TorchContactChunk.apply, "torch_autograd": _torch_autograd_chunk}
+    p, v, jac, branch = chunk[backend](rel_state[:, :2], rel_state[:, 2:], pan_accel, mu, mu_dyn, dt)
     return torch.cat([p, v], dim=-1), jac, branch
 
 
 def rollout(
-    pan_accel: object, mu: float | np.ndarray = MU, mu_dyn: float | np.ndarray = MU_DYN, dt: float = DT
+    pan_accel: object, mu: float | np.ndarray = MU, mu_dyn: float | np.ndarray = MU_DYN, dt: float = DT,
+    backend: str | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Roll pan accelerations out through the contact model (SPEC §7).
 
@@ -214,6 +408,7 @@ def rollout(
         pan_accel: ``(K-1, 2)`` or ``(B, K-1, 2)`` pan accelerations [m/s²].
         mu, mu_dyn: static and dynamic friction coefficients (``0 ≤ μ' ≤ μ``), scalars or one
             per trajectory ``(B,)``.
+        backend: the contact model's (:func:`contact_chunk`; default numba, the CPU's fastest).
 
     Returns:
         ``(pan_states, rel_states)``, each ``(K, 4)`` (or batched), starting at rest at 0:
@@ -234,7 +429,7 @@ def rollout(
     zero = torch.zeros(u.shape[0], STATE_DIM, dtype=torch.float64)
     pan = integrate(zero, u, dt)
     with torch.no_grad():
-        rel, _, _ = contact_chunk(zero, u, torch.as_tensor(mu_arr), torch.as_tensor(mud_arr), dt)
+        rel, _, _ = contact_chunk(zero, u, torch.as_tensor(mu_arr), torch.as_tensor(mud_arr), dt, backend)
     rel = torch.cat([zero.unsqueeze(1), rel], dim=1)
     pan_np, rel_np = pan.numpy(), rel.numpy()
     return (pan_np[0], rel_np[0]) if single else (pan_np, rel_np)
@@ -252,13 +447,21 @@ class SlidingDynamics:
         mu, mu_dyn: friction, scalars or ``(B,)``.
         detach_contact: ``(B,)`` bool; where true, no gradient flows back through the
             contact model (the L' stages: the pan is supervised directly).
+        backend: the contact model's (:func:`contact_chunk`): ``None`` follows the device of the
+            states (numba on the CPU, torch elsewhere).
+
+    Everything it makes lives on the device of the states and accelerations it is given (friction and
+    ``detach_contact`` are moved there).
     """
 
     def __init__(
         self, mu: float | torch.Tensor = MU, mu_dyn: float | torch.Tensor = MU_DYN, dt: float = DT,
-        detach_contact: torch.Tensor | None = None,
+        detach_contact: torch.Tensor | None = None, backend: str | None = None,
     ) -> None:
+        if backend is not None:
+            resolve_backend(backend, torch.device("cpu"))  # a bad name fails here, not mid-rollout
         self.mu, self.mu_dyn, self.dt, self.detach_contact = mu, mu_dyn, dt, detach_contact
+        self.backend = backend
 
     def start(self, x0: torch.Tensor) -> tuple:
         b = x0.shape[0]
@@ -269,11 +472,14 @@ class SlidingDynamics:
         pan, rel, cov_pan, cov_rel = carry
         pan_states = integrate(pan, mean, self.dt)[:, 1:]
         detach = self.detach_contact
+        if detach is not None:
+            detach = detach.to(mean.device)
+        physics = (self.mu, self.mu_dyn, self.dt, self.backend)
         if detach is not None and bool(detach.all()):  # nothing to backpropagate: build no graph
             with torch.no_grad():
-                rel_states, jac, branch = contact_chunk(rel, mean, self.mu, self.mu_dyn, self.dt)
+                rel_states, jac, branch = contact_chunk(rel, mean, *physics)
         else:
-            rel_states, jac, branch = contact_chunk(rel, mean, self.mu, self.mu_dyn, self.dt)
+            rel_states, jac, branch = contact_chunk(rel, mean, *physics)
             if detach is not None:
                 rel_states = torch.where(detach.view(-1, 1, 1), rel_states.detach(), rel_states)
         out = {

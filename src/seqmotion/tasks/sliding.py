@@ -234,15 +234,20 @@ class SlidingTask(Task):
         generator: torch.Generator,
     ) -> tuple[torch.Tensor, dict[str, float]]:
         opt = self.options(config)
-        command = torch.from_numpy(batch.states).float()
-        pan_true = torch.from_numpy(batch.extras["pan_states"]).float()
-        prime = torch.from_numpy(batch.extras["loss_prime"])
-        lengths = torch.from_numpy(batch.lengths)
+        device = next(model.parameters()).device  # the batch goes where the model is; so does the physics
+
+        def tensor(array: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(array).to(device)
+
+        command = tensor(batch.states).float()
+        pan_true = tensor(batch.extras["pan_states"]).float()
+        prime = tensor(batch.extras["loss_prime"])
+        lengths = tensor(batch.lengths)
         b, k_max, _ = command.shape
 
-        friction = (torch.from_numpy(batch.extras["mu"]), torch.from_numpy(batch.extras["mu_dyn"]))
+        friction = (tensor(batch.extras["mu"]), tensor(batch.extras["mu_dyn"]))
         dynamics = contact.SlidingDynamics(*friction, DT, detach_contact=prime)
-        out = encode_and_rollout(model, command, lengths, torch.zeros(b, 8), dynamics)
+        out = encode_and_rollout(model, command, lengths, torch.zeros(b, 8, device=device), dynamics)
         pan = out.states[:, 1:k_max, :4]  # states 1..K_max-1
         rel = out.states[:, 1:k_max, 4:]
         accel = out.accel[:, : k_max - 1]  # û_p[0..K_max-2]
@@ -254,7 +259,7 @@ class SlidingTask(Task):
         # L: the object against the command, through the contact model, plus range and jerk.
         nll_rel = gaussian_nll_2d(command[:, 1:, :2] - rel[..., :2], out.outputs["pos_cov"][:, : k_max - 1], floor)
         over_range = torch.relu(pan[..., :2].norm(dim=-1) - opt.pan_limit)
-        jerk = torch.cat([torch.zeros(b, 1), (accel[:, 1:] - accel[:, :-1]).norm(dim=-1)], dim=1)
+        jerk = torch.cat([torch.zeros(b, 1, device=device), (accel[:, 1:] - accel[:, :-1]).norm(dim=-1)], dim=1)
         loss_main = opt.alpha_shape * nll_rel + opt.alpha_range * over_range + opt.alpha_jerk * jerk
 
         per_traj = torch.where(
@@ -325,10 +330,10 @@ class SlidingTask(Task):
         from .trust import integrate_covariance
 
         branch = outputs["branch"]
-        mu = torch.as_tensor(dynamics.mu, dtype=accel.dtype).reshape(-1, 1, 1, 1)
+        mu = torch.as_tensor(dynamics.mu, dtype=accel.dtype, device=accel.device).reshape(-1, 1, 1, 1)
         norm = accel.norm(dim=-1, keepdim=True).clamp_min(1e-12)
         m = (accel / norm).unsqueeze(-1)  # (B, K-1, 2, 1)
-        eye = torch.eye(2, dtype=accel.dtype)
+        eye = torch.eye(2, dtype=accel.dtype, device=accel.device)
         breakaway = -eye + mu * contact.GRAVITY / norm.unsqueeze(-1) * (eye - m @ m.transpose(-1, -2))
         jac = torch.where((branch == contact.BREAKAWAY)[..., None, None], breakaway,
                           torch.where((branch == contact.SLIDE)[..., None, None], -eye, torch.zeros_like(eye)))
