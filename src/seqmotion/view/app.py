@@ -354,16 +354,7 @@ class PancakePanel:
                 self.updates = gui.add_slider("LM updates", 1, 20, 1, 6)
                 self.adjust_button = gui.add_button("Adjust latent to target")
                 self.learned_button = gui.add_button("Back to the learned motion")
-            with gui.add_folder("Arm replay (MuJoCo)"):
-                self.sim_button = gui.add_button("Simulate on the arm", disabled=not app.simulate)
-                self.speed = gui.add_slider("speed × real time", 0.05, 1.0, 0.05, 0.25)
-                self.play_button = gui.add_button("Play again")
-                self.sim_readout = gui.add_markdown("")
-            with gui.add_folder("Export"):
-                self.format = gui.add_dropdown("format", ("csv", "npz"), initial_value="csv")
-                self.export_button = gui.add_button("Export motion")
-                self.video_button = gui.add_button("Export video (MP4)", disabled=not app.simulate)
-                self.export_readout = gui.add_markdown("")
+            _replay_and_export(self, gui, app, speed=0.25, export="Export motion", video=True)
         self.root = self.server.scene.add_frame("/pancake", show_axes=False)
         self.lines = {"sketch": SceneLine(self.server, "/pancake/sketch", (140, 140, 140), 2.0),
                       "deformed": SceneLine(self.server, "/pancake/deformed", (31, 119, 180), 4.0)}
@@ -564,15 +555,7 @@ class SlidingPanel:
             self.accel_plot = gui.add_uplot(
                 (k, k, k), _uplot_series([("pan u_x [m/s²]", "#ff7f0e"), ("pan u_y [m/s²]", "#9467bd")]),
                 title="planned pan acceleration", aspect=1.6, scales=NUMERIC_X)
-            with gui.add_folder("Arm replay (MuJoCo)"):
-                self.sim_button = gui.add_button("Simulate on the arm", disabled=not app.simulate)
-                self.speed = gui.add_slider("speed × real time", 0.05, 1.0, 0.05, 0.5)
-                self.play_button = gui.add_button("Play again")
-                self.sim_readout = gui.add_markdown("")
-            with gui.add_folder("Export"):
-                self.format = gui.add_dropdown("format", ("csv", "npz"), initial_value="csv")
-                self.export_button = gui.add_button("Export plan")
-                self.export_readout = gui.add_markdown("")
+            _replay_and_export(self, gui, app, speed=0.5, export="Export plan", video=False)
         self.root = self.server.scene.add_frame("/sliding", show_axes=False)
         self.lines = {"command": SceneLine(self.server, "/sliding/command", (140, 140, 140), 2.0),
                       "object": SceneLine(self.server, "/sliding/object", (31, 119, 180), 4.0),
@@ -880,3 +863,20 @@ def serve(model: str = "pancake", **kwargs: Any) -> ViewerApp:
 
 
 __all__ = ["ViewerApp", "serve"]
+
+
+def _replay_and_export(panel: Any, gui: Any, app: Any, *, speed: float, export: str, video: bool) -> None:
+    """The arm-replay and export folders a panel with an arm shares: sets ``panel.sim_button``, ``speed``,
+    ``play_button``, ``sim_readout``, ``format``, ``export_button`` (labelled ``export``), ``video_button``
+    (with ``video``) and ``export_readout``."""
+    with gui.add_folder("Arm replay (MuJoCo)"):
+        panel.sim_button = gui.add_button("Simulate on the arm", disabled=not app.simulate)
+        panel.speed = gui.add_slider("speed × real time", 0.05, 1.0, 0.05, speed)
+        panel.play_button = gui.add_button("Play again")
+        panel.sim_readout = gui.add_markdown("")
+    with gui.add_folder("Export"):
+        panel.format = gui.add_dropdown("format", ("csv", "npz"), initial_value="csv")
+        panel.export_button = gui.add_button(export)
+        if video:
+            panel.video_button = gui.add_button("Export video (MP4)", disabled=not app.simulate)
+        panel.export_readout = gui.add_markdown("")
