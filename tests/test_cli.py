@@ -44,6 +44,17 @@ def test_deform_csv_round_trip(runs, tmp_path, capsys):
     assert "max F_c" in capsys.readouterr().out
 
 
+def test_deform_keep_end_says_when_the_end_pose_is_out_of_reach(runs, tmp_path, capsys):
+    np.savez(tmp_path / "in.npz", states=gen.straight((0.0, -0.42, 0.0), 200))  # 0.42 m down: beyond the reach
+    with pytest.warns(RuntimeWarning, match="as near as they allow"):
+        assert main(["deform", "--model", str(runs / "pancake"), "--input", str(tmp_path / "in.npz"),
+                     "--output", str(tmp_path / "out.npz"), "--keep-end"]) == 0
+    assert "ends at rest as near it as they allow" in capsys.readouterr().out
+    states = np.load(tmp_path / "out.npz")["states"]
+    np.testing.assert_allclose(states[-1, 3:], 0.0, atol=1e-7)
+    assert np.hypot(states[:, 0], states[:, 1]).max() <= 0.40 + 1e-6
+
+
 def test_plan_and_optimize(runs, tmp_path):
     np.savez(tmp_path / "cmd.npz", states=commands.circle(0.02, 200))
     assert main(["plan", "--model", str(runs / "sliding"), "--command", str(tmp_path / "cmd.npz"),

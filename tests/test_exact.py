@@ -15,6 +15,7 @@ from seqmotion.latent.transcription import true_j1
 from seqmotion.physics import integrator
 from seqmotion.physics import pancake as physics
 from seqmotion.physics.transcription import casadi
+from seqmotion.tasks.pancake import POLISH_REACH
 
 HARD_TARGETS = np.array([[0.1, -0.1, math.pi], [-0.1, 0.1, -math.pi], [0.0, 0.1, 0.0]])  # ch. 4's, incl. θ = ±π
 
@@ -151,6 +152,20 @@ def test_keep_end_ends_exactly_at_rest_in_the_cone(deformer):
     short = int(mixed.length.argmin())
     np.testing.assert_array_equal(mixed.accel[short, mixed.length[short] - 1:], 0.0)
     assert mixed.violation.max() <= 1e-6
+
+
+def test_keep_end_out_of_reach_ends_at_rest_as_near_as_it_can(deformer):
+    """An end pose no motion reaches (0.42 m down, beyond the 0.40 m reach) is flagged, and the motion returned
+    is still one the arm executes: at rest, in the cone, within the limits and the reach, as near as they allow."""
+    sketch = gen.straight((0.0, -0.42, 0.0), 300)
+    with pytest.warns(RuntimeWarning, match="ends at rest as near as they allow"):
+        r = deformer.deform(sketch, keep_end=True)
+    form = deformer.exact_form()
+    assert r.exact is False and r.violation.max() <= 1e-6
+    np.testing.assert_allclose(r.states[-1, 3:], 0.0, atol=1e-7)
+    assert np.hypot(r.states[:, 0], r.states[:, 1]).max() <= POLISH_REACH + 1e-6
+    assert np.all(np.abs(r.accel) <= np.array(form.accel_limits) * (1 + 1e-6))
+    assert 0.019 < r.errors["end_position_error_m"] < 0.021  # the nearest reachable end: 0.40 m down
 
 
 def test_keep_end_is_refused_by_name(deformer, planner):

@@ -158,9 +158,16 @@ def cmd_deform(args: argparse.Namespace) -> int:
                 message += f" (input: {float(before.max()):.4f})"
     print(message)
     if args.keep_end:
-        print("ends exactly at the input's end pose, at rest (polished)" if result.exact else
-              "warning: the polish could not make the motion end at the input's end pose at rest; this is the "
-              "learned motion")
+        rates = [i for i, unit in enumerate(model.state_layout.units) if unit.endswith("/s")]
+        at_rest = bool(np.all(np.abs(np.asarray(result.states)[result.length - 1, rates]) < 1e-6))
+        if result.exact:
+            print("ends exactly at the input's end pose, at rest (polished)")
+        elif at_rest:
+            print("warning: no motion ends at the input's end pose within the task's constraint and the arm's "
+                  "limits and reach; this one ends at rest as near it as they allow (end error below)")
+        else:
+            print("warning: the polish could not make the motion end at the input's end pose at rest; this is the "
+                  "learned motion")
         if result.length > len(inputs):
             print(f"  it takes {result.length - len(inputs)} samples more than the input: ending at rest within the "
                   f"arm's acceleration limits {model.exact_form().accel_limits} needs that time")

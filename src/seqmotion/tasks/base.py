@@ -247,6 +247,9 @@ class ExactForm:
             radians count a tenth of metres, as in D).
         smoothness: λ of the polish's jerk term (:func:`seqmotion.physics.transcription.transcription`).
         accel_limits: ``|u[k, j]| ≤ accel_limits[j]`` (the robot's), or None.
+        travel_accel: the accelerations per axis a rest-to-rest move can plan on, where the task's
+            constraint takes part of the limits — ``keep_end`` gives a too-short input the bang-bang time
+            at these (default: :data:`EXTEND_MARGIN` × ``accel_limits``).
     """
 
     dim: int
@@ -255,6 +258,7 @@ class ExactForm:
     accel_weights: tuple[float, ...]
     smoothness: float = 0.0
     accel_limits: tuple[float, ...] | None = None
+    travel_accel: tuple[float, ...] | None = None
 
 
 POLISH_VIOLATION_TOLERANCE = 1e-6
@@ -289,10 +293,14 @@ def _rest_to_rest_accel(
     return tuple(round(float(n), 1) for n in need) if over else None
 
 
+FALLBACK_END_WEIGHT = 1000.0
+"""``keep_end``'s fallback, where no motion reaches the end pose exactly: the weight per metre (per radian,
+times the axis's weight) of the end-pose error against the distance to the learned inputs (m/s²)."""
+
 EXTEND_MARGIN = 0.5
-"""``keep_end`` plans the time a too-short input needs as the bang-bang time at this share of the arm's
-acceleration limits (the task's constraint — the cone — takes part of them: measured on 40 sketches the
-full limits left most such polishes infeasible)…"""
+"""``keep_end`` plans the time a too-short input needs as the bang-bang time at the task's
+:attr:`ExactForm.travel_accel`, by default this share of the arm's acceleration limits (the task's constraint
+takes part of them: measured on 40 pancake sketches, the full limits left most such polishes infeasible)…"""
 EXTEND_GROWTH = 1.4
 """…and, when the polish is still infeasible, tries again with this many times more samples…"""
 EXTEND_ATTEMPTS = 4
@@ -306,13 +314,17 @@ cone much harder to keep while the spatula turns, so it asked for far more time 
 
 def _steps_to_stop(x0: np.ndarray, columns: list[int], values: np.ndarray, steps: int, form: ExactForm) -> int:
     """Input samples (``K - 1``) a rest-to-rest motion needs so each axis's bang-bang acceleration,
-    ``4 |Δp| / T²``, stays within :data:`EXTEND_MARGIN` of ``form.accel_limits``: at least ``steps``."""
-    if form.accel_limits is None:
+    ``4 |Δp| / T²``, stays within ``form.travel_accel`` (default :data:`EXTEND_MARGIN` of
+    ``form.accel_limits``): at least ``steps``."""
+    travel = form.travel_accel
+    if travel is None and form.accel_limits is not None:
+        travel = tuple(EXTEND_MARGIN * limit for limit in form.accel_limits)
+    if travel is None:
         return steps
     need = steps
-    for j, limit in enumerate(form.accel_limits):
+    for j, accel in enumerate(travel):
         if j in columns:
-            span = math.sqrt(4 * abs(values[columns.index(j)] - x0[j]) / (EXTEND_MARGIN * limit))
+            span = math.sqrt(4 * abs(values[columns.index(j)] - x0[j]) / accel)
             need = max(need, math.ceil(span / form.dt))
     return need
 
@@ -622,7 +634,8 @@ class TrainedModel(PretrainedModel):
     def polish(
         self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint] = (),
         params: Sequence[np.ndarray] = (), start: np.ndarray | None = None, cold_iterations: int = COLD_ITERATIONS,
-        warm: bool = True,
+        warm: bool = True, symbolic: str = "auto",
+        end_cost: tuple[Sequence[int], Sequence[float], np.ndarray] | None = None,
     ) -> Solution:
         """The motion closest to ``accel`` that meets the task's constraint and ``constraints`` exactly.
 
@@ -633,23 +646,32 @@ class TrainedModel(PretrainedModel):
         motion with IPOPT's default barrier. ``start``: other inputs ``(K-1, d)`` to start IPOPT from
         (default ``accel``), e.g. ``accel`` already corrected to meet linear end conditions.
         ``cold_iterations``: IPOPT's iteration cap for the cold start; ``warm=False``: only the cold start (a
-        start outside the acceleration limits, as ``keep_end``'s usually is, never converges warm).
+        start outside the acceleration limits, as ``keep_end``'s usually is, never converges warm);
+        ``symbolic``: CasADi's graph type (:func:`~seqmotion.physics.transcription.transcription`; ``"MX"`` for
+        lengths that will rarely recur, where SX's slower build never pays back);
+        ``end_cost``: ``(columns, weights, target)`` adds ``|weights ⊙ (x[K-1, columns] − target)|²`` to the
+        cost — an end condition asked for as nearly as the constraints allow instead of exactly.
         """
         form = self.exact_form()
         limits = () if form.accel_limits is None else (input_limits(form.accel_limits, "acceleration limits"),)
         every = form.constraints + limits + tuple(constraints)
         values = [np.zeros(0)] * (len(form.constraints) + len(limits)) + [np.asarray(p, np.float64) for p in params]
         length = len(accel) + 1
-        kwargs = {"dt": form.dt, "accel_weights": form.accel_weights, "smoothness": form.smoothness}
+        kwargs = {"dt": form.dt, "accel_weights": form.accel_weights, "smoothness": form.smoothness,
+                  "symbolic": symbolic}
+        target = None
+        if end_cost is not None:
+            columns, weights, target = end_cost
+            kwargs |= {"end_columns": tuple(int(c) for c in columns), "end_weights": tuple(map(float, weights))}
         guess = accel if start is None else start
         solution = None
         if warm:
             nlp = transcription(form.dim, length, every, warm=True, max_iter=WARM_ITERATIONS, **kwargs)
-            solution = nlp.solve(x0, guess, values, reference=accel)
+            solution = nlp.solve(x0, guess, values, reference=accel, end_target=target)
             if solution.success:
                 return solution
         cold = transcription(form.dim, length, every, max_iter=cold_iterations, **kwargs)
-        retry = cold.solve(x0, guess, values, reference=accel)
+        retry = cold.solve(x0, guess, values, reference=accel, end_target=target)
         if solution is not None:
             retry.iterations += solution.iterations
             retry.seconds += solution.seconds
@@ -689,8 +711,10 @@ class TrainedModel(PretrainedModel):
         learned motion changed as little as possible. An input too short for that (e.g. 0.3 m and 3 rad
         in 0.15 s) gets the time it needs: the motion is longer than the input (``result.length``), unless
         ``extend=False``, which keeps the input's length and flags such a motion instead. Needs a task with
-        an exact form and an end pose; ``result.exact`` says, per motion, whether the polish succeeded
-        (one that fails keeps the learned motion and warns).
+        an exact form and an end pose; ``result.exact`` says, per motion, whether the polish succeeded.
+        One that fails (an end pose the constraint, limits or reach rule out) warns and ends at rest as
+        near the end pose as they allow (its end error in ``result.errors``), still within them; only if
+        even that fails does it keep the learned motion.
 
         Raises:
             ValueError: wrong shape, K < 2, NaN or inf, a physics parameter the task does not take,
@@ -755,18 +779,21 @@ class TrainedModel(PretrainedModel):
                 # starts from a motion that only the task's constraint still separates from exact
                 start = reach_end(x0[b], ref, columns, values[b], np.array(form.accel_weights), form.dt)
                 last = attempt == attempts - 1  # a failing try is cut short: a longer one will likely succeed
+                # MX: a motion's length (its input's, or an extended one) seldom recurs soon, and "auto" would
+                # build the slow-to-build SX graph (0.18 s mean, 1 s at K = 1000) on its second request
                 solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
-                                       cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS)
+                                       cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
+                                       symbolic="MX")
                 new_states, new_accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
                 violation = self.violation_torch(new_states, new_accel)
                 worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
                 if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
                     motions[b], exact[b] = (solution.states, solution.accel), True
                     break
-                steps = math.ceil(steps * EXTEND_GROWTH)
+                tried, steps = steps, math.ceil(steps * EXTEND_GROWTH)
             if not exact[b]:
-                warnings.warn(f"keep_end: the polish failed on motion {b} ({solution.status}); it keeps the learned "
-                              "motion", RuntimeWarning, stacklevel=4)
+                motions[b] = self._nearest_rest(b, x0[b], reference[b], tried, columns, values[b], solution.status,
+                                                motions[b])
         length = np.array([len(s) for s, _ in motions])
         longest = int(length.max())
         states = torch.from_numpy(np.stack([np.concatenate([s, np.repeat(s[-1:], longest - len(s), 0)])
@@ -774,6 +801,42 @@ class TrainedModel(PretrainedModel):
         accel = torch.from_numpy(np.stack([np.concatenate([a, np.zeros((longest - 1 - len(a), a.shape[1]))])
                                            for _, a in motions]))
         return states, accel, exact, length
+
+    def _nearest_rest(
+        self, b: int, x0: np.ndarray, reference: np.ndarray, steps: int, columns: list[int], values: np.ndarray,
+        status: str, learned: tuple[np.ndarray, np.ndarray],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``keep_end``'s fallback for motion ``b``, whose end pose no polish reached (e.g. a pose that the
+        arm can hold the pancake at only from beyond its reach): the motion of ``steps`` input samples that
+        ends at rest, keeps the task's constraint, limits and reach exactly, and ends as near the end pose as
+        they allow (weighted by :data:`FALLBACK_END_WEIGHT`) — executable, and flagged (``exact`` stays False,
+        the trust signals give its end error). If even that fails, the learned motion as it is."""
+        form = self.exact_form()
+        pose = [self.state_layout.index(f) for f in self.task_def.end_pose[0]]
+        rates = [c for c in columns if c not in pose]
+        target = np.array([values[columns.index(c)] for c in pose])
+        weights = [FALLBACK_END_WEIGHT * math.sqrt(form.accel_weights[c]) if c < form.dim else FALLBACK_END_WEIGHT
+                   for c in pose]
+        ref = np.concatenate([reference, np.zeros((steps - len(reference), reference.shape[1]))])
+        rest = end_values(rates, "end at rest")
+        # from standing still — feasible for the constraint, limits and reach from a start at rest — toward
+        # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
+        # IPOPT failed to converge on 1 of the 5 such motions of 600 sketches; from rest on none
+        solution = self.polish(x0, ref, [rest], [np.zeros(len(rates))], start=np.zeros_like(ref), warm=False,
+                               symbolic="MX", end_cost=(pose, weights, target))
+        states, accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
+        violation = self.violation_torch(states, accel)
+        worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
+        if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
+            miss = np.abs(solution.states[-1, pose] - target)
+            warnings.warn(f"keep_end: motion {b} cannot end at its input's end pose within the task's constraint, "
+                          f"the acceleration limits and the reach ({status}); it ends at rest as near as they allow, "
+                          f"{np.round(miss, 4).tolist()} from it ({', '.join(self.task_def.end_pose[0])})",
+                          RuntimeWarning, stacklevel=5)
+            return solution.states, solution.accel
+        warnings.warn(f"keep_end: the polish failed on motion {b} ({status}; ending at rest near its end pose: "
+                      f"{solution.status}); it keeps the learned motion", RuntimeWarning, stacklevel=5)
+        return learned
 
     def decode(self, latent: object, x0: object, length: int, **physics: Any) -> Any:
         """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples."""
