@@ -784,16 +784,12 @@ class TrainedModel(PretrainedModel):
                 solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
                                        cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
                                        symbolic="MX")
-                new_states, new_accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
-                violation = self.violation_torch(new_states, new_accel)
-                worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
-                if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
+                if self._holds(solution):
                     motions[b], exact[b] = (solution.states, solution.accel), True
                     break
-                tried, steps = steps, math.ceil(steps * EXTEND_GROWTH)
-            if not exact[b]:
-                motions[b] = self._nearest_rest(b, x0[b], reference[b], tried, columns, values[b], solution.status,
-                                                motions[b])
+                steps = math.ceil(steps * EXTEND_GROWTH)
+            if not exact[b]:  # at the longest time tried (``ref``)
+                motions[b] = self._nearest_rest(b, x0[b], ref, columns, values[b], solution.status, motions[b])
         length = np.array([len(s) for s, _ in motions])
         longest = int(length.max())
         states = torch.from_numpy(np.stack([np.concatenate([s, np.repeat(s[-1:], longest - len(s), 0)])
@@ -802,12 +798,19 @@ class TrainedModel(PretrainedModel):
                                            for _, a in motions]))
         return states, accel, exact, length
 
+    def _holds(self, solution: Solution) -> bool:
+        """Whether a polish converged with the task's constraint held (to :data:`POLISH_VIOLATION_TOLERANCE`)."""
+        states, accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
+        violation = self.violation_torch(states, accel)
+        return solution.success and (violation is None or violation.numel() == 0
+                                     or float(violation.max()) <= POLISH_VIOLATION_TOLERANCE)
+
     def _nearest_rest(
-        self, b: int, x0: np.ndarray, reference: np.ndarray, steps: int, columns: list[int], values: np.ndarray,
-        status: str, learned: tuple[np.ndarray, np.ndarray],
+        self, b: int, x0: np.ndarray, ref: np.ndarray, columns: list[int], values: np.ndarray, status: str,
+        learned: tuple[np.ndarray, np.ndarray],
     ) -> tuple[np.ndarray, np.ndarray]:
         """``keep_end``'s fallback for motion ``b``, whose end pose no polish reached (e.g. a pose that the
-        arm can hold the pancake at only from beyond its reach): the motion of ``steps`` input samples that
+        arm can hold the pancake at only from beyond its reach): the motion as long as ``ref`` that
         ends at rest, keeps the task's constraint, limits and reach exactly, and ends as near the end pose as
         they allow (weighted by :data:`FALLBACK_END_WEIGHT`) — executable, and flagged (``exact`` stays False,
         the trust signals give its end error). If even that fails, the learned motion as it is."""
@@ -817,17 +820,13 @@ class TrainedModel(PretrainedModel):
         target = np.array([values[columns.index(c)] for c in pose])
         weights = [FALLBACK_END_WEIGHT * math.sqrt(form.accel_weights[c]) if c < form.dim else FALLBACK_END_WEIGHT
                    for c in pose]
-        ref = np.concatenate([reference, np.zeros((steps - len(reference), reference.shape[1]))])
         rest = end_values(rates, "end at rest")
         # from standing still — feasible for the constraint, limits and reach from a start at rest — toward
         # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
         # IPOPT failed to converge on 1 of the 5 such motions of 600 sketches; from rest on none
         solution = self.polish(x0, ref, [rest], [np.zeros(len(rates))], start=np.zeros_like(ref), warm=False,
                                symbolic="MX", end_cost=(pose, weights, target))
-        states, accel = torch.from_numpy(solution.states)[None], torch.from_numpy(solution.accel)[None]
-        violation = self.violation_torch(states, accel)
-        worst = 0.0 if violation is None or violation.numel() == 0 else float(violation.max())
-        if solution.success and worst <= POLISH_VIOLATION_TOLERANCE:
+        if self._holds(solution):
             miss = np.abs(solution.states[-1, pose] - target)
             warnings.warn(f"keep_end: motion {b} cannot end at its input's end pose within the task's constraint, "
                           f"the acceleration limits and the reach ({status}); it ends at rest as near as they allow, "
