@@ -33,7 +33,8 @@ from typing import Any
 ENTRY_POINT_GROUP = "seqmotion.tasks"
 PRETRAINED_PATH_ENV = "SEQMOTION_PRETRAINED_PATH"
 _BUILTIN_PACKAGE = "seqmotion.tasks"
-_SKIP = {"base", "options", "registry"}
+_SKIP = {"base", "options", "registry", "stepper", "trust"}
+"""Modules of ``seqmotion.tasks`` that are the task layer's machinery, not tasks (``--help`` lists the rest)."""
 
 _REGISTRY: dict[str, Any] | None = None
 
