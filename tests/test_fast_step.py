@@ -90,24 +90,56 @@ def test_propagate_entrywise_matches_the_chunk_recursion_with_restarts():
         propagate_entrywise(entries[..., :-1], known, c)
 
 
-def test_encoder_freezing_by_selection_equals_masking():
-    torch.manual_seed(2)
-    lstm = StackedLSTM(8, 6, 2)
-    x = torch.randn(4, 5, 8)
-    active = torch.arange(5).unsqueeze(0) < torch.tensor([[5], [1], [3], [0]])
-    got = lstm.run_sequence(x, active)
-    inputs = x  # reference: the same batch step by step, each state frozen past its trajectory's end (masking)
-    for cell, (h_got, c_got) in zip(lstm.cells, got, strict=True):
-        projected = cell.project_input(inputs)
-        h = c = torch.zeros(4, 6)
+def _encode_step_by_step_masked(model, x, lengths):  # noqa: ANN001, ANN202
+    """The reference encoder: every trajectory step by step, its state frozen past its last chunk (masking)."""
+    b, k, f = x.shape
+    c = model.chunk
+    n = -(-k // c)
+    x = torch.cat([x, x[:, -1:].expand(b, n * c - k, f)], dim=1)
+    inputs = model.encoder_in((x / model.encoder_scale).reshape(b, n, -1))
+    active = torch.arange(n).unsqueeze(0) < torch.ceil(lengths.double() / c).unsqueeze(1)
+    cells = []
+    for cell in model.encoder.cells:
+        h = cc = inputs.new_zeros(b, model.cfg.hidden)
         outputs = []
-        for step in range(5):
-            h_new, c_new = cell.step_projected(projected[:, step], (h, c))
+        for step in range(n):
+            h_new, c_new = cell(inputs[:, step], (h, cc))
             keep = active[:, step].unsqueeze(1)
-            h, c = torch.where(keep, h_new, h), torch.where(keep, c_new, c)
+            h, cc = torch.where(keep, h_new, h), torch.where(keep, c_new, cc)
             outputs.append(h)
         inputs = torch.stack(outputs, dim=1)
-        assert torch.equal(h_got, h) and torch.equal(c_got, c)
+        cells.append(cc)
+    return torch.cat(cells, dim=1)
+
+
+@pytest.mark.parametrize("training", [False, True])
+def test_packed_encoder_equals_step_by_step_masking(small_model_and_batch, training):
+    """The encoder skips trajectories that have ended (packed, longest first) and puts the latents back in the
+    batch's order: the same z as running every trajectory to the end with its state frozen, in any order."""
+    model, states, lengths = small_model_and_batch
+    model = model.double().train(training)
+    states = states.double()
+    lengths = lengths.clone()
+    lengths[3] = 1  # one chunk only
+    shuffled = torch.randperm(len(lengths), generator=torch.Generator().manual_seed(0))
+    try:
+        with torch.no_grad():
+            expected = _encode_step_by_step_masked(model, states, lengths)
+            torch.testing.assert_close(model.encode(states, lengths), expected, rtol=1e-12, atol=1e-12)
+            torch.testing.assert_close(model.encode(states[shuffled], lengths[shuffled]), expected[shuffled],
+                                       rtol=1e-12, atol=1e-12)
+            full = torch.full_like(lengths, states.shape[1])
+            torch.testing.assert_close(model.encode(states), _encode_step_by_step_masked(model, states, full),
+                                       rtol=1e-12, atol=1e-12)
+            assert not model.encode(states, torch.zeros_like(lengths)).any()  # no samples: the zero state
+    finally:
+        model.float().train()
+
+
+def test_packed_lstm_refuses_sizes_that_are_not_longest_first():
+    lstm = StackedLSTM(8, 6, 2)
+    with pytest.raises(ValueError, match="non-increasing"):
+        lstm.run_packed(torch.randn(7, 8), [3, 4])
 
 
 def test_gaussian_head_covariance_is_the_entry_by_entry_one():

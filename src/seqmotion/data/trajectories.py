@@ -41,6 +41,12 @@ class TrajectoryBatch:
         accel = None if self.accel is None else self.accel[index]
         return TrajectoryBatch(self.states[index], self.lengths[index], accel, extras)
 
+    def longest_first(self) -> TrajectoryBatch:
+        """The same trajectories sorted by length, longest first (stable). A batch's order is free; sorted, the
+        encoder and the rollout skip trajectories that have ended without reordering anything, and a
+        data-parallel rank's share (rows ``rank, rank + N, …``) is sorted too."""
+        return self.select(np.argsort(-self.lengths, kind="stable"))
+
 
 def draw_lengths(rng: np.random.Generator, n: int, length: int | tuple[int, int] | np.ndarray) -> np.ndarray:
     """Lengths K: a fixed int, uniform integers in the inclusive range ``(lo, hi)``, or given per trajectory."""

@@ -90,42 +90,35 @@ class StackedLSTM(nn.Module):
         z = like.new_zeros(batch, self.hidden_size)
         return tuple((z, z) for _ in self.cells)
 
-    def run_sequence(self, x: torch.Tensor, active: torch.Tensor | None = None) -> LSTMState:
-        """Run a whole known input sequence ``(B, N, input_size)`` from a zero state; return the final state.
+    def run_packed(self, x: torch.Tensor, sizes: list[int]) -> LSTMState:
+        """Run sequences of different lengths, packed, from a zero state; return each one's final state.
 
-        Layer by layer rather than step by step: each layer's input projection for all N steps
-        is one matrix product, so its weights are read once instead of N times (the encoder
-        is memory-bound at batch size 1). ``active`` (B, N), true on a prefix of each row, freezes a
-        trajectory's state on steps past its end. Equal to N calls of :meth:`forward`.
-
-        Freezing is a selection after the fact: a layer's state at step t depends on its inputs up to
-        t only, so the frozen final state of a trajectory whose last active step is t is every layer's
-        state at t, picked from the states of all steps (exactly the numbers a per-step
-        ``where`` keeps, without 2·L·N masking operations).
+        The rows of a batch sorted longest first, step by step: ``x`` ``(sum(sizes), input_size)`` holds
+        step 0's inputs of the first ``sizes[0]`` sequences, then step 1's of the first ``sizes[1]``, …
+        (``sizes`` non-increasing, as ``torch.nn.utils.rnn.PackedSequence`` orders them). A sequence that
+        has ended is not computed on: at batch size 256 with lengths spread evenly this skips about a
+        third of the encoder's work. Returns the final ``(h, c)`` per layer, ``(sizes[0], H)`` each, in
+        the sorted order: to float rounding, what a step-by-step run freezing each state at its end gives.
         """
-        b, n, _ = x.shape
-        last = None
-        if active is not None:  # a prefix per trajectory: the index of its last active step
-            count = active.long().sum(1)
-            last = (count - 1).clamp_min(0)
-            rows = torch.arange(b, device=x.device)
+        if any(a < b for a, b in zip(sizes, sizes[1:], strict=False)) or not sizes or sizes[-1] < 1:
+            raise ValueError(f"packed batch sizes must be positive and non-increasing, got {sizes}")
         final = []
         for cell in self.cells:
-            projected = cell.project_input(x)  # (B, N, 4H)
-            h = c = x.new_zeros(b, self.hidden_size)
-            outputs, cells = [], []
-            for step in range(n):
-                h, c = cell.step_projected(projected[:, step], (h, c))
+            steps = cell.project_input(x).split(sizes)  # one matrix product for all steps of the layer
+            h = c = x.new_zeros(sizes[0], self.hidden_size)
+            outputs: list[torch.Tensor] = []
+            done_h: list[torch.Tensor] = []  # final states of sequences that ended, latest step first
+            done_c: list[torch.Tensor] = []
+            for t, (gates_x, size) in enumerate(zip(steps, sizes, strict=True)):
+                if t > 0 and size < h.shape[0]:  # the last rows' sequences ended at step t - 1
+                    h, h_done = h.split([size, h.shape[0] - size])
+                    c, c_done = c.split([size, c.shape[0] - size])
+                    done_h.insert(0, h_done)
+                    done_c.insert(0, c_done)
+                h, c = cell.step_projected(gates_x, (h, c))
                 outputs.append(h)
-                cells.append(c)
-            x = torch.stack(outputs, dim=1)
-            if last is None:
-                final.append((h, c))
-            else:
-                final.append((x[rows, last], torch.stack(cells, dim=1)[rows, last]))
-        if last is not None and bool((count == 0).any()):  # never active: the zero state, as with masking
-            keep = (count > 0).unsqueeze(1)
-            final = [(torch.where(keep, h, 0.0), torch.where(keep, c, 0.0)) for h, c in final]
+            final.append((torch.cat([h, *done_h]), torch.cat([c, *done_c])))
+            x = torch.cat(outputs)
         return tuple(final)
 
     def forward(self, x: torch.Tensor, state: LSTMState) -> tuple[torch.Tensor, LSTMState]:

@@ -278,18 +278,30 @@ class ChunkedSeq2Seq(nn.Module):
         Returns:
             ``z`` of shape ``(B, L·H)``.
         """
-        b, k, _ = x.shape
+        b, k, features = x.shape
         c = self.chunk
         n = math.ceil(k / c)
         if n * c != k:  # pad to whole chunks by repeating the last sample
-            x = torch.cat([x, x[:, -1:].expand(b, n * c - k, x.shape[2])], dim=1)
-        proj = self.encoder_in((x / self.encoder_scale).reshape(b, n, -1))
-        active = None
-        if lengths is not None:  # freeze trajectories that have ended, so z ignores batch padding
-            chunks_per_traj = torch.ceil(lengths.to(proj.dtype) / c)
-            active = torch.arange(n, device=proj.device).unsqueeze(0) < chunks_per_traj.unsqueeze(1)
-        state = self.encoder.run_sequence(proj, active)
-        return torch.cat([cell for _, cell in state], dim=1)
+            x = torch.cat([x, x[:, -1:].expand(b, n * c - k, features)], dim=1)
+        # Chunks per trajectory (a trajectory's z is the state after its last, partly padded, chunk, so it
+        # does not depend on what it was batched with), then the batch packed longest first, step by step.
+        if lengths is None:
+            count = torch.full((b,), n, device=x.device)
+        else:
+            count = torch.ceil(lengths.to(torch.float64) / c).long().clamp(0, n)
+        order = torch.argsort(count, descending=True, stable=True)
+        sizes = [s for s in (count[order].unsqueeze(0) > torch.arange(n, device=x.device).unsqueeze(1)).sum(1).tolist()
+                 if s > 0]
+        z = x.new_zeros(b, self.latent_dim)
+        if not sizes:  # no trajectory has a sample: the zero state, as for an unused encoder
+            return z
+        rows = torch.cat([order[:size] * n + t for t, size in enumerate(sizes)])  # into the (B·n) chunks
+        chunks = x.reshape(b * n, c, features)[rows] / self.encoder_scale
+        state = self.encoder.run_packed(self.encoder_in(chunks.reshape(len(rows), c * features)), sizes)
+        packed_z = torch.cat([cell for _, cell in state], dim=1)  # (sizes[0], L·H), longest first
+        if sizes[0] == b and bool((order == torch.arange(b, device=x.device)).all()):
+            return packed_z  # already in order (the training losses sort their batches longest first)
+        return z.index_put((order[: sizes[0]],), packed_z)
 
     def initial_state(self, z: torch.Tensor) -> LSTMState:
         """Decoder state from a latent: ``c_l = z_l``, ``h_l = 0``."""
@@ -361,6 +373,11 @@ class EntrywiseCovariance(Protocol):
         ``(B, E, N·C)``), which the rollout expands to full matrices."""
         ...
 
+    def narrow(self, carry: object, rows: int) -> object:
+        """Optional: the carry of the first ``rows`` trajectories, so the rollout can stop those that have
+        ended (``rollout(..., lengths=...)``)."""
+        ...
+
 
 @dataclass
 class Rollout:
@@ -413,6 +430,7 @@ def rollout(
     teacher_forcing_prob: float = 0.0,
     generator: torch.Generator | None = None,
     expand_cov: bool = True,
+    lengths: torch.Tensor | None = None,
 ) -> Rollout:
     """Run the decoder in closed loop with the dynamics (free running / scheduled sampling).
 
@@ -427,6 +445,12 @@ def rollout(
         expand_cov: with dynamics that propagate covariances entrywise (:class:`EntrywiseCovariance`):
             False keeps them as their non-zero entries (``Rollout.cov_entries``) instead of building
             ``(d, d)`` matrices (a loss that reads a few entries saves the matrices' memory traffic).
+        lengths: ``(B,)`` the trajectories' lengths K, for a loss that reads each one's first K samples only.
+            With dynamics that propagate covariances entrywise and can :meth:`~EntrywiseCovariance.narrow`
+            their carry, the decoder stops at each trajectory's last chunk (:meth:`ChunkedSeq2Seq.num_chunks`)
+            and everything past it is zero — the same numbers within the lengths, about a third less work
+            for lengths spread evenly. Fastest with the batch sorted longest first (else it is sorted here
+            and put back). Otherwise (or None) every trajectory runs all ``num_chunks``.
     """
     c = model.chunk
     use_teacher = teacher is not None and teacher_forcing_prob > 0.0
@@ -434,7 +458,7 @@ def rollout(
         raise ValueError(f"teacher needs {num_chunks * c + 1} samples, got {teacher.shape[1]}")
     if need_cov and hasattr(dynamics, "propagate_entrywise"):
         return _rollout_entrywise(model, z, x0, dynamics, num_chunks, teacher if use_teacher else None,
-                                  teacher_forcing_prob, generator, expand_cov)
+                                  teacher_forcing_prob, generator, expand_cov, lengths)
     state = model.initial_state(z)
     carry = dynamics.start(x0)
     inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
@@ -474,6 +498,7 @@ def _rollout_entrywise(
     teacher_forcing_prob: float,
     generator: torch.Generator | None,
     expand: bool = True,
+    lengths: torch.Tensor | None = None,
 ) -> Rollout:
     """:func:`rollout` with ``need_cov`` for dynamics with :meth:`EntrywiseCovariance.propagate_entrywise`.
 
@@ -482,16 +507,34 @@ def _rollout_entrywise(
     propagated in a few whole-sequence operations (the head's ``S_u`` entries, their propagation with
     the restarts teacher forcing made, the expansion to matrices) instead of N rounds of small ones.
     Same coin flips, same states, same covariances as the chunk-by-chunk loop.
+
+    With ``lengths`` (and dynamics that can ``narrow`` a carry), the batch runs longest first and chunk k
+    computes only the ``rows[k]`` trajectories that still need it; what follows a trajectory's last chunk
+    is zero-padded.
     """
     c = model.chunk
     head = model.head
+    b = x0.shape[0]
+    rows, order = [b] * num_chunks, None
+    if lengths is not None and hasattr(dynamics, "narrow"):
+        needed = ((lengths.to(x0.device) - 2).clamp_min(0) // c + 1).clamp_max(num_chunks)  # num_chunks(K)
+        order = torch.argsort(needed, descending=True, stable=True)
+        if bool((order == torch.arange(b, device=x0.device)).all()):
+            order = None  # already longest first (the training losses sort their batches)
+        else:
+            needed, z, x0 = needed[order], z[order], x0[order]
+            teacher = None if teacher is None else teacher[order]
+        rows = (needed.unsqueeze(0) > torch.arange(num_chunks, device=x0.device).unsqueeze(1)).sum(1).tolist()
     state = model.initial_state(z)
     carry = dynamics.start(x0)
     inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
-    b = x0.shape[0]
     states, means, rests = [x0.unsqueeze(1)], [], []
     known = [torch.ones(b, dtype=torch.bool, device=x0.device)]  # chunk 0 starts from x0, covariance zero
     for k in range(num_chunks):
+        active = rows[k]
+        if active < inputs.shape[0]:  # the other trajectories have ended
+            state = tuple((h[:active], cell[:active]) for h, cell in state)
+            inputs, carry = inputs[:active], dynamics.narrow(carry, active)
         state, out = model.decoder_output(state, inputs)
         first, rest = head.split(head.raw(out))
         mean = head.mean_of(first)
@@ -502,22 +545,43 @@ def _rollout_entrywise(
         states.append(generated)
         inputs = dynamics.decoder_input(generated)
         if k + 1 < num_chunks:
-            if teacher is not None:
+            if teacher is not None:  # a coin for every trajectory, so the stream is the same whatever ran
                 coin = torch.rand(b, generator=generator, device=x0.device) < teacher_forcing_prob
-                true_chunk = teacher[:, k * c + 1 : (k + 1) * c + 1]
-                inputs = torch.where(coin.view(-1, 1, 1), dynamics.decoder_input(true_chunk), inputs)
-                carry = dynamics.restart(carry, true_chunk[:, -1], coin)
+                if order is not None:
+                    coin = coin[order]
+                true_chunk = teacher[:active, k * c + 1 : (k + 1) * c + 1]
+                inputs = torch.where(coin[:active].view(-1, 1, 1), dynamics.decoder_input(true_chunk), inputs)
+                carry = dynamics.restart(carry, true_chunk[:, -1], coin[:active])
                 known.append(coin)
             else:
                 known.append(torch.zeros_like(known[0]))
-    entries = head.entries_of(torch.cat(rests, dim=1), dim=1)  # (B, E, N·C): each entry's series contiguous
+    entries = head.entries_of(_cat_rows(rests, b), dim=1)  # (B, E, N·C): each entry's series contiguous
     propagated = dynamics.propagate_entrywise(entries.to(x0.dtype), torch.stack(known, dim=1), c)
+    states_all, means_all = _cat_rows(states, b), _cat_rows(means, b)
+    if rows[-1] < b:  # past a trajectory's last chunk: zero, like its unused samples elsewhere
+        ran = torch.repeat_interleave(torch.tensor(rows, device=x0.device).unsqueeze(0) >
+                                      torch.arange(b, device=x0.device).unsqueeze(1), c, dim=1)
+        ran = ran.to(entries.dtype).unsqueeze(1)  # (B, 1, N·C): a float mask (a bool one converts per element)
+        entries = entries * ran
+        propagated = {key: value * ran.to(value.dtype) for key, value in propagated.items()}
+    if order is not None:  # back to the caller's order
+        inverse = torch.argsort(order)
+        states_all, means_all, entries = states_all[inverse], means_all[inverse], entries[inverse]
+        propagated = {key: value[inverse] for key, value in propagated.items()}
     if not expand:
-        return Rollout(states=torch.cat(states, dim=1), accel=torch.cat(means, dim=1), accel_cov=None, outputs={},
+        return Rollout(states=states_all, accel=means_all, accel_cov=None, outputs={},
                        cov_entries={"accel_cov": entries, **propagated}, entry_index=head.entry_index)
     return Rollout(
-        states=torch.cat(states, dim=1),
-        accel=torch.cat(means, dim=1),
+        states=states_all,
+        accel=means_all,
         accel_cov=head.expand(entries.movedim(1, -1)),
         outputs={key: head.expand(value.movedim(1, -1)) for key, value in propagated.items()},
     )
+
+
+def _cat_rows(pieces: list[torch.Tensor], rows: int) -> torch.Tensor:
+    """Chunks ``(b_k, C, …)`` with ``b_k ≤ rows`` → one ``(rows, ΣC, …)`` tensor, zero where a chunk had no row
+    (padding's gradient is a view, so this costs one copy more than a plain concatenation)."""
+    return torch.cat([piece if piece.shape[0] == rows else
+                      nn.functional.pad(piece, [0, 0] * (piece.ndim - 1) + [0, rows - piece.shape[0]])
+                      for piece in pieces], dim=1)

@@ -326,6 +326,11 @@ class DoubleIntegratorDynamics:
         """All chunks' position covariances at once (:func:`propagate_entrywise`; the rollout's fast path)."""
         return {"pos_cov": propagate_entrywise(entries, known, chunk, self.dt)}
 
+    def narrow(self, carry: tuple[torch.Tensor, CovarianceCarry], rows: int) -> tuple[torch.Tensor, CovarianceCarry]:
+        """The carry of the first ``rows`` trajectories (the rollout stops those that have ended)."""
+        x, cov = carry
+        return x[:rows], CovarianceCarry(cov.pos[:rows], cov.cross[:rows], cov.vel[:rows])
+
     def restart(
         self, carry: tuple[torch.Tensor, CovarianceCarry], state: torch.Tensor, mask: torch.Tensor
     ) -> tuple[torch.Tensor, CovarianceCarry]:

@@ -111,7 +111,9 @@ def encode_and_rollout(
     (each of its own length), decode the latents from ``x0`` ``(B, S)`` through ``dynamics`` for enough
     chunks to cover K_max samples, with covariances, and — with ``teacher`` ``(B, K_max, S)`` true
     states — scheduled sampling at ``teacher_forcing_prob``; ``expand_cov`` as :func:`rollout`. Slice the
-    result to ``[:, :K_max]`` (states) and ``[:, :K_max-1]`` (inputs, per-sample outputs)."""
+    result to ``[:, :K_max]`` (states) and ``[:, :K_max-1]`` (inputs, per-sample outputs), and read each
+    trajectory's first K samples only: past its last chunk the rollout may be zero (``rollout(...,
+    lengths=)``; a batch sorted longest first runs fastest)."""
     k_max = inputs.shape[1]
     n_chunks = model.num_chunks(k_max)
     z = model.encode(inputs, lengths)
@@ -119,5 +121,5 @@ def encode_and_rollout(
         teacher = pad_to(teacher, n_chunks * model.chunk + 1)
     return rollout(
         model, z, x0, dynamics, n_chunks, teacher=teacher, teacher_forcing_prob=teacher_forcing_prob,
-        generator=generator, expand_cov=expand_cov,
+        generator=generator, expand_cov=expand_cov, lengths=lengths,
     )
