@@ -171,6 +171,7 @@ def test_cached_maps_made_in_inference_mode_serve_autograd():
 
     integrator._integration_maps.cache_clear()
     integrator._chunk_covariance_map.cache_clear()
+    integrator._carry_basis.cache_clear()
     x0, u = torch.zeros(2, 6), torch.ones(2, 5, 3)
     entries, known = torch.ones(2, 4, 10), torch.ones(2, 2, dtype=torch.bool)
     with torch.inference_mode():

@@ -234,6 +234,14 @@ def _chunk_covariance_map(chunk: int, dt: float, dtype: torch.dtype, device: str
         return torch.cat([w, extra]).to(dtype=dtype, device=device)
 
 
+@lru_cache(maxsize=32)
+def _carry_basis(chunk: int, dt: float, dtype: torch.dtype, device: str) -> torch.Tensor:
+    """``(3, C)``: how a chunk's starting ``P0, X0 + X0ᵀ, V0`` reach its n = 1..C positions (1, n dt, (n dt)²)."""
+    with torch.inference_mode(False):  # cached: must be usable by autograd even if first made in inference mode
+        t = dt * torch.arange(1, chunk + 1, dtype=torch.float64)
+        return torch.stack([torch.ones_like(t), t, t**2]).to(dtype=dtype, device=device)
+
+
 def propagate_entrywise(
     entries: torch.Tensor, known: torch.Tensor, chunk: int, dt: float = DT
 ) -> torch.Tensor:
@@ -265,23 +273,24 @@ def propagate_entrywise(
     m = _chunk_covariance_map(chunk, dt, entries.dtype, str(entries.device))
     # time innermost: the map is one plain matrix product (B·E·N, C) @ (C, C + 2)
     local = (entries.reshape(-1, chunk) @ m.T).view(b, e, n_chunks, chunk + 2)  # driven block, Σ S, Σ (C-j-½) S
-    driven, sum_s, sum_ws = local[..., :chunk], local[..., chunk], local[..., chunk + 1]  # (B, E, N, ·)
-    keep = (~known).to(entries.dtype).unsqueeze(1)  # (B, 1, N)
-    pos = cross = vel = None
+    # Split and unbound once (their gradients are one concatenation or stack each; a slice or select per
+    # chunk would each fill a zero tensor the size of the whole).
+    driven, sums = local.split([chunk, 2], dim=-1)  # (B, E, N, C), (B, E, N, 2)
+    sum_s, sum_ws = (s.unbind(2) for s in sums.unbind(-1))  # N × (B, E) each
+    ends = driven[..., -1].unbind(2)  # N × (B, E): the driven term at each chunk's last sample
+    keep = (~known).to(entries.dtype).unbind(1)  # N × (B,)
+    pos = cross = vel = torch.zeros_like(ends[0])
     starts = []
     for k in range(n_chunks):  # carries at the chunk boundaries: (B, E) each, a handful of small operations
-        if pos is None:
-            pos = cross = vel = torch.zeros_like(sum_s[:, :, 0])
-        else:
-            pos = pos + chunk * dt * (2 * cross) + (chunk * dt) ** 2 * vel + driven[:, :, k - 1, -1]
-            cross, vel = cross + chunk * dt * vel + dt**3 * sum_ws[:, :, k - 1], vel + dt**2 * sum_s[:, :, k - 1]
-            pos, cross, vel = pos * keep[:, :, k], cross * keep[:, :, k], vel * keep[:, :, k]
+        if k:
+            pos = pos + chunk * dt * (2 * cross) + (chunk * dt) ** 2 * vel + ends[k - 1]
+            cross, vel = cross + chunk * dt * vel + dt**3 * sum_ws[k - 1], vel + dt**2 * sum_s[k - 1]
+            still = keep[k].unsqueeze(1)
+            pos, cross, vel = pos * still, cross * still, vel * still
         starts.append(torch.stack([pos, 2 * cross, vel], dim=-1))
     carry = torch.stack(starts, dim=2)  # (B, E, N, 3): P0, X0 + X0ᵀ, V0 per chunk
-    n = torch.arange(1, chunk + 1, dtype=entries.dtype, device=entries.device)
-    pos_all = (
-        carry[..., 0:1] + n * dt * carry[..., 1:2] + (n * dt) ** 2 * carry[..., 2:3] + driven
-    )  # (B, E, N, C)
+    # P0 + n dt (X0 + X0ᵀ) + n² dt² V0 for n = 1..C: one product with the (3, C) basis [1, n dt, (n dt)²]
+    pos_all = carry @ _carry_basis(chunk, dt, entries.dtype, str(entries.device)) + driven  # (B, E, N, C)
     return pos_all.reshape(b, e, total)
 
 
