@@ -181,3 +181,56 @@ def test_cached_maps_made_in_inference_mode_serve_autograd():
     entries.requires_grad_(True)
     (integrator.integrate_chunk(x0, u).sum() + integrator.propagate_entrywise(entries, known, 5).sum()).backward()
     assert u.grad is not None and entries.grad is not None
+
+
+def _within_lengths(x: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:
+    """``x`` ``(B, T, …)`` with the samples at or past ``limit`` ``(B,)`` set to zero."""
+    keep = torch.arange(x.shape[1]).unsqueeze(0) < limit.unsqueeze(1)
+    return x * keep.view(*keep.shape, *([1] * (x.ndim - 2))).to(x.dtype)
+
+
+@pytest.mark.parametrize("task_name", ["pancake", "sliding"])
+def test_rollout_skips_ended_trajectories_with_the_same_numbers_within_their_lengths(task_name):
+    """``rollout(..., lengths=)`` runs each trajectory only up to its last chunk (pancake: the entrywise
+    covariance path with teacher forcing; sliding: the chunk-by-chunk path with per-trajectory friction), in any
+    batch order: within every trajectory's chunks it gives the numbers and gradients of running all chunks, the
+    same coin per trajectory, and zero past them."""
+    task = sm.tasks.get(task_name)
+    cfg = task.train_config("tiny")
+    torch.manual_seed(4)
+    model = task.build_model(cfg).double()
+    stage = task.curriculum(cfg).at(cfg.epochs - 1, 0.5)
+    batch = task.sample(12, np.random.default_rng(5), stage, cfg)
+    shuffled = np.random.default_rng(6).permutation(len(batch))  # the rollout sorts and puts back
+    batch = batch.select(shuffled)
+    states = torch.from_numpy(batch.states).double()
+    lengths = torch.from_numpy(batch.lengths)
+    if task_name == "pancake":
+        x0, dynamics, prob = states[:, 0], DoubleIntegratorDynamics(3), 0.5
+    else:
+        from seqmotion.physics.sliding import SlidingDynamics
+
+        x0 = torch.zeros(len(batch), 8, dtype=torch.float64)
+        x0[:, 4:] = states[:, 0]
+        dynamics = SlidingDynamics(torch.from_numpy(batch.extras["mu"]), torch.from_numpy(batch.extras["mu_dyn"]))
+        prob = 0.0
+    n = model.num_chunks(states.shape[1])
+    chunks = ((lengths - 2).clamp_min(0) // model.chunk + 1) * model.chunk  # samples each trajectory's chunks hold
+    z = model.encode(states, lengths)
+    runs = []
+    for given in (None, lengths):
+        model.zero_grad()
+        out = rollout(model, z, x0, dynamics, n, teacher=pad_to(states, n * model.chunk + 1) if prob else None,
+                      teacher_forcing_prob=prob, generator=torch.Generator().manual_seed(8), lengths=given)
+        masked = (_within_lengths(out.states[:, 1:], chunks), _within_lengths(out.accel, chunks),
+                  _within_lengths(out.outputs["pos_cov"], chunks))
+        sum(m.square().sum() for m in masked).backward(retain_graph=True)
+        runs.append((out, masked, [p.grad.clone() for p in model.parameters()]))
+    (_, full, full_grad), (packed_out, packed, packed_grad) = runs
+    for a, b in zip(full, packed, strict=True):
+        torch.testing.assert_close(b, a, rtol=1e-10, atol=1e-12)
+    for a, b in zip(full_grad, packed_grad, strict=True):
+        torch.testing.assert_close(b, a, rtol=1e-8, atol=1e-10)
+    past = _within_lengths(packed_out.states[:, 1:], chunks) - packed_out.states[:, 1:]
+    assert lengths.min() < n * model.chunk - model.chunk  # some trajectory did skip chunks
+    assert not past.any()  # past a trajectory's chunks: zero

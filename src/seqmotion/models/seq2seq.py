@@ -360,6 +360,12 @@ class ChunkDynamics(Protocol):
         """Teacher forcing: where ``mask`` (B,), continue from the true ``state`` (B, state_dim)."""
         ...
 
+    def narrow(self, carry: object, rows: int) -> object:
+        """Optional: the carry of the first ``rows`` trajectories, so that the rollout can stop those that
+        have ended (``rollout(..., lengths=...)``, the batch sorted longest first); per-trajectory
+        parameters of the dynamics then apply to those rows."""
+        ...
+
 
 class EntrywiseCovariance(Protocol):
     """Optionally, dynamics whose covariance propagation acts on every entry of ``S_u`` alike (the double
@@ -371,11 +377,6 @@ class EntrywiseCovariance(Protocol):
         chunk k starts from a known state (zero covariance: the start, or teacher forcing). Returns what
         :meth:`ChunkDynamics.step` would have returned besides the states, per entry (``"pos_cov"``
         ``(B, E, N·C)``), which the rollout expands to full matrices."""
-        ...
-
-    def narrow(self, carry: object, rows: int) -> object:
-        """Optional: the carry of the first ``rows`` trajectories, so the rollout can stop those that have
-        ended (``rollout(..., lengths=...)``)."""
         ...
 
 
@@ -446,11 +447,11 @@ def rollout(
             False keeps them as their non-zero entries (``Rollout.cov_entries``) instead of building
             ``(d, d)`` matrices (a loss that reads a few entries saves the matrices' memory traffic).
         lengths: ``(B,)`` the trajectories' lengths K, for a loss that reads each one's first K samples only.
-            With dynamics that propagate covariances entrywise and can :meth:`~EntrywiseCovariance.narrow`
-            their carry, the decoder stops at each trajectory's last chunk (:meth:`ChunkedSeq2Seq.num_chunks`)
-            and everything past it is zero — the same numbers within the lengths, about a third less work
-            for lengths spread evenly. Fastest with the batch sorted longest first (else it is sorted here
-            and put back). Otherwise (or None) every trajectory runs all ``num_chunks``.
+            With dynamics that can :meth:`~ChunkDynamics.narrow` their carry, the decoder stops at each
+            trajectory's last chunk (:meth:`ChunkedSeq2Seq.num_chunks`) and everything past it is zero: the
+            same numbers within the lengths, about a third less work for lengths spread evenly. Fastest with
+            the batch sorted longest first (else it is sorted here and put back). Otherwise (or None) every
+            trajectory runs all ``num_chunks``.
     """
     c = model.chunk
     use_teacher = teacher is not None and teacher_forcing_prob > 0.0
@@ -459,11 +460,20 @@ def rollout(
     if need_cov and hasattr(dynamics, "propagate_entrywise"):
         return _rollout_entrywise(model, z, x0, dynamics, num_chunks, teacher if use_teacher else None,
                                   teacher_forcing_prob, generator, expand_cov, lengths)
+    b = x0.shape[0]
+    rows, order = _longest_first(dynamics, lengths, num_chunks, c, b, x0.device)
+    if order is not None:
+        z, x0 = z[order], x0[order]
+        teacher = teacher[order] if use_teacher else teacher
     state = model.initial_state(z)
     carry = dynamics.start(x0)
     inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
     states, accels, covs, outputs = [x0.unsqueeze(1)], [], [], {}
     for k in range(num_chunks):
+        active = rows[k]
+        if active < inputs.shape[0]:  # the other trajectories have ended
+            state = tuple((h[:active], cell[:active]) for h, cell in state)
+            inputs, carry = inputs[:active], dynamics.narrow(carry, active)
         state, mean, cov = model.decode_step(state, inputs, need_cov)
         carry, out = dynamics.step(carry, mean.to(x0.dtype), None if cov is None else cov.to(x0.dtype))
         generated = out["states"]
@@ -476,16 +486,45 @@ def rollout(
                 outputs.setdefault(key, []).append(value)
         inputs = dynamics.decoder_input(generated)
         if use_teacher and k + 1 < num_chunks:
-            coin = torch.rand(x0.shape[0], generator=generator, device=x0.device) < teacher_forcing_prob
-            true_chunk = teacher[:, k * c + 1 : (k + 1) * c + 1]
+            coin = _coins(b, teacher_forcing_prob, generator, x0.device, order)[:active]
+            true_chunk = teacher[:active, k * c + 1 : (k + 1) * c + 1]
             inputs = torch.where(coin.view(-1, 1, 1), dynamics.decoder_input(true_chunk), inputs)
             carry = dynamics.restart(carry, true_chunk[:, -1], coin)
+    inverse = None if order is None else torch.argsort(order)
     return Rollout(
-        states=torch.cat(states, dim=1),
-        accel=torch.cat(accels, dim=1),
-        accel_cov=torch.cat(covs, dim=1) if covs else None,
-        outputs={key: torch.cat(value, dim=1) for key, value in outputs.items()},
+        states=_cat_rows(states, b, inverse),
+        accel=_cat_rows(accels, b, inverse),
+        accel_cov=_cat_rows(covs, b, inverse) if covs else None,
+        outputs={key: _cat_rows(value, b, inverse) for key, value in outputs.items()},
     )
+
+
+def _longest_first(
+    dynamics: ChunkDynamics, lengths: torch.Tensor | None, num_chunks: int, chunk: int, batch: int,
+    device: torch.device,
+) -> tuple[list[int], torch.Tensor | None]:
+    """How a rollout skips trajectories that have ended: ``rows[k]``, the trajectories chunk k computes (the
+    first ones of the batch sorted longest first), and ``order``, the sorting permutation (None when the batch
+    is sorted already, or when there are no ``lengths`` or the dynamics cannot ``narrow`` a carry)."""
+    if lengths is None or not hasattr(dynamics, "narrow"):
+        return [batch] * num_chunks, None
+    needed = ((lengths.to(device) - 2).clamp_min(0) // chunk + 1).clamp_max(num_chunks)  # num_chunks(K)
+    order = torch.argsort(needed, descending=True, stable=True)
+    if bool((order == torch.arange(batch, device=device)).all()):
+        order = None  # already longest first (the training losses' batches are drawn so)
+    else:
+        needed = needed[order]
+    rows = (needed.unsqueeze(0) > torch.arange(num_chunks, device=device).unsqueeze(1)).sum(1).tolist()
+    return rows, order
+
+
+def _coins(
+    batch: int, prob: float, generator: torch.Generator | None, device: torch.device, order: torch.Tensor | None
+) -> torch.Tensor:
+    """One chunk's teacher-forcing coins, one per trajectory in the caller's order (so the random stream and
+    each trajectory's coin are the same whichever trajectories run), then in the rollout's order."""
+    coin = torch.rand(batch, generator=generator, device=device) < prob
+    return coin if order is None else coin[order]
 
 
 def _rollout_entrywise(
@@ -515,16 +554,10 @@ def _rollout_entrywise(
     c = model.chunk
     head = model.head
     b = x0.shape[0]
-    rows, order = [b] * num_chunks, None
-    if lengths is not None and hasattr(dynamics, "narrow"):
-        needed = ((lengths.to(x0.device) - 2).clamp_min(0) // c + 1).clamp_max(num_chunks)  # num_chunks(K)
-        order = torch.argsort(needed, descending=True, stable=True)
-        if bool((order == torch.arange(b, device=x0.device)).all()):
-            order = None  # already longest first (the training losses sort their batches)
-        else:
-            needed, z, x0 = needed[order], z[order], x0[order]
-            teacher = None if teacher is None else teacher[order]
-        rows = (needed.unsqueeze(0) > torch.arange(num_chunks, device=x0.device).unsqueeze(1)).sum(1).tolist()
+    rows, order = _longest_first(dynamics, lengths, num_chunks, c, b, x0.device)
+    if order is not None:
+        z, x0 = z[order], x0[order]
+        teacher = None if teacher is None else teacher[order]
     state = model.initial_state(z)
     carry = dynamics.start(x0)
     inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
@@ -546,9 +579,7 @@ def _rollout_entrywise(
         inputs = dynamics.decoder_input(generated)
         if k + 1 < num_chunks:
             if teacher is not None:  # a coin for every trajectory, so the stream is the same whatever ran
-                coin = torch.rand(b, generator=generator, device=x0.device) < teacher_forcing_prob
-                if order is not None:
-                    coin = coin[order]
+                coin = _coins(b, teacher_forcing_prob, generator, x0.device, order)
                 true_chunk = teacher[:active, k * c + 1 : (k + 1) * c + 1]
                 inputs = torch.where(coin[:active].view(-1, 1, 1), dynamics.decoder_input(true_chunk), inputs)
                 carry = dynamics.restart(carry, true_chunk[:, -1], coin[:active])
@@ -557,17 +588,16 @@ def _rollout_entrywise(
                 known.append(torch.zeros_like(known[0]))
     entries = head.entries_of(_cat_rows(rests, b), dim=1)  # (B, E, N·C): each entry's series contiguous
     propagated = dynamics.propagate_entrywise(entries.to(x0.dtype), torch.stack(known, dim=1), c)
-    states_all, means_all = _cat_rows(states, b), _cat_rows(means, b)
+    inverse = None if order is None else torch.argsort(order)
+    states_all, means_all = _cat_rows(states, b, inverse), _cat_rows(means, b, inverse)
     if rows[-1] < b:  # past a trajectory's last chunk: zero, like its unused samples elsewhere
         ran = torch.repeat_interleave(torch.tensor(rows, device=x0.device).unsqueeze(0) >
                                       torch.arange(b, device=x0.device).unsqueeze(1), c, dim=1)
         ran = ran.to(entries.dtype).unsqueeze(1)  # (B, 1, N·C): a float mask (a bool one converts per element)
         entries = entries * ran
         propagated = {key: value * ran.to(value.dtype) for key, value in propagated.items()}
-    if order is not None:  # back to the caller's order
-        inverse = torch.argsort(order)
-        states_all, means_all, entries = states_all[inverse], means_all[inverse], entries[inverse]
-        propagated = {key: value[inverse] for key, value in propagated.items()}
+    if inverse is not None:  # back to the caller's order
+        entries, propagated = entries[inverse], {key: value[inverse] for key, value in propagated.items()}
     if not expand:
         return Rollout(states=states_all, accel=means_all, accel_cov=None, outputs={},
                        cov_entries={"accel_cov": entries, **propagated}, entry_index=head.entry_index)
@@ -579,9 +609,11 @@ def _rollout_entrywise(
     )
 
 
-def _cat_rows(pieces: list[torch.Tensor], rows: int) -> torch.Tensor:
+def _cat_rows(pieces: list[torch.Tensor], rows: int, inverse: torch.Tensor | None = None) -> torch.Tensor:
     """Chunks ``(b_k, C, …)`` with ``b_k ≤ rows`` → one ``(rows, ΣC, …)`` tensor, zero where a chunk had no row
-    (padding's gradient is a view, so this costs one copy more than a plain concatenation)."""
-    return torch.cat([piece if piece.shape[0] == rows else
-                      nn.functional.pad(piece, [0, 0] * (piece.ndim - 1) + [0, rows - piece.shape[0]])
-                      for piece in pieces], dim=1)
+    (padding's gradient is a view, so this costs one copy more than a plain concatenation); ``inverse``: put
+    the rows back in the caller's order."""
+    whole = torch.cat([piece if piece.shape[0] == rows else
+                       nn.functional.pad(piece, [0, 0] * (piece.ndim - 1) + [0, rows - piece.shape[0]])
+                       for piece in pieces], dim=1)
+    return whole if inverse is None else whole[inverse]

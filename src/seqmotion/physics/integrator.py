@@ -150,6 +150,10 @@ class CovarianceCarry:
         z = torch.zeros(batch, dim, dim, dtype=dtype, device=device)
         return cls(z, z, z)
 
+    def narrow(self, rows: int) -> CovarianceCarry:
+        """The covariances of the first ``rows`` trajectories."""
+        return CovarianceCarry(self.pos[:rows], self.cross[:rows], self.vel[:rows])
+
     def reset_where(self, mask: torch.Tensor) -> CovarianceCarry:
         """Zero the covariance of the trajectories where ``mask`` (B,) is true (a known state)."""
         keep = (~mask).to(self.pos.dtype).view(-1, 1, 1)
@@ -338,7 +342,7 @@ class DoubleIntegratorDynamics:
     def narrow(self, carry: tuple[torch.Tensor, CovarianceCarry], rows: int) -> tuple[torch.Tensor, CovarianceCarry]:
         """The carry of the first ``rows`` trajectories (the rollout stops those that have ended)."""
         x, cov = carry
-        return x[:rows], CovarianceCarry(cov.pos[:rows], cov.cross[:rows], cov.vel[:rows])
+        return x[:rows], cov.narrow(rows)
 
     def restart(
         self, carry: tuple[torch.Tensor, CovarianceCarry], state: torch.Tensor, mask: torch.Tensor

@@ -435,6 +435,11 @@ def rollout(
     return (pan_np[0], rel_np[0]) if single else (pan_np, rel_np)
 
 
+def _first_rows(value: object, rows: int) -> object:
+    """A per-trajectory setting ``(B,)`` for the first ``rows`` trajectories (scalars and None as they are)."""
+    return value[:rows] if isinstance(value, torch.Tensor) and value.ndim > 0 else value
+
+
 class SlidingDynamics:
     """Pan integrator + contact model as a decoder's :class:`~seqmotion.models.seq2seq.ChunkDynamics`.
 
@@ -471,10 +476,11 @@ class SlidingDynamics:
     def step(self, carry: tuple, mean: torch.Tensor, cov: torch.Tensor | None) -> tuple[tuple, dict]:
         pan, rel, cov_pan, cov_rel = carry
         pan_states = integrate(pan, mean, self.dt)[:, 1:]
-        detach = self.detach_contact
+        rows = mean.shape[0]  # a narrowed batch: the per-trajectory settings of its first rows
+        detach = _first_rows(self.detach_contact, rows)
         if detach is not None:
             detach = detach.to(mean.device)
-        physics = (self.mu, self.mu_dyn, self.dt, self.backend)
+        physics = (_first_rows(self.mu, rows), _first_rows(self.mu_dyn, rows), self.dt, self.backend)
         if detach is not None and bool(detach.all()):  # nothing to backpropagate: build no graph
             with torch.no_grad():
                 rel_states, jac, branch = contact_chunk(rel, mean, *physics)
@@ -495,6 +501,11 @@ class SlidingDynamics:
 
     def decoder_input(self, states: torch.Tensor) -> torch.Tensor:
         return states
+
+    def narrow(self, carry: tuple, rows: int) -> tuple:
+        """The carry of the first ``rows`` trajectories (the rollout stops those that have ended)."""
+        pan, rel, cov_pan, cov_rel = carry
+        return pan[:rows], rel[:rows], cov_pan.narrow(rows), cov_rel.narrow(rows)
 
     def restart(self, carry: tuple, state: torch.Tensor, mask: torch.Tensor) -> tuple:
         pan, rel, cov_pan, cov_rel = carry

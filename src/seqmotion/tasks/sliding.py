@@ -223,7 +223,7 @@ class SlidingTask(Task):
         # which trajectories are scored with L' (only those with a pan trajectory behind them)
         use_prime = (rng.random(n) < params["loss_prime_prob"]) & batch.extras["has_pan"]
         batch.extras.update(loss_prime=use_prime, mu=mu, mu_dyn=mu_dyn)
-        return batch
+        return batch.longest_first()  # the rollout then skips commands that have ended without reordering
 
     def loss(
         self,
