@@ -288,7 +288,7 @@ class ChunkedSeq2Seq(nn.Module):
         if lengths is None:
             count = torch.full((b,), n, device=x.device)
         else:
-            count = torch.ceil(lengths.to(torch.float64) / c).long().clamp(0, n)
+            count = ((lengths.to(x.device).long() + c - 1) // c).clamp(0, n)  # ceil(K / C)
         order = torch.argsort(count, descending=True, stable=True)
         sizes = [s for s in (count[order].unsqueeze(0) > torch.arange(n, device=x.device).unsqueeze(1)).sum(1).tolist()
                  if s > 0]
