@@ -461,19 +461,14 @@ def rollout(
         return _rollout_entrywise(model, z, x0, dynamics, num_chunks, teacher if use_teacher else None,
                                   teacher_forcing_prob, generator, expand_cov, lengths)
     b = x0.shape[0]
-    rows, order = _longest_first(dynamics, lengths, num_chunks, c, b, x0.device)
-    if order is not None:
-        z, x0 = z[order], x0[order]
-        teacher = teacher[order] if use_teacher else teacher
+    rows, order, z, x0, teacher = _longest_first(dynamics, lengths, num_chunks, c, z, x0, teacher)
     state = model.initial_state(z)
     carry = dynamics.start(x0)
     inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
     states, accels, covs, outputs = [x0.unsqueeze(1)], [], [], {}
     for k in range(num_chunks):
         active = rows[k]
-        if active < inputs.shape[0]:  # the other trajectories have ended
-            state = tuple((h[:active], cell[:active]) for h, cell in state)
-            inputs, carry = inputs[:active], dynamics.narrow(carry, active)
+        state, inputs, carry = _first_rows(active, state, inputs, carry, dynamics)
         state, mean, cov = model.decode_step(state, inputs, need_cov)
         carry, out = dynamics.step(carry, mean.to(x0.dtype), None if cov is None else cov.to(x0.dtype))
         generated = out["states"]
@@ -500,22 +495,34 @@ def rollout(
 
 
 def _longest_first(
-    dynamics: ChunkDynamics, lengths: torch.Tensor | None, num_chunks: int, chunk: int, batch: int,
-    device: torch.device,
-) -> tuple[list[int], torch.Tensor | None]:
+    dynamics: ChunkDynamics, lengths: torch.Tensor | None, num_chunks: int, chunk: int, z: torch.Tensor,
+    x0: torch.Tensor, teacher: torch.Tensor | None,
+) -> tuple[list[int], torch.Tensor | None, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """How a rollout skips trajectories that have ended: ``rows[k]``, the trajectories chunk k computes (the
-    first ones of the batch sorted longest first), and ``order``, the sorting permutation (None when the batch
-    is sorted already, or when there are no ``lengths`` or the dynamics cannot ``narrow`` a carry)."""
+    first ones of the batch sorted longest first); ``order``, the sorting permutation (None when the batch is
+    sorted already, or when there are no ``lengths`` or the dynamics cannot ``narrow`` a carry); and ``z``,
+    ``x0``, ``teacher`` in that order."""
+    batch, device = x0.shape[0], x0.device
     if lengths is None or not hasattr(dynamics, "narrow"):
-        return [batch] * num_chunks, None
+        return [batch] * num_chunks, None, z, x0, teacher
     needed = ((lengths.to(device) - 2).clamp_min(0) // chunk + 1).clamp_max(num_chunks)  # num_chunks(K)
     order = torch.argsort(needed, descending=True, stable=True)
     if bool((order == torch.arange(batch, device=device)).all()):
         order = None  # already longest first (the training losses' batches are drawn so)
     else:
-        needed = needed[order]
+        needed, z, x0 = needed[order], z[order], x0[order]
+        teacher = None if teacher is None else teacher[order]
     rows = (needed.unsqueeze(0) > torch.arange(num_chunks, device=device).unsqueeze(1)).sum(1).tolist()
-    return rows, order
+    return rows, order, z, x0, teacher
+
+
+def _first_rows(
+    active: int, state: LSTMState, inputs: torch.Tensor, carry: object, dynamics: ChunkDynamics
+) -> tuple[LSTMState, torch.Tensor, object]:
+    """The decoder state, inputs and carry of the first ``active`` trajectories (the others have ended)."""
+    if active == inputs.shape[0]:
+        return state, inputs, carry
+    return tuple((h[:active], cell[:active]) for h, cell in state), inputs[:active], dynamics.narrow(carry, active)
 
 
 def _coins(
@@ -554,10 +561,7 @@ def _rollout_entrywise(
     c = model.chunk
     head = model.head
     b = x0.shape[0]
-    rows, order = _longest_first(dynamics, lengths, num_chunks, c, b, x0.device)
-    if order is not None:
-        z, x0 = z[order], x0[order]
-        teacher = None if teacher is None else teacher[order]
+    rows, order, z, x0, teacher = _longest_first(dynamics, lengths, num_chunks, c, z, x0, teacher)
     state = model.initial_state(z)
     carry = dynamics.start(x0)
     inputs = dynamics.decoder_input(x0.unsqueeze(1).expand(-1, c, -1))
@@ -565,9 +569,7 @@ def _rollout_entrywise(
     known = [torch.ones(b, dtype=torch.bool, device=x0.device)]  # chunk 0 starts from x0, covariance zero
     for k in range(num_chunks):
         active = rows[k]
-        if active < inputs.shape[0]:  # the other trajectories have ended
-            state = tuple((h[:active], cell[:active]) for h, cell in state)
-            inputs, carry = inputs[:active], dynamics.narrow(carry, active)
+        state, inputs, carry = _first_rows(active, state, inputs, carry, dynamics)
         state, out = model.decoder_output(state, inputs)
         first, rest = head.split(head.raw(out))
         mean = head.mean_of(first)
