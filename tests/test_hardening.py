@@ -280,7 +280,7 @@ def test_a_config_that_is_not_an_object_is_a_checkpoint_error(tmp_path, value):
 def _edited(change):
     config = json.loads((sm.api.pretrained_dir("pancake") / "config.json").read_text())
     change(config)
-    config.pop("config_sha256", None)  # an edit a hash would catch: test the schema behind it
+    config["config_sha256"] = ckpt.config_digest(config)  # re-hashed after the edit: test the schema behind it
     return config
 
 
@@ -319,7 +319,7 @@ def test_any_model_kind_is_checked_before_allocating(tmp_path, change):
     allocate ~40 GB."""
     config = json.loads((sm.api.pretrained_dir("pushing") / "config.json").read_text())
     config["policy"]["seqae"].update(change)
-    config.pop("config_sha256", None)
+    config["config_sha256"] = ckpt.config_digest(config)  # re-hashed: the sizes are what refuses it
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     with pytest.raises(sm.CheckpointError):
         sm.load(_model_dir(tmp_path, "m", config, weights_from="pushing"))
@@ -335,29 +335,36 @@ def test_the_config_is_covered_by_its_hash(tmp_path, deformer):
     (saved / "config.json").write_text(json.dumps(config))
     with pytest.raises(sm.CheckpointError, match="config_sha256"):
         sm.load(saved)
-    # shipped models from before the config hash load without one; newer ones (pancake-end) carry a matching one
+    # every shipped model carries a matching one (those from before the config hash were re-sealed with it)
     for name in sm.pretrained_models():
         shipped = json.loads((sm.api.pretrained_dir(name) / "config.json").read_text())
-        assert "config_sha256" not in shipped or shipped["config_sha256"] == ckpt.config_digest(shipped)
-    assert "config_sha256" not in json.loads((sm.api.pretrained_dir("sliding") / "config.json").read_text())
-    assert "config_sha256" in json.loads((sm.api.pretrained_dir("pancake-end") / "config.json").read_text())
+        assert shipped["config_sha256"] == ckpt.config_digest(shipped)
     sm.load_pretrained("sliding")
     sm.load_pretrained("pancake-end")
 
 
+def _reseal(directory):
+    """Re-hash a model directory's config for its (edited) weights, as a forger would: what is behind the
+    hashes is tested."""
+    config = json.loads((directory / "config.json").read_text())
+    sealed = ckpt.seal_config(config, (directory / "model.safetensors").read_bytes())
+    (directory / "config.json").write_text(json.dumps(sealed))
+
+
 def test_corrupt_weights_are_refused(tmp_path):
     config = json.loads((sm.api.pretrained_dir("pancake") / "config.json").read_text())
-    config.pop("weights_sha256")
     directory = _model_dir(tmp_path, "m", config)
     from safetensors.torch import load_file, save_file
 
     tensors = load_file(directory / "model.safetensors")
     next(iter(tensors.values())).view(-1)[0] = float("nan")
     save_file(tensors, directory / "model.safetensors")
+    _reseal(directory)
     with pytest.raises(sm.CheckpointError, match="NaN"):
         sm.load(directory)
     (directory / "model.safetensors").write_bytes(b"\xff" * 8 + b"{}")
-    with pytest.raises(sm.CheckpointError, match="safetensors"):
+    _reseal(directory)
+    with pytest.raises(sm.CheckpointError, match="not a readable safetensors"):
         sm.load(directory)
 
 

@@ -20,6 +20,7 @@ from seqmotion.lfd.models import (
     SeqAEConfig,
     motion_loss,
 )
+from seqmotion.training.checkpoint import config_digest
 
 TINY = SeqAEConfig(layers=2, hidden=8)
 
@@ -136,16 +137,20 @@ def test_corrupt_or_mismatched_checkpoints(tmp_path):
     cfg_path.write_text(json.dumps(config))
     with pytest.raises(CheckpointError, match="config_sha256"):  # an edited config no longer matches its hash
         PushingPolicy.from_pretrained(tmp_path / "q")
-    config.pop("config_sha256")  # without the hash, the shapes are what refuses it
-    cfg_path.write_text(json.dumps(config))
+
+    def resealed() -> None:  # re-hashed after each edit, so what is behind the hash is what refuses it
+        config["config_sha256"] = config_digest(config)
+        cfg_path.write_text(json.dumps(config))
+
+    resealed()  # the shapes refuse it
     with pytest.raises(CheckpointError, match="do not fit"):
         PushingPolicy.from_pretrained(tmp_path / "q")
     config["policy"]["kind"] = "telepathy"
-    cfg_path.write_text(json.dumps(config))
+    resealed()
     with pytest.raises(CheckpointError, match="does not describe a pushing policy"):
         PushingPolicy.from_pretrained(tmp_path / "q")
     config["task"] = "pancake"
-    cfg_path.write_text(json.dumps(config))
+    resealed()
     with pytest.raises(CheckpointError, match="not 'pushing'"):
         PushingPolicy.from_pretrained(tmp_path / "q")
     cfg_path.write_text("{not json")

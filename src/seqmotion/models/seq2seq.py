@@ -49,6 +49,15 @@ SIZE_BOUNDS = {
 absurd allocations (loading also compares every size with the weights before anything is allocated)."""
 MAX_LAYER_WEIGHTS = 2**31
 """The largest input layer (chunk × features × hidden weights) a config may describe."""
+SCALE_BUFFERS = {
+    "encoder_input_scale": "encoder_scale",
+    "decoder_input_scale": "decoder_scale",
+    "output_scale": "head.scale",
+    "output_offset": "head.offset",
+}
+"""Config field → the buffer of :class:`ChunkedSeq2Seq` that holds it in the weights. The network computes with
+the buffer, everything built from the config (the online stop's acceleration limits, a deployment contract)
+reads the field: loading weights refuses a buffer that differs from its field."""
 
 
 @dataclass
@@ -255,6 +264,35 @@ class ChunkedSeq2Seq(nn.Module):
         self.head = GaussianHead(cfg)
         self.register_buffer("encoder_scale", torch.tensor(cfg.encoder_input_scale or [1.0] * cfg.encoder_input_dim))
         self.register_buffer("decoder_scale", torch.tensor(cfg.decoder_input_scale or [1.0] * cfg.decoder_input_dim))
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: object, **kwargs: object) -> None:
+        """``load_state_dict`` (this module's part; ``nn.Module`` calls it on every load, however the model is
+        wrapped): refuse, before anything is copied, weights whose scale buffers differ from the config
+        (:data:`SCALE_BUFFERS`)."""
+        self.check_scales({k: state_dict[prefix + k] for k in SCALE_BUFFERS.values() if prefix + k in state_dict})
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def check_scales(self, buffers: dict[str, torch.Tensor]) -> None:
+        """``ValueError`` naming the first of ``buffers`` (name → tensor, e.g. from a weights file) that differs
+        from the config field it stands for; agreement is up to float32 rounding (a float64 model holds the
+        float32-rounded scales). Tensors without values (the ``meta`` device) or of another shape (the shape
+        check reports them) are skipped."""
+        for field_name, buffer in SCALE_BUFFERS.items():
+            tensor = buffers.get(buffer)
+            if tensor is None or tensor.is_meta:
+                continue
+            configured = getattr(self.cfg, field_name)
+            if configured is None:  # what __init__ fills the buffer with then
+                configured = [0.0 if field_name == "output_offset" else 1.0] * tensor.numel()
+            expected = torch.tensor(configured, dtype=torch.float64)
+            values = tensor.detach().to("cpu", torch.float64)
+            if values.shape != expected.shape:
+                continue
+            if not torch.allclose(values, expected, rtol=1e-6, atol=0.0):
+                raise ValueError(
+                    f"the config's {field_name} {expected.tolist()} differs from the weights' {buffer} "
+                    f"{values.tolist()} (the network computes with the weights'): edited or mixed-up files"
+                )
 
     @property
     def chunk(self) -> int:

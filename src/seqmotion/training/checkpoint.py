@@ -6,8 +6,9 @@ Nothing here unpickles: loading a model cannot run code. A model directory holds
 * ``config.json`` — ``{"format", "task", "model", ..., "weights_sha256", "config_sha256"}``. The
   weights' hash ties the config to its weights, so a half-copied or mixed-up directory is
   refused; the config's own hash (of its canonical JSON without ``config_sha256``) catches an
-  edited or corrupted config. Configs written before the config hash existed (the shipped
-  models) load without it.
+  edited or corrupted config. Both are required: a config without either is refused, so deleting
+  a hash does not switch its check off. (The shipped models, written before the config hash
+  existed, were re-sealed with it by :func:`write_model`, their weights unchanged.)
 
 A training checkpoint adds ``optimizer.safetensors`` (Adam's moment tensors, flattened) and
 ``trainer_state.json`` (step, epoch, optimizer hyper-parameters).
@@ -35,6 +36,7 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import time
 import uuid
 from collections.abc import Iterator
@@ -264,12 +266,32 @@ def remove_stale_temporaries(directory: str | Path) -> list[Path]:
     return removed
 
 
+def _check_lock_file(path: Path, info: os.stat_result) -> None:
+    """CheckpointError unless ``info`` (``lstat``/``fstat`` of a run's lock ``path``) is a regular file with no
+    other name."""
+    if not stat.S_ISREG(info.st_mode):
+        kind = ("a symlink" if stat.S_ISLNK(info.st_mode) else "a directory" if stat.S_ISDIR(info.st_mode)
+                else "a FIFO" if stat.S_ISFIFO(info.st_mode) else "a special file")
+        raise CheckpointError(
+            f"{path} is not a regular file but {kind}; it is left as it is: remove it to train into this directory"
+        )
+    if info.st_nlink > 1:  # a hard link to another file: writing the pid would truncate that file
+        raise CheckpointError(
+            f"{path} is not a regular file of its own (it has {info.st_nlink} hard links); it is left as it is: "
+            "remove it to train into this directory"
+        )
+
+
 class RunLock:
     """An exclusive lock on a run directory while a training writes there (``fcntl.flock`` on ``.lock``).
 
     Taking it fails at once with :class:`~seqmotion.errors.RunInUseError` when another process
     (or another training in this one) holds it. The lock lives as long as the open file: a
     killed process releases it. Taking it also removes the temporaries a killed writer left.
+
+    The holder writes its pid into the lock file, so a ``.lock`` that is not a plain file of its
+    own is refused (:class:`~seqmotion.errors.CheckpointError`) and left as it is: a symlink
+    (writing would truncate its target), a hard link (the same), a FIFO or a directory.
     """
 
     def __init__(self, directory: str | Path) -> None:
@@ -280,7 +302,24 @@ class RunLock:
         if self._fd is not None:
             return self
         self.directory.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.directory / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        path = self.directory / LOCK
+        try:
+            _check_lock_file(path, path.lstat())  # without following a symlink
+        except FileNotFoundError:
+            pass  # the open creates it
+        # O_NOFOLLOW: a symlink swapped in after the check is not followed either (ELOOP); O_NONBLOCK: a FIFO does
+        # not block the open (the fstat below refuses it). Windows has neither: the lstat check above stands.
+        flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+        flags |= getattr(os, "O_NONBLOCK", 0)
+        try:
+            fd = os.open(path, flags, 0o644)
+        except OSError as exc:  # ELOOP (a symlink), EISDIR, ENXIO, EACCES, ...
+            raise CheckpointError(f"cannot open the run lock {path}: {exc.strerror or exc}") from None
+        try:
+            _check_lock_file(path, os.fstat(fd))  # what was opened, whatever happened since the lstat
+        except CheckpointError:
+            os.close(fd)
+            raise
         if fcntl is not None:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -387,10 +426,13 @@ def write_model(directory: str | Path, state_dict: dict[str, torch.Tensor], conf
 
 
 def read_config(directory: str | Path) -> dict:
-    """Read and check a model directory's ``config.json`` (a JSON object of this format, its hash if it has one).
+    """Read and check a model directory's ``config.json``: a JSON object of this format that carries both hashes
+    (``weights_sha256``, checked against the weights by the callers that read them, and ``config_sha256``, checked
+    here).
 
     Raises:
-        CheckpointError: missing, too large, not JSON, not an object, another format, or a config hash mismatch.
+        CheckpointError: missing, too large, not JSON, not an object, another format, a hash missing or
+            malformed, or a config hash mismatch.
     """
     path = Path(directory) / CONFIG
     if not path.is_file():
@@ -409,10 +451,13 @@ def read_config(directory: str | Path) -> dict:
     if config.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a {FORMAT} config (format={config.get('format')!r})")
     for key in ("weights_sha256", "config_sha256"):
-        value = config.get(key)
-        if value is not None and not (isinstance(value, str) and len(value) == 64):
+        # required, not merely checked when present: otherwise deleting a hash would switch its check off
+        if key not in config:
+            raise CheckpointError(f"{path} has no {key} (a {FORMAT} config carries both hashes): edited or corrupt")
+        value = config[key]
+        if not (isinstance(value, str) and len(value) == 64):
             raise CheckpointError(f"{path}: {key} must be a SHA-256 hex digest, got {value!r}")
-    if "config_sha256" in config and config["config_sha256"] != config_digest(config):
+    if config["config_sha256"] != config_digest(config):
         raise CheckpointError(f"{path} was modified or is corrupt (its contents do not match its config_sha256)")
     return config
 
@@ -429,7 +474,7 @@ def _read_consistent(directory: Path, attempts: int = 6) -> tuple[dict, bytes]:
             blob = path.read_bytes()
         except OSError as exc:
             raise CheckpointError(f"cannot read {path}: {exc.strerror or exc}") from None
-        if config.get("weights_sha256") in (None, hashlib.sha256(blob).hexdigest()):
+        if config["weights_sha256"] == hashlib.sha256(blob).hexdigest():
             return config, blob
         if attempt + 1 < attempts:
             time.sleep(0.01 * 2**attempt)
@@ -484,13 +529,20 @@ def read_model(directory: str | Path, expected_task: str | None = None) -> tuple
 
 
 def load_state_dict_strict(module: torch.nn.Module, tensors: dict[str, torch.Tensor], source: str) -> None:
-    """``load_state_dict`` that reports missing/unexpected/mis-shaped/non-finite tensors as CheckpointError."""
+    """``load_state_dict`` that reports missing/unexpected/mis-shaped/non-finite tensors, and tensors a module
+    refuses (a ``ValueError`` of its own: a scale buffer that differs from the config, see
+    :data:`~seqmotion.models.seq2seq.SCALE_BUFFERS`), as CheckpointError."""
     own = {k: tuple(v.shape) for k, v in module.state_dict().items()}
     check_shapes(own, {k: tuple(v.shape) for k, v in tensors.items()}, source)
     for name, tensor in tensors.items():
         if tensor.is_floating_point() and tensor.device.type != "meta" and not bool(torch.isfinite(tensor).all()):
             raise CheckpointError(f"weights in {source} are corrupt: {name} holds NaN or inf")
-    module.load_state_dict(tensors)
+    try:
+        module.load_state_dict(tensors)
+    except CheckpointError:
+        raise
+    except ValueError as exc:
+        raise CheckpointError(f"weights in {source} do not fit their config: {exc}") from None
 
 
 def check_shapes(expected: dict[str, tuple[int, ...]], shapes: dict[str, tuple[int, ...]], source: str) -> None:
