@@ -135,9 +135,10 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_deform(args: argparse.Namespace) -> int:
     from seqmotion.physics.integrator import implied_accel
-    from seqmotion.training.files import check_output, read_trajectory, write_arrays
+    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory, write_arrays
 
     check_output(args.output)
+    check_not_an_input(args.output, "--output", {"--input": args.input})
     model = _trained_model(args.model)
     inputs = read_trajectory(args.input)
     result = model.generate(inputs, keep_end=args.keep_end)
@@ -180,15 +181,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
     import numpy as np
 
     from seqmotion.data import sliding as commands
-    from seqmotion.errors import check_number
-    from seqmotion.training.files import check_output, read_trajectory, write_arrays
+    from seqmotion.errors import MAX_LENGTH, check_number
+    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory, write_arrays
 
     check_output(args.output)
+    check_not_an_input(args.output, "--output", {"--command": args.command_file})
     if args.tolerance is not None:
         check_number("--tolerance (RMS distance [m])", args.tolerance, minimum=0)
     if args.circle is not None:
         check_number("--circle (radius [m])", args.circle, minimum=0, strict_minimum=True, maximum=10.0)
-        check_number("--length", args.length, minimum=2, maximum=1_000_000, integer=True)
+        check_number("--length", args.length, minimum=2, maximum=MAX_LENGTH, integer=True)
     planner = _trained_model(args.model, "sliding")
     if args.int8:
         planner = planner.quantized()
@@ -407,7 +409,7 @@ def _one_line(exc: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run a subcommand. Exit codes: 0 done; 2 bad input (a ``ValueError``/``CheckpointError``: one line
     ``seqmotion <command>: error: …`` on stderr, never a traceback); 1 the work failed (an ``OSError``
-    such as a full disk, a diverged training); 130 interrupted."""
+    such as a full disk, a diverged training, a ``MemoryError``: one line too); 130 interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     name = getattr(args, "command", None) or "?"
@@ -418,6 +420,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (OSError, FloatingPointError) as exc:  # the work failed: say so in one line
         print(f"seqmotion {name}: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except MemoryError as exc:  # an allocation failed during the work (inputs declaring too much are refused as
+        # ValueError before they are read); its frames are unwound by now, so printing needs little memory
+        print(f"seqmotion {name}: error: out of memory: {_one_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"seqmotion {name}: interrupted", file=sys.stderr)

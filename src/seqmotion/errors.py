@@ -11,6 +11,11 @@ import math
 
 import numpy as np
 
+MAX_LENGTH = 1_000_000
+"""The longest motion anything reads, generates or decodes: K samples (1000 s at 1 ms). The one cap on K,
+checked before anything of size K is allocated (input files' declared shapes, ``generate``, ``decode``,
+``--length``, task options)."""
+
 
 class CheckpointError(ValueError):
     """A checkpoint is missing, corrupt, mismatched, or belongs to another task."""
@@ -32,7 +37,7 @@ def as_trajectories(
         array: ``(K, dim)`` or ``(B, K, dim)``, anything ``np.asarray`` accepts.
         dim: the required size of the last axis.
         name: how the argument is called in error messages.
-        min_length: the smallest acceptable K.
+        min_length: the smallest acceptable K (the largest is :data:`MAX_LENGTH`).
 
     Returns:
         ``(batch, was_single)`` where ``was_single`` tells whether a leading batch axis
@@ -45,6 +50,8 @@ def as_trajectories(
         raise ValueError(f"{name} must have {dim} columns per sample, got shape {arr.shape}")
     if arr.shape[-2] < min_length:
         raise ValueError(f"{name} needs at least K = {min_length} samples, got K = {arr.shape[-2]}")
+    if arr.shape[-2] > MAX_LENGTH:  # refused here, before the model builds anything of size K
+        raise ValueError(f"{name} has K = {arr.shape[-2]} samples, more than the {MAX_LENGTH} a motion may have")
     if arr.ndim == 3 and arr.shape[0] == 0:
         raise ValueError(f"{name} has an empty batch (B = 0)")
     if not np.all(np.isfinite(arr)):

@@ -48,23 +48,25 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..api import resolve_model
-    from ..errors import check_number
+    from ..errors import MAX_LENGTH, check_number
     from ..tasks import TrainedModel
     from ..training.checkpoint import check_writable
-    from ..training.files import check_output, read_trajectory, write_arrays
+    from ..training.files import check_not_an_input, check_output, read_trajectory, write_arrays
     from . import optimize_latent, optimize_trajectory
     from .objectives import EndPose, Ranges
 
     check_output(args.output)
     if args.plot is not None:
         check_writable(args.plot, FIGURE_SUFFIXES, "--plot")
+    for option, path in (("--output", args.output), ("--plot", args.plot)):
+        check_not_an_input(path, option, {"--input": args.input})
     if args.exact is None:
         args.exact = args.preset == "j2"
     if args.steps is not None and args.steps < 0:
         raise ValueError(f"--steps must be ≥ 0 (0: no update, the input's own motion), got {args.steps}")
     if args.lr is not None:
         check_number("--lr", args.lr, minimum=0, strict_minimum=True)
-    check_number("--length", args.length, minimum=2, maximum=1_000_000, integer=True)
+    check_number("--length", args.length, minimum=2, maximum=MAX_LENGTH, integer=True)
     check_number("--seed", args.seed, minimum=0, integer=True)
     model = resolve_model(args.model)
     if not isinstance(model, TrainedModel):

@@ -166,7 +166,10 @@ def run(args: argparse.Namespace) -> int:
         return _train(args)
     if args.lfd_command == "evaluate":
         if args.json is not None:
+            from ..training.files import check_not_an_input
+
             check_writable(args.json, None, "--json")
+            check_not_an_input(args.json, "--json", {"--oracle-latents": args.oracle_latents})
         return _evaluate(args)
     if args.lfd_command == "export":
         from .export import export_policy

@@ -406,6 +406,7 @@ def _read_open_dataset(path: Path, f: object) -> PushingDataset:  # f: an open h
         missing = [k for k in MOTION_KEYS if k not in f["motions"]]
         if missing:
             raise ValueError(f"{path} has no motions {missing}")
+        _check_sizes(path, f)
         attrs = {k: _decode_attr(k, v) for k, v in f.attrs.items()}
         motions = {
             k: (f["motions"][k][()].astype(np.float64) if k != "phase" else f["motions"][k][()])
@@ -417,6 +418,32 @@ def _read_open_dataset(path: Path, f: object) -> PushingDataset:  # f: an open h
         operator = {k: v[()] for k, v in f["operator"].items()}
         images = f["images"][()] if "images" in f else None
     return PushingDataset(path, attrs, motions, episodes, operator, images)
+
+
+def _check_sizes(path: Path, f: object) -> None:  # f: an open h5py.File
+    """Refuse, before anything is read, datasets whose declared shapes are too large.
+
+    A file of a few kilobytes can declare a chunked dataset of any shape (HDF5 allocates chunks
+    lazily), and reading it allocates all of it: every dataset :func:`_read_open_dataset` reads
+    is checked by its ``.shape`` (:func:`~seqmotion.training.files.check_declared_size`: no axis
+    over ``MAX_LENGTH``), and together they must fit in ``MAX_FILE_BYTES`` once read.
+    """
+    import h5py
+
+    from ..training.files import MAX_FILE_BYTES, check_declared_size
+
+    groups = [f[name] for name in ("motions", "episodes", "episodes/variation", "operator")]
+    datasets = [item for group in groups for item in group.values() if isinstance(item, h5py.Dataset)]
+    if "images" in f and isinstance(f["images"], h5py.Dataset):
+        datasets.append(f["images"])
+    total = 0
+    for dataset in datasets:
+        # floats are read as float64 (motions: astype below); other kinds as they are stored
+        itemsize = max(dataset.dtype.itemsize, 8) if dataset.dtype.kind == "f" else dataset.dtype.itemsize
+        total += check_declared_size(dataset.shape or (), itemsize, f"{path}: dataset {dataset.name}")
+    if total > MAX_FILE_BYTES:
+        raise ValueError(f"{path}: its datasets take {total / 2**30:.1f} GiB once read, more than an input may "
+                         f"take ({MAX_FILE_BYTES / 2**30:.0f} GiB)")
 
 
 def _decode_attr(key: str, value: object) -> object:

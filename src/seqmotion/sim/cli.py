@@ -58,13 +58,16 @@ def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
-    """Refuse unwritable outputs before the simulation runs (``ValueError`` naming the option)."""
+    """Refuse unwritable outputs, and outputs that are the trajectory file itself, before the simulation runs
+    (``ValueError`` naming the option)."""
     from ..training.checkpoint import check_writable
+    from ..training.files import check_not_an_input
 
     for option, suffixes in (("video", (".mp4",)), ("snapshots", (".png",)), ("json", None)):
         value = getattr(args, option)
         if value is not None:
             check_writable(value, suffixes, f"--{option}")
+            check_not_an_input(value, f"--{option}", {"--trajectory": args.trajectory})
 
 
 def run(args: argparse.Namespace) -> int:

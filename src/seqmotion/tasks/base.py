@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from ..data.trajectories import TrajectoryBatch
-from ..errors import CheckpointError, as_float_array, as_trajectories, check_finite_result, check_number
+from ..errors import MAX_LENGTH, CheckpointError, as_float_array, as_trajectories, check_finite_result, check_number
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig, rollout
 from ..physics.integrator import DoubleIntegratorDynamics, reach_end
 from ..physics.layout import StateLayout
@@ -53,8 +53,6 @@ from .options import TaskOptions
 from .stepper import OnlineGenerator, stepper_contract
 from .trust import position_std
 
-MAX_LENGTH = 1_000_000
-"""The longest motion ``decode`` generates (1000 s at 1 ms)."""
 FEASIBLE_TOLERANCE = 0.01
 """A motion counts as feasible when its largest constraint violation is at most this."""
 
@@ -134,6 +132,11 @@ class Task(ABC):
     @abstractmethod
     def dynamics(self, options: TaskOptions, **physics: Any) -> ChunkDynamics:
         """The differentiable physics the decoder's loop runs through at inference."""
+
+    def physics_trained(self, options: TaskOptions) -> dict[str, tuple[float, float]]:
+        """The (lowest, highest) value of each of :attr:`physics_parameters` the training met: a generation at
+        physics beyond them (by the trust margin) is out of distribution. Default: none known."""
+        return {}
 
     def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
         """Decoder start state ``(B, state_dim)`` for input motions ``(B, K, input_dim)``
@@ -914,15 +917,16 @@ class TrainedModel(PretrainedModel):
                         uncertainty=std, exact=exact, length=own_length)
         if inputs is not None:
             motion.errors, motion.out_of_distribution, motion.ood_reasons = self._judge(
-                inputs, states_np, motion.accel, motion.violation, std)
+                inputs, states_np, motion.accel, motion.violation, std, physics)
         return self.task_def.make_result(motion, self)
 
     def _judge(
         self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
-        std: np.ndarray | None,
+        std: np.ndarray | None, physics: dict[str, Any],
     ) -> tuple[dict[str, np.ndarray], np.ndarray | None, list[list[str]]]:
         """Errors ``(B,)`` each, out-of-distribution flags ``(B,)`` and reasons for a batch (``keep_end`` may have
-        made the motions longer than the inputs: the input then holds its end, where the motion comes to rest)."""
+        made the motions longer than the inputs: the input then holds its end, where the motion comes to rest);
+        ``physics`` given at inference beyond what the training met is a reason too."""
         inputs = np.asarray(inputs, dtype=np.float64)
         held = np.concatenate([inputs, np.repeat(inputs[:, -1:], states.shape[1] - inputs.shape[1], axis=1)], axis=1)
         errors = self.task_def.errors(held, states, accel, violation, self.options)
@@ -931,10 +935,28 @@ class TrainedModel(PretrainedModel):
         except Exception as exc:  # noqa: BLE001 - a task whose generator cannot calibrate: say so, never fail
             self.trust_calibration = trust.TrustCalibration(upper={}, source=f"not calibrated ({exc})")
             calibration = self.trust_calibration
+        physics_out = self._physics_beyond_training(physics)
         if not calibration.upper:
+            if physics_out:
+                return errors, np.ones(len(states), dtype=bool), [[*physics_out, calibration.source] for _ in states]
             return errors, None, [[calibration.source] for _ in range(len(states))]
         flags, reasons = calibration.check(trust.features_of(self, inputs, None, std))
+        if physics_out:
+            flags, reasons = np.ones_like(flags), [[*physics_out, *r] for r in reasons]
         return errors, flags, reasons
+
+    def _physics_beyond_training(self, physics: dict[str, Any]) -> list[str]:
+        """Reasons (``"mu 1e+300 outside 0.72-1.32 (trained 0.8-1.2)"``) for each physics parameter beyond what the
+        training met, widened by the trust margin: the model was never shown that physics."""
+        reasons = []
+        for name, (low, high) in self.task_def.physics_trained(self.options).items():
+            value = physics.get(name)
+            if value is None:
+                continue
+            lo, hi = low * (1 - trust.MARGIN), high * (1 + trust.MARGIN)
+            if not lo <= float(value) <= hi:
+                reasons.append(f"{name} {float(value):.4g} outside {lo:.4g}-{hi:.4g} (trained {low:.4g}-{high:.4g})")
+        return reasons
 
     def trust_lines(self, result: Any, tolerances: dict[str, float] | None = None) -> list[str]:
         """The lines the command lines print under a result (a task's result, a :class:`Motion` or an
@@ -985,8 +1007,9 @@ class TrainedModel(PretrainedModel):
                 _, _, std = self.rollout_with_std(z, torch.from_numpy(start), k, **physics)
         with torch.inference_mode():
             violation = self.violation_torch(torch.from_numpy(states_b), torch.from_numpy(accel_b))
+        self.check_physics(physics)
         errors, flags, reasons = self._judge(batch, states_b, accel_b, None if violation is None else violation.numpy(),
-                                             std)
+                                             std, physics)
         result = Assessment(errors, flags, reasons, std)
         if single:
             return Assessment(*(_first(v) for v in result))

@@ -18,6 +18,8 @@ import math
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
+from ..errors import MAX_LENGTH
+
 T = TypeVar("T", bound="TaskOptions")
 
 
@@ -74,9 +76,6 @@ class TaskOptions:
 
 
 # --- checks used by the tasks' __post_init__ -----------------------------------------------------
-
-MAX_LENGTH = 1_000_000
-"""The longest trajectory an option may ask for (1000 s at 1 ms)."""
 
 
 def check_positive(name: str, value: Any, allow_zero: bool = False) -> None:

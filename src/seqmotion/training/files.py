@@ -4,29 +4,101 @@ Reading is strict: a file that is not what its suffix says (a truncated or empty
 ``.npy`` renamed ``.npz``, pickled objects, text in a data row) raises ``ValueError`` naming the
 file and, for a CSV, the row and column; nothing is guessed. A CSV's first row is taken as a
 header only when none of its fields is a number.
+
+Reading is bounded: a file over :data:`MAX_FILE_BYTES`, an array whose ``.npy`` header declares
+an axis over :data:`~seqmotion.errors.MAX_LENGTH` or more than :data:`MAX_FILE_BYTES` once read,
+a CSV with more rows than that, are refused before they are read into memory. An output that is
+the same file as an input is refused before any work (:func:`check_not_an_input`).
 """
 
 from __future__ import annotations
 
+import array
 import io
+import math
+import os
 import zipfile
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
+from ..errors import MAX_LENGTH
 from .checkpoint import atomic_write_bytes, check_writable
 
 TRAJECTORY_SUFFIXES = (".npz", ".csv")
 """File types :func:`read_trajectory` reads and :func:`write_arrays` writes."""
 MAX_FILE_BYTES = 2**31
-"""Input files larger than this (2 GiB) are refused before they are read."""
+"""Input files larger than this (2 GiB) are refused before they are read, and so are arrays whose
+declared shape would take more than this once read as float64 (an ``.npz`` member, an HDF5 dataset:
+a small compressed file can declare a huge array)."""
+MAX_CSV_LINE = 2**20
+"""Characters in one CSV line (1 Mi): a row of samples is a few hundred, and a file without line
+breaks must not be read into one string."""
 
 
 def check_output(path: str | Path, what: str = "--output") -> Path:
     """Refuse, before any work, an output that :func:`write_arrays` could not write (suffix, folder)."""
     return check_writable(path, TRAJECTORY_SUFFIXES, what)
+
+
+def check_not_an_input(
+    output: str | Path | None, what: str, inputs: Mapping[str, str | Path | None]
+) -> None:
+    """Refuse, before any work, an output that is the same file as one of the ``inputs``.
+
+    Writing the output replaces the file, so ``--output in.csv`` for ``--input in.csv`` would
+    destroy the input (after the work, or half-way if it fails). The same file is found through
+    links and ``..``: ``os.path.samefile`` when both exist, else equal real paths.
+
+    Args:
+        output: the output path (``None``: not given, nothing to check).
+        what: the output's option name for the message (``--output``).
+        inputs: option name → input path (``None`` entries are skipped).
+
+    Raises:
+        ValueError: naming both options and the path.
+    """
+    if output is None:
+        return
+    for name, source in inputs.items():
+        if source is None:
+            continue
+        try:
+            same = os.path.samefile(output, source)
+        except OSError:  # one of them does not exist (yet): compare where they would be
+            same = os.path.realpath(output) == os.path.realpath(source)
+        if same:
+            raise ValueError(f"{what} {output} is the same file as {name} {source}: writing it would destroy "
+                             "the input; choose another output file")
+
+
+def check_declared_size(shape: tuple[int, ...], itemsize: int, what: str) -> int:
+    """Refuse an array by its declared shape, before it is read or allocated.
+
+    Args:
+        shape: the shape a file declares (an ``.npy`` header, an HDF5 dataset's ``.shape``).
+        itemsize: bytes per element once read (8 for arrays converted to float64).
+        what: names the array (and file) in the message.
+
+    Returns:
+        The array's size once read [bytes], for callers that bound a whole file.
+
+    Raises:
+        ValueError: an axis longer than :data:`~seqmotion.errors.MAX_LENGTH`, or more than
+            :data:`MAX_FILE_BYTES` once read.
+    """
+    longest = max(shape, default=0)
+    if longest > MAX_LENGTH:
+        raise ValueError(f"{what} declares shape {tuple(shape)}: {longest} along an axis, more than the "
+                         f"{MAX_LENGTH} samples a motion may have")
+    size = math.prod(shape) * itemsize
+    if size > MAX_FILE_BYTES:
+        raise ValueError(f"{what} declares shape {tuple(shape)}: {size / 2**30:.1f} GiB once read, more than an "
+                         f"input may take ({MAX_FILE_BYTES / 2**30:.0f} GiB)")
+    return size
 
 
 def _is_number(text: str) -> bool:
@@ -37,8 +109,8 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def parse_csv(text: str, source: str = "CSV") -> np.ndarray:
-    """``(rows, columns)`` float64 from comma-separated text.
+def parse_csv(text: str | Iterable[str], source: str = "CSV") -> np.ndarray:
+    """``(rows, columns)`` float64 from comma-separated text (a string, or lines as they are read).
 
     Blank lines and lines starting with ``#`` are skipped; the first remaining row is a header
     if none of its fields is a number (``y,z,theta``); every other row must hold exactly as
@@ -46,12 +118,16 @@ def parse_csv(text: str, source: str = "CSV") -> np.ndarray:
 
     Raises:
         ValueError: a field that is not a number (naming its line and column), rows of different
-            widths, or no data row.
+            widths, no data row, or more data rows than a motion may have (refused at the first row
+            too many: lines are parsed as they come, the rest is never read).
     """
-    rows: list[list[float]] = []
+    lines = text.splitlines() if isinstance(text, str) else text
+    values = array.array("d")  # 8 bytes a number: a list of Python floats would take ~4 times that
+    rows = 0
     width = None
+    max_rows = MAX_LENGTH
     seen_first = False
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(lines, start=1):
         stripped = line.strip()
         if not stripped or stripped.startswith("#"):
             continue
@@ -60,45 +136,109 @@ def parse_csv(text: str, source: str = "CSV") -> np.ndarray:
             seen_first = True
             if not any(_is_number(f) for f in fields):
                 continue  # a header row: names only
-        values = []
+        row = []
         for column, field in enumerate(fields, start=1):
             try:
-                values.append(float(field))
+                row.append(float(field))
             except ValueError:
                 raise ValueError(
                     f"{source}, line {number}, column {column}: {field[:40]!r} is not a number"
                 ) from None
         if width is None:
-            width = len(values)
-        elif len(values) != width:
-            raise ValueError(f"{source}, line {number}: {len(values)} columns, but the first data row has {width}")
-        rows.append(values)
+            width = len(row)
+            max_rows = min(MAX_LENGTH, MAX_FILE_BYTES // (8 * width))
+        elif len(row) != width:
+            raise ValueError(f"{source}, line {number}: {len(row)} columns, but the first data row has {width}")
+        if rows == max_rows:  # refused at the first row too many: the rest of the file is never read
+            limit = (f"a motion has at most {MAX_LENGTH} samples" if max_rows == MAX_LENGTH
+                     else f"{width} columns of them would take more than {MAX_FILE_BYTES / 2**30:.0f} GiB")
+            raise ValueError(f"{source}, line {number}: more than {max_rows} data rows ({limit})")
+        values.extend(row)
+        rows += 1
     if not rows:
         raise ValueError(f"{source} holds no data rows")
-    return np.asarray(rows, dtype=np.float64)
+    return np.frombuffer(values, dtype=np.float64).reshape(rows, width)  # no copy: it keeps `values` alive
+
+
+def _csv_lines(path: Path) -> Iterator[str]:
+    """The lines of a UTF-8 text file, read one at a time (none longer than :data:`MAX_CSV_LINE`)."""
+    number = 0
+    with path.open(encoding="utf-8-sig", newline=None) as stream:
+        try:
+            while line := stream.readline(MAX_CSV_LINE + 1):
+                number += 1
+                if len(line) > MAX_CSV_LINE:
+                    raise ValueError(f"{path}, line {number}: longer than {MAX_CSV_LINE} characters "
+                                     "(not a CSV of samples)")
+                yield line
+        except UnicodeDecodeError as exc:  # decoded in blocks: the bad bytes are at or just after this line
+            raise ValueError(f"{path} is not a UTF-8 text file ({exc.reason} near line {number + 1})") from None
+
+
+def _read_member(stream: IO[bytes], what: str, used: int) -> tuple[np.ndarray, int]:
+    """One ``.npy`` member of an archive: its header checked, then its data read.
+
+    Args:
+        stream: the opened member.
+        what: names the array in messages.
+        used: bytes the archive's arrays read before this one take (as float64).
+
+    Returns:
+        ``(array, bytes it takes as float64)``.
+
+    Raises:
+        ValueError: not an ``.npy`` array, declared too large (:func:`check_declared_size`), or more
+            than :data:`MAX_FILE_BYTES` together with the arrays read before it.
+    """
+    fmt = np.lib.format
+    try:
+        version = fmt.read_magic(stream)
+    except ValueError:
+        raise ValueError(f"{what} is not an .npy array") from None
+    reader = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+    shape, _, dtype = reader(stream)  # the header only: nothing of the data is decompressed yet
+    size = check_declared_size(shape, max(dtype.itemsize, 8), what)
+    if used + size > MAX_FILE_BYTES:
+        raise ValueError(f"{what} declares shape {tuple(shape)}: with the arrays before it, more than "
+                         f"{MAX_FILE_BYTES / 2**30:.0f} GiB once read")
+    stream.seek(0)
+    return fmt.read_array(stream, allow_pickle=False), size
 
 
 def read_npz(path: str | Path, keys: Sequence[str], required: int = 1) -> dict[str, np.ndarray]:
     """Arrays ``keys`` of an ``.npz`` (the first ``required`` of them must be there), read in full.
 
+    Each array's ``.npy`` header is checked (:func:`check_declared_size`, and their sum) before
+    its data is decompressed: a small archive can declare an array of any size.
+
     Raises:
         ValueError: not a zip archive (an ``.npy`` renamed, a truncated or empty file), a corrupt
-            member, pickled objects, or a required array missing.
+            member, pickled objects, a member that is not an ``.npy`` array, an array declared too
+            large, or a required array missing.
     """
     path = Path(path)
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not an .npz archive (empty, truncated, or another format such as .npy)")
+    arrays: dict[str, np.ndarray] = {}
+    total = 0
     try:
-        with np.load(path, allow_pickle=False) as data:
-            files = list(data.files)
-            arrays = {k: np.asarray(data[k]) for k in keys if k in files}
-    except ValueError as exc:  # e.g. pickled object arrays (allow_pickle=False)
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+            # np.load's names: "x" finds member "x.npy", and an exact member name wins
+            members = {name.removesuffix(".npy"): name for name in names} | {name: name for name in names}
+            for key in keys:
+                if key not in members:
+                    continue
+                with archive.open(members[key]) as stream:
+                    arrays[key], size = _read_member(stream, f"array {key!r}", total)
+                total += size
+    except ValueError as exc:  # e.g. pickled object arrays (allow_pickle=False), a header declaring too much
         raise ValueError(f"cannot read {path}: {exc}") from None
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError, NotImplementedError, RuntimeError) as exc:
         raise ValueError(f"cannot read {path}: corrupt archive ({type(exc).__name__}: {exc})") from None
     missing = [k for k in keys[:required] if k not in arrays]
     if missing:
-        raise ValueError(f"{path} has no array {missing[0]!r} (has {sorted(files)})")
+        raise ValueError(f"{path} has no array {missing[0]!r} (has {sorted({m.removesuffix('.npy') for m in names})})")
     return arrays
 
 
@@ -107,7 +247,8 @@ def read_trajectory(path: str | Path, key: str = "states") -> np.ndarray:
 
     Raises:
         ValueError: a missing or unreadable file, no array ``key``, a malformed file (see the
-            module docstring), an unsupported suffix.
+            module docstring), an unsupported suffix, a file or array too large (checked before
+            it is read).
     """
     return read_arrays(path, (key,))[key]
 
@@ -120,18 +261,16 @@ def read_arrays(path: str | Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
         raise ValueError(f"{path} does not exist" if not path.exists() else f"{path} is not a file")
     size = path.stat().st_size
     if size > MAX_FILE_BYTES:
-        raise ValueError(f"{path} is {size / 2**30:.1f} GiB, larger than a trajectory file may be (2 GiB)")
+        raise ValueError(f"{path} is {size / 2**30:.1f} GiB, larger than a trajectory file may be "
+                         f"({MAX_FILE_BYTES / 2**30:.0f} GiB)")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return read_npz(path, keys)
     if suffix == ".csv":
         try:
-            text = path.read_bytes().decode("utf-8-sig")
-        except UnicodeDecodeError as exc:
-            raise ValueError(f"{path} is not a text file ({exc.reason} at byte {exc.start})") from None
+            return {keys[0]: parse_csv(_csv_lines(path), str(path))}
         except OSError as exc:
             raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
-        return {keys[0]: parse_csv(text, str(path))}
     raise ValueError(f"unsupported trajectory file {path} (use .npz or .csv)")
 
 
@@ -182,5 +321,5 @@ def write_arrays(
     return path
 
 
-__all__ = ["TRAJECTORY_SUFFIXES", "check_output", "parse_csv", "read_arrays", "read_npz", "read_trajectory",
-           "write_arrays"]
+__all__ = ["MAX_FILE_BYTES", "TRAJECTORY_SUFFIXES", "check_declared_size", "check_not_an_input", "check_output",
+           "parse_csv", "read_arrays", "read_npz", "read_trajectory", "write_arrays"]
