@@ -13,6 +13,11 @@ So ``sm.load``, ``sm.load_pretrained``, the trainer and the CLI find a task of t
 package without edits to seqmotion. Task modules are imported by name only (nothing here
 imports :mod:`.base`), which keeps the task layer free of import cycles.
 
+Plug-ins are untrusted neighbours: an entry point is imported only when a name is asked for that
+no built-in task has (or when every task is listed), each at most once per process, and one that
+fails to import (an exception, even ``sys.exit``), is not a task, or reuses a taken name is skipped
+with a ``RuntimeWarning`` naming it — it never stops the built-in tasks or the other plug-ins.
+
 :func:`pretrained_roots` lists the folders that ship pretrained models: ``pretrained/`` beside
 the top-level package that defines each task (``seqmotion/pretrained/`` for the built-in ones,
 ``seqmotion_tray/pretrained/`` for the example plug-in), plus the folders named in the
@@ -26,6 +31,7 @@ import importlib.util
 import os
 import pkgutil
 import sys
+import warnings
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -37,6 +43,9 @@ _SKIP = {"base", "options", "registry", "stepper", "trust"}
 """Modules of ``seqmotion.tasks`` that are the task layer's machinery, not tasks (``--help`` lists the rest)."""
 
 _REGISTRY: dict[str, Any] | None = None
+"""Tasks known so far: the built-in ones, those registered by hand and the plug-ins loaded yet."""
+_TRIED: set[tuple[str, str]] = set()
+"""Entry points ``(name, value)`` already imported (or tried): each is imported, and warned about, once."""
 
 
 def _is_task(obj: object) -> bool:
@@ -56,31 +65,54 @@ def _builtin() -> dict[str, Any]:
     return found
 
 
-def _plugins(known: dict[str, Any]) -> dict[str, Any]:
-    found: dict[str, Any] = {}
-    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            task = entry.load()
-        except Exception as exc:  # a broken plug-in must not break seqmotion: say which one
-            raise ValueError(
-                f"the seqmotion task plug-in {entry.name!r} ({entry.value}) fails to import: {exc}"
-            ) from exc
+def _skip(entry: metadata.EntryPoint, why: str) -> None:
+    warnings.warn(f"skipping the seqmotion task plug-in {entry.name!r} ({entry.value}): {why}", RuntimeWarning,
+                  stacklevel=4)
+
+
+def _load_entry(entry: metadata.EntryPoint) -> Any | None:
+    """The task an entry point names, or None (with a warning) when it cannot be one."""
+    try:
+        task = entry.load()
         if isinstance(task, type):
             task = task()
-        if not _is_task(task):
-            raise ValueError(f"entry point {entry.name!r} ({entry.value}) is not a seqmotion task")
-        if task.name in known or task.name in found:
-            raise ValueError(f"two tasks are called {task.name!r} (one from the plug-in {entry.value})")
-        found[task.name] = task
-    return found
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - a plug-in's failure, even sys.exit, stays its own
+        what = f"it called sys.exit({exc.code!r})" if isinstance(exc, SystemExit) else f"{type(exc).__name__}: {exc}"
+        _skip(entry, f"it fails to import ({what})")
+        return None
+    if not _is_task(task):
+        _skip(entry, f"it is a {type(task).__name__}, not a seqmotion task (needs a name and train_config or load)")
+        return None
+    return task
+
+
+def _load_plugins(only: str | None = None) -> None:
+    """Import the entry points not tried yet (only those declared as ``only`` when given) into the registry."""
+    tasks = _known()
+    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if (only is not None and entry.name != only) or (entry.name, entry.value) in _TRIED:
+            continue
+        _TRIED.add((entry.name, entry.value))
+        task = _load_entry(entry)
+        if task is None:
+            continue
+        if task.name in tasks and tasks[task.name] is not task:
+            _skip(entry, f"a task called {task.name!r} exists already (the first one is kept)")
+            continue
+        tasks[task.name] = task
+
+
+def _known() -> dict[str, Any]:
+    global _REGISTRY
+    if _REGISTRY is None:
+        _REGISTRY = _builtin()
+    return _REGISTRY
 
 
 def _discover() -> dict[str, Any]:
-    global _REGISTRY
-    if _REGISTRY is None:
-        builtin = _builtin()
-        _REGISTRY = {**builtin, **_plugins(builtin)}
-    return _REGISTRY
+    """Every task: the built-in ones and all plug-ins (broken ones skipped with a warning)."""
+    _load_plugins()
+    return _known()
 
 
 def register(task: Any) -> Any:
@@ -90,7 +122,7 @@ def register(task: Any) -> Any:
     """
     if not _is_task(task):
         raise ValueError(f"{task!r} is not a seqmotion task (needs a name and train_config or load)")
-    tasks = _discover()
+    tasks = _known()
     if task.name in tasks and tasks[task.name] is not task:
         raise ValueError(f"a task called {task.name!r} is already registered")
     tasks[task.name] = task
@@ -101,6 +133,7 @@ def refresh() -> None:
     """Forget what was discovered (after installing a plug-in in a running process)."""
     global _REGISTRY
     _REGISTRY = None
+    _TRIED.clear()
 
 
 def get(name: str) -> Any:
@@ -109,7 +142,11 @@ def get(name: str) -> Any:
     Raises:
         ValueError: no such task (the message lists the known ones).
     """
-    tasks = _discover()
+    tasks = _known()
+    if isinstance(name, str) and name not in tasks:  # a plug-in: the one declared under that name first, then all
+        _load_plugins(only=name)
+        if name not in tasks:
+            _load_plugins()
     if not isinstance(name, str) or name not in tasks:
         raise ValueError(f"unknown task {name!r}; known tasks: {sorted(tasks)}")
     return tasks[name]
@@ -141,8 +178,24 @@ def pretrained_roots() -> list[Path]:
     for part in os.environ.get(PRETRAINED_PATH_ENV, "").split(os.pathsep):
         if part:
             roots.append(Path(part))
-    for task in _discover().values():
-        root = home_package(task) / "pretrained"
+    homes = [home_package(task) for task in _known().values()]
+    homes += [home for home in map(_entry_home, metadata.entry_points(group=ENTRY_POINT_GROUP)) if home is not None]
+    for home in homes:
+        root = home / "pretrained"
         if root not in roots:
             roots.append(root)
     return roots
+
+
+def _entry_home(entry: metadata.EntryPoint) -> Path | None:
+    """The folder of an entry point's top-level package, found without importing (running) the plug-in."""
+    top = entry.value.split(":")[0].strip().split(".")[0]
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    if spec.submodule_search_locations:
+        return Path(next(iter(spec.submodule_search_locations)))
+    return Path(spec.origin).parent if spec.origin else None
