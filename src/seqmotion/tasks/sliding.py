@@ -43,6 +43,8 @@ from .base import Motion, Task, TrainedModel, TrustSignals
 from .options import TaskOptions, check_choice, check_length_range, check_positive
 
 PAN_LIMIT = 0.2  # p_lim [m]
+MAX_FRICTION = 1e3
+"""Friction coefficients above this are no physics (rubber on rubber is ~1-2): refused by name, not planned."""
 TRACKING_TOLERANCE = 0.005
 """A plan whose object strays more than this RMS from its command [m] gets a warning."""
 VARIANTS = {
@@ -80,9 +82,12 @@ def model_config(layers: int, hidden: int, head_hidden: int, chunk: int = 100) -
 
 
 def check_friction(mu: Any, mu_dyn: Any, what: str = "friction") -> None:
-    """``ValueError`` unless ``mu > 0`` and ``0 <= mu_dyn <= mu`` (finite numbers)."""
+    """``ValueError`` unless ``0 < mu <= MAX_FRICTION`` and ``0 <= mu_dyn <= mu`` (finite numbers)."""
     check_positive("mu", mu)
     check_positive("mu_dyn", mu_dyn, allow_zero=True)
+    if mu > MAX_FRICTION:
+        raise ValueError(f"mu = {mu:g} is no friction coefficient a pan and object can have (at most {MAX_FRICTION:g}; "
+                         "the shipped planners were trained at 0.8-1.2)")
     if mu_dyn > mu:
         raise ValueError(f"{what} must satisfy mu > 0 and 0 <= mu_dyn <= mu, got {mu}, {mu_dyn}")
 
@@ -151,6 +156,19 @@ class SlidingOptions(TaskOptions):
         check_choice("pan_shaking", self.pan_shaking, commands.PAN_SHAKINGS)
         if self.variant is not None:
             check_choice("variant", self.variant, tuple(VARIANTS))
+
+
+def friction_trained(opt: SlidingOptions) -> dict[str, tuple[float, float]]:
+    """The lowest and highest static and dynamic friction the training draws (:func:`training_friction`)."""
+    if opt.friction_pairs is not None:
+        pairs = np.asarray(opt.friction_pairs, dtype=float)
+        mu, mu_dyn = pairs[:, 0], pairs[:, 1]
+    elif opt.friction_range is not None:
+        (mu_lo, mu_hi), (mud_lo, mud_hi) = opt.friction_range
+        mu, mu_dyn = np.array([mu_lo, mu_hi]), np.array([mud_lo, min(mud_hi, mu_hi)])
+    else:
+        mu, mu_dyn = np.array([opt.mu]), np.array([opt.mu_dyn])
+    return {"mu": (float(mu.min()), float(mu.max())), "mu_dyn": (float(mu_dyn.min()), float(mu_dyn.max()))}
 
 
 def training_friction(n: int, rng: np.random.Generator, opt: SlidingOptions) -> tuple[np.ndarray, np.ndarray]:
@@ -338,6 +356,10 @@ class SlidingTask(Task):
         jac = torch.where((branch == contact.BREAKAWAY)[..., None, None], breakaway,
                           torch.where((branch == contact.SLIDE)[..., None, None], -eye, torch.zeros_like(eye)))
         return integrate_covariance(jac @ accel_cov @ jac.transpose(-1, -2), dynamics.dt)
+
+    def physics_trained(self, options: SlidingOptions) -> dict[str, tuple[float, float]]:
+        """The (lowest, highest) friction μ, μ' of the training trajectories (:func:`friction_trained`)."""
+        return friction_trained(options)
 
     def tolerances(self, options: SlidingOptions) -> dict[str, float]:
         """Warn when the object strays more than 5 mm RMS from its command or the pan leaves ``pan_limit``."""
