@@ -13,7 +13,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("export-onnx", help="export a model's encoder and decoder step as ONNX with a JSON "
                                                   "contract and a NumPy + onnxruntime runner")
     p.add_argument("model", help="shipped model name or model/run directory")
-    p.add_argument("out", help="output folder (created; its files are replaced)")
+    p.add_argument("out", help="output folder: new, empty, or a previous export (replaced whole; a folder holding "
+                               "anything else is refused)")
     p.add_argument("--int8", action="store_true",
                    help="also write an int8 decoder step (layers >= 256 wide, like TrainedModel.quantized)")
     p.add_argument("--no-check", action="store_true", help="skip the parity check against PyTorch")
@@ -22,12 +23,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..api import resolve_model
-    from .export import check_parity, export_onnx
+    from .export import bundle_target, check_parity, export_onnx
 
+    bundle_target(args.out)  # a folder that may not be replaced is refused before the model is loaded
     model = resolve_model(args.model)
     contract = export_onnx(model, args.out, int8=args.int8, source=args.model)
     files = ", ".join(v for v in contract["files"].values() if v)
-    print(f"wrote {args.out}: {files}, contract.json, onnx_stepper.py (+ stepper.py, numpy_physics.py)")
+    print(f"wrote {args.out}: {files}, contract.json (sealed), onnx_stepper.py (+ bundle.py, stepper.py, "
+          "numpy_physics.py)")
     print(f"task {contract['task']}: C = {contract['chunk']}, state {', '.join(contract['state_layout']['names'])}; "
           f"outputs {', '.join(contract['accel_layout']['names'])}; dt = {contract['dt']} s")
     if not args.no_check:

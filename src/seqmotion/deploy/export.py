@@ -12,16 +12,27 @@
 * ``violation.onnx`` (tasks with a constraint) — ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)``
   float32 → ``violation`` ``(B, N)``: the task's constraint at the model's options.
 * ``contract.json`` — :func:`seqmotion.tasks.stepper.stepper_contract` (layouts, units, chunk, dt,
-  how z initialises the decoder, the stop, the dynamics) plus the graphs' files and tensors.
-* ``onnx_stepper.py``, ``stepper.py``, ``numpy_physics.py`` — the runner: NumPy + onnxruntime only
-  (``from onnx_stepper import OnnxStepper`` with OUT/ on the path).
+  how z initialises the decoder, the stop, the dynamics) plus the graphs' files and tensors, sealed:
+  the SHA-256 of each graph and of the contract itself (:mod:`seqmotion.deploy.bundle`, which also
+  holds the schema the runner checks it against; an export the runner would refuse is refused here).
+* ``onnx_stepper.py``, ``bundle.py``, ``stepper.py``, ``numpy_physics.py`` — the runner: NumPy +
+  onnxruntime only (``from onnx_stepper import OnnxStepper`` with OUT/ on the path).
 * with ``int8=True`` also ``decoder_step.int8.onnx``: onnxruntime's dynamic quantisation (int8
   weights per output channel) of the layers ≥ 256 wide, like ``TrainedModel.quantized()``.
+
+OUT/ is replaced whole (:func:`write_bundle`): the bundle is written into a temporary sibling
+folder, flushed to disk, and swapped in (the old bundle renamed aside to ``.OUT.previous``, the
+new one renamed into place, the old one removed). A failure at any step leaves the old bundle; a
+kill leaves the old bundle or the new one — between the two renames the old one under its aside
+name, which the runner loads then and the next export puts back before it starts. OUT/ must be
+new, empty, or a previous export: a folder holding anything else is refused, never deleted.
 """
 
 from __future__ import annotations
 
 import io
+import json
+import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -32,11 +43,17 @@ from torch import nn
 
 from ..tasks.base import TrainedModel
 from ..tasks.stepper import stepper_contract
-from ..training.checkpoint import atomic_write_bytes, atomic_write_json, check_writable_dir
+from ..training.checkpoint import check_writable_dir, replace_directory
+from .bundle import CONTRACT, check_contract, previous_path, seal
 
 OPSET = 17
 INT8_MIN_FEATURES = 256
-RUNNER_FILES = ("onnx_stepper.py", "numpy_physics.py")
+RUNNER_FILES = ("onnx_stepper.py", "bundle.py", "numpy_physics.py")
+GRAPH_FILES = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx", "violation": "violation.onnx",
+               "decoder_step_int8": "decoder_step.int8.onnx"}
+"""The graphs' file names, by their key in the contract's ``files``."""
+BUNDLE_NAMES = frozenset({CONTRACT, "stepper.py", *RUNNER_FILES, *GRAPH_FILES.values(), "__pycache__"})
+"""What a previous export (of any version) holds; ``__pycache__``: Python's, from running the runner there."""
 
 
 class EncoderInput(nn.Module):
@@ -227,14 +244,53 @@ def quantized(proto: Any, workdir: Path, min_features: int = INT8_MIN_FEATURES) 
             path.unlink(missing_ok=True)
 
 
+def bundle_target(out: str | Path) -> Path:
+    """The folder a bundle for ``out`` is swapped into (a link is followed), refused before any work if it is a
+    file, holds the current directory, cannot be written beside, or is a non-empty folder that is not a
+    previous export (its files are the user's: they are never deleted).
+
+    Raises:
+        ValueError: naming ``out`` and, for a foreign folder, what it holds.
+    """
+    target = Path(out).resolve()
+    if Path.cwd().resolve().is_relative_to(target):
+        raise ValueError(f"cannot export into {out}: it holds the current directory, which the export replaces")
+    if target.exists():
+        if not target.is_dir():
+            raise ValueError(f"cannot export into {out}: it is a file, not a folder")
+        names = sorted(entry.name for entry in target.iterdir())
+        foreign = [name for name in names if name not in BUNDLE_NAMES]
+        if names and (CONTRACT not in names or foreign):
+            held = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "") if foreign else f"no {CONTRACT}"
+            raise ValueError(f"cannot export into {out}: it is not empty and not an exported model (it holds {held}); "
+                             "export into a new or empty folder (a previous export is replaced whole, and nothing "
+                             "else is deleted)")
+    check_writable_dir(target.parent, shown=out)
+    return target
+
+
+def write_bundle(out: str | Path, files: dict[str, bytes]) -> None:
+    """Replace the folder ``out`` by one holding ``files`` (name → bytes), whole (module docstring;
+    :func:`~seqmotion.training.checkpoint.replace_directory`, the old bundle set aside under the name the runner
+    knows, :func:`~seqmotion.deploy.bundle.previous_path`).
+
+    Raises:
+        ValueError: ``out`` is not a folder a bundle may replace (:func:`bundle_target`).
+        OSError: a write, flush or rename failed (the old bundle is left as it was).
+    """
+    target = bundle_target(out)
+    replace_directory(target, files, previous_path(target))
+
+
 def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, source: str | None = None,
                 **physics: Any) -> dict[str, Any]:
-    """Write ``model``'s encoder, decoder step, constraint, contract and NumPy runner into ``out``.
+    """Write ``model``'s encoder, decoder step, constraint, sealed contract and NumPy runner into ``out``.
 
     Args:
         model: a trained seq2seq model of any task whose dynamics have a NumPy implementation
             (double integrator, sliding).
-        out: the output folder (created; files in it are replaced).
+        out: the output folder: new, empty, or a previous export, which is replaced whole
+            (:func:`write_bundle`).
         int8: also write a dynamically quantised int8 decoder step.
         source: how the model was named (recorded in the contract).
         physics: the task's physics parameters (e.g. sliding ``mu``) the contract records.
@@ -244,7 +300,9 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
 
     Raises:
         ValueError: a model that is not a seq2seq ``TrainedModel``, dynamics without a NumPy
-            implementation, an unwritable folder.
+            implementation, a contract the runner would refuse (e.g. a non-finite output scale),
+            an output that is a file, not writable, or a folder that is not a previous export.
+        OSError: writing failed (the previous bundle is left as it was).
     """
     import importlib.util
 
@@ -255,7 +313,7 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     if getattr(model, "is_quantized", False):
         raise ValueError("export the float model: its int8 copy runs on a PyTorch kernel; export_onnx(int8=True) "
                          "(--int8) writes an int8 decoder step for onnxruntime")
-    out = check_writable_dir(out)
+    bundle_target(out)  # before the work
     dynamics = model.dynamics(**physics)
     contract = stepper_contract(model, dynamics)
     if contract["dynamics"]["kind"] == "custom":
@@ -264,8 +322,8 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     cfg = model.model.cfg
     layers, hidden, c, s, d = cfg.layers, cfg.hidden, cfg.chunk, model.state_layout.dim, model.accel_layout.dim
     graphs = {
-        "encoder.onnx": encoder_graph(model),
-        "decoder_step.onnx": to_onnx(
+        "encoder": encoder_graph(model),
+        "decoder_step": to_onnx(
             DecoderStep(model, dynamics), (torch.zeros(layers, 1, hidden), torch.zeros(layers, 1, hidden),
                                            torch.zeros(1, c, s)),
             ["h", "c", "window"], ["h_out", "c_out", "accel"],
@@ -273,21 +331,17 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
              "accel": {0: "B"}}),
     }
     if contract["constraint"]:
-        graphs["violation.onnx"] = to_onnx(
+        graphs["violation"] = to_onnx(
             Violation(model), (torch.zeros(1, 3, s), torch.zeros(1, 2, d)), ["states", "accel"], ["violation"],
             {"states": {0: "B", 1: "N1"}, "accel": {0: "B", 1: "N"}, "violation": {0: "B", 1: "N"}})
-    out.mkdir(parents=True, exist_ok=True)
-    for name, proto in graphs.items():
-        atomic_write_bytes(out / name, proto.SerializeToString())
-    files = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx",
-             "violation": "violation.onnx" if contract["constraint"] else None}
+    blobs = {key: proto.SerializeToString() for key, proto in graphs.items()}
     if int8:
-        atomic_write_bytes(out / "decoder_step.int8.onnx", quantized(graphs["decoder_step.onnx"], out))
-        files["decoder_step_int8"] = "decoder_step.int8.onnx"
-    here = Path(__file__).resolve().parent
-    for name in RUNNER_FILES:
-        atomic_write_bytes(out / name, (here / name).read_bytes())
-    atomic_write_bytes(out / "stepper.py", (here.parent / "tasks" / "stepper.py").read_bytes())
+        with tempfile.TemporaryDirectory(prefix="seqmotion-int8-") as scratch:  # quantize_dynamic works on files
+            blobs["decoder_step_int8"] = quantized(graphs["decoder_step"], Path(scratch))
+    files = {"encoder": GRAPH_FILES["encoder"], "decoder_step": GRAPH_FILES["decoder_step"],
+             "violation": GRAPH_FILES["violation"] if contract["constraint"] else None}
+    if int8:
+        files["decoder_step_int8"] = GRAPH_FILES["decoder_step_int8"]
     contract = {
         **contract,
         "source": source,
@@ -315,7 +369,14 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
         "runner": "python: sys.path.insert(0, OUT); from onnx_stepper import OnnxStepper; "
                   "gen = OnnxStepper(OUT, motion); u = gen.step(); u = gen.step(measured)  (numpy + onnxruntime)",
     }
-    atomic_write_json(out / "contract.json", contract)
+    contract = seal(contract, blobs)
+    check_contract(contract, f"the contract exported for {out}")  # what the runner would refuse is not written
+    here = Path(__file__).resolve().parent
+    payload = {GRAPH_FILES[key]: data for key, data in blobs.items()}
+    payload.update({name: (here / name).read_bytes() for name in RUNNER_FILES})
+    payload["stepper.py"] = (here.parent / "tasks" / "stepper.py").read_bytes()
+    payload[CONTRACT] = (json.dumps(contract, indent=2, sort_keys=True) + "\n").encode()
+    write_bundle(out, payload)
     return contract
 
 
@@ -331,4 +392,4 @@ def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, **phy
     return float(np.max(np.abs(mine["accel"] - accel)))
 
 
-__all__ = ["OPSET", "check_parity", "encoder_graph", "export_onnx", "to_onnx"]
+__all__ = ["OPSET", "bundle_target", "check_parity", "encoder_graph", "export_onnx", "to_onnx", "write_bundle"]

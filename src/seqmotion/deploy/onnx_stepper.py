@@ -1,8 +1,9 @@
 """Run an exported model with onnxruntime and NumPy only: the same stepper as ``model.generator``.
 
 ``seqmotion export-onnx MODEL OUT/`` writes the graphs, ``contract.json`` and this file (with
-``stepper.py`` and ``numpy_physics.py``) into OUT/. On a robot computer that has only NumPy and
-onnxruntime::
+``bundle.py``, ``stepper.py`` and ``numpy_physics.py``) into OUT/. Loading checks the bundle first
+(``bundle.py``): the contract's seal and schema, and each graph's SHA-256. On a robot computer that
+has only NumPy and onnxruntime::
 
     import sys; sys.path.insert(0, "OUT")
     from onnx_stepper import OnnxModel, OnnxStepper
@@ -17,7 +18,6 @@ docstring of ``stepper.py`` (:mod:`seqmotion.tasks.stepper`), shared by both bac
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -25,20 +25,26 @@ from typing import Any
 import numpy as np
 
 try:  # inside the seqmotion package
-    from ..tasks.stepper import CONTRACT_FORMAT, StepperCore, check_vectors
+    from ..tasks.stepper import StepperCore, check_vectors
+    from .bundle import locate, read_contract, read_graphs
     from .numpy_physics import NumpyDynamics
 except ImportError:  # the standalone copy that export-onnx writes beside the graphs
+    from bundle import locate, read_contract, read_graphs  # type: ignore[no-redef]
     from numpy_physics import NumpyDynamics  # type: ignore[no-redef]
-    from stepper import CONTRACT_FORMAT, StepperCore, check_vectors  # type: ignore[no-redef]
+    from stepper import StepperCore, check_vectors  # type: ignore[no-redef]
 
 
 class OnnxModel:
     """An exported model: encoder, decoder step and constraint in onnxruntime sessions.
 
     Args:
-        directory: the folder ``export-onnx`` wrote.
+        directory: the folder ``export-onnx`` wrote (its contract and graphs are verified: see ``bundle.py``).
         int8: use the int8 decoder step (exported with ``--int8``).
         threads: onnxruntime intra-op threads per session (1: lowest latency for small models).
+
+    Raises:
+        ValueError: no bundle there, or one whose contract is unsealed, edited or invalid, or whose
+            graphs are missing or do not match their hashes (the message names the field or file).
     """
 
     def __init__(self, directory: str | Path, *, int8: bool = False, threads: int = 1) -> None:
@@ -46,28 +52,22 @@ class OnnxModel:
             import onnxruntime as ort
         except ImportError:
             raise ValueError("running exported models needs onnxruntime: pip install 'seqmotion[deploy]'") from None
-        self.directory = Path(directory)
-        path = self.directory / "contract.json"
-        try:
-            self.contract: dict[str, Any] = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"{self.directory} holds no exported model (no contract.json)") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path} is not valid JSON: {exc}") from None
-        if self.contract.get("format") != CONTRACT_FORMAT:
-            raise ValueError(f"{path} has format {self.contract.get('format')!r}; this runner reads "
-                             f"{CONTRACT_FORMAT!r}")
+        # the contract is sealed and checked against its schema, and each graph against its hash, before
+        # anything is loaded; onnxruntime then gets the very bytes that were checked (bundle.py)
+        self.directory = locate(directory)
+        self.contract: dict[str, Any] = read_contract(self.directory)
+        graphs = read_graphs(self.directory, self.contract)
         files = self.contract["files"]
         options = ort.SessionOptions()
         options.intra_op_num_threads = options.inter_op_num_threads = int(threads)
         options.log_severity_level = 3
 
         def session(key: str) -> Any:
-            name = files.get(f"{key}_int8") if int8 and key == "decoder_step" else files.get(key)
-            if name is None:
+            file_key = f"{key}_int8" if int8 and key == "decoder_step" else key
+            if files.get(file_key) is None:
                 raise ValueError(f"{self.directory} has no {'int8 ' if int8 else ''}{key} graph"
                                  + (" (export with --int8)" if int8 else ""))
-            return ort.InferenceSession(str(self.directory / name), options, providers=["CPUExecutionProvider"])
+            return ort.InferenceSession(graphs[file_key], options, providers=["CPUExecutionProvider"])
 
         self.encoder, self.decoder = session("encoder"), session("decoder_step")
         self.violation_session = session("violation") if files.get("violation") else None

@@ -184,6 +184,60 @@ def _remove_orphans(path: Path) -> None:
             _remove(entry)
 
 
+def _retire(target: Path, aside: Path) -> None:
+    """Remove the set-aside old folder: renamed to a temporary name first, so that a kill during the removal
+    leaves a temporary (removed by the next call), never a half-deleted folder under the aside name."""
+    doomed = temp_sibling(target)
+    try:
+        os.replace(aside, doomed)
+    except OSError:  # the new bundle is in place: removing the old one is best effort
+        doomed = aside
+    _remove(doomed)
+
+
+def replace_directory(target: Path, files: dict[str, bytes], aside: Path) -> None:
+    """Replace the folder ``target`` by one holding ``files`` (name → bytes), whole: a kill at any point leaves
+    the old folder or the new one (between the two renames, the old one at ``aside``, which a reader may look
+    for; the next call puts it back first). Whatever ``target`` held is removed: the caller checks it may be.
+
+    Steps: (0) a kill of an earlier call is repaired (the old folder at ``aside`` goes back into place if
+    ``target`` is missing, or is removed if ``target`` is the complete new one; temporaries are removed);
+    (1) the files are written into a temporary sibling and flushed; (2) ``target`` is renamed to ``aside``;
+    (3) the temporary is renamed to ``target``; (4) the old folder is removed. An exception in (1)-(3)
+    restores the old folder.
+
+    Raises:
+        OSError: a write, flush or rename failed (the old folder is left as it was).
+    """
+    target = Path(target)
+    if aside.is_dir():
+        if target.exists():
+            _retire(target, aside)  # killed after the new bundle was in place
+        else:
+            os.replace(aside, target)  # killed between the renames: the old bundle goes back first
+    _remove_orphans(target)
+    tmp = temp_sibling(target)
+    tmp.mkdir(parents=True)
+    try:
+        for name, data in files.items():
+            _write_durable(tmp / name, data)
+        _fsync_path(tmp)
+        if target.exists():
+            os.replace(target, aside)
+        try:
+            os.replace(tmp, target)
+        except BaseException:
+            if aside.exists() and not target.exists():
+                os.replace(aside, target)
+            raise
+    except BaseException:
+        _remove(tmp)
+        raise
+    _fsync_dir(target.parent)
+    if aside.exists():
+        _retire(target, aside)
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` so readers see the old file or the new one, never a mix."""
     with atomic_path(path) as tmp:
