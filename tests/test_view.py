@@ -1,9 +1,10 @@
 """``seqmotion view``: the server logic without a browser, then the page in a real headless browser.
 
 The browser tests need viser, Python playwright and a Chromium executable (Debian's ``chromium``:
-``.ci/run`` installs it with apt-get; ``SEQMOTION_CHROMIUM`` names another). Where one is missing they
-skip, saying which. They start one server for the module (port 0: any free port), open the page once,
-and take ~30 s on two cores.
+``.ci/run`` installs it with apt-get; ``SEQMOTION_CHROMIUM`` names another, ``SEQMOTION_CHROMIUM=none``
+hides it). Where one is missing they skip, saying which; the module must then still exit cleanly (what
+the servers it starts leave running is joined: ``.ci/run`` checks it with the browser hidden). They
+start one server for the module (port 0: any free port), open the page once, and take ~30 s on two cores.
 """
 
 from __future__ import annotations
@@ -227,6 +228,43 @@ def test_cli_registers_view_and_refuses_a_bad_port(capsys):
     assert "no-such-model" in capsys.readouterr().err
 
 
+def test_cli_warns_that_a_public_host_has_no_authentication(capsys):
+    if importlib.util.find_spec("viser") is None:
+        pytest.skip("viser is not installed")
+    from seqmotion.cli import main
+
+    threads = torch.get_num_threads()
+    try:
+        assert main(["view", "sliding", "--host", "0.0.0.0", "--port", "0", "--no-sim", "--seconds", "0.1"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    assert "no authentication" in capsys.readouterr().err
+    assert main(["view", "--port", "70000"]) == 2  # the default host (127.0.0.1) warns of nothing
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_stop_joins_every_thread_the_viewer_started():
+    """A worker still inside torch when the interpreter exits aborts it (``terminate called without an
+    active exception``, rc 134): ``stop`` ends and joins them, with the job they were running."""
+    if importlib.util.find_spec("viser") is None:
+        pytest.skip("viser is not installed")
+    import threading
+
+    from seqmotion.view.app import ViewerApp
+
+    app = ViewerApp("sliding", port=0, simulate=False, latent_n=8)
+    ran = []
+    try:
+        assert app.wait_idle(120)
+        for panel in app.panels.values():
+            panel.worker.submit(lambda: (time.sleep(0.5), ran.append(1)))
+        time.sleep(0.1)  # the jobs are running
+    finally:
+        app.stop()
+    assert len(ran) == len(app.panels)  # each job ran to its end inside stop()
+    assert [t.name for t in threading.enumerate() if t.name.startswith("seqmotion-view")] == []
+
+
 def test_cli_serves_a_sliding_model_for_a_moment(capsys):
     if importlib.util.find_spec("viser") is None:
         pytest.skip("viser is not installed")
@@ -244,6 +282,8 @@ def test_cli_serves_a_sliding_model_for_a_moment(capsys):
 
 
 def chromium_path() -> str | None:
+    if os.environ.get("SEQMOTION_CHROMIUM", "").lower() == "none":  # hidden: run as on a machine without one
+        return None
     for candidate in (os.environ.get("SEQMOTION_CHROMIUM"), "chromium", "chromium-browser", "google-chrome"):
         if candidate and (found := shutil.which(candidate) or (Path(candidate).exists() and candidate)):
             return found

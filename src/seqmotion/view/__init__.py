@@ -9,6 +9,8 @@ any other task (a plug-in) a generic panel built from its state layout.
 
 What is drawn is computed by plain classes in :mod:`.sessions` (testable without a browser); the
 viser layer (:mod:`.app`, imported only when the server starts) only moves their arrays to the page.
+What a page sends is checked on the server (:mod:`.guard`): a WebSocket from a foreign origin is refused,
+a control's value is clamped to its slider or must be one of its options, and exports stay in ``out``.
 """
 
 from __future__ import annotations

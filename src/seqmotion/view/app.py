@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from . import commands, figures, scene3d
+from . import commands, figures, guard, scene3d
 from .sessions import (
     LatentSession,
     PancakeControls,
@@ -33,28 +33,50 @@ from .sessions import (
 
 MAX_LINE_POINTS = 200
 """Polylines sent to the 3-D scene are resampled to this many points."""
+END_Y, END_Z, END_THETA = (-0.3, 0.3), (-0.3, 0.3), (-3.5, 3.5)
+"""The pancake sketch's end poses [m, m, rad] (its sliders; the adjustment's target stays in them too)."""
 
 
 class Worker:
-    """One background thread running the latest job posted to it (a pending job is replaced by a newer one)."""
+    """One background thread running the latest job posted to it (a pending job is replaced by a newer one).
+
+    A job may belong to a client (the page whose event posted it): when that client leaves,
+    :meth:`cancel` drops its pending job and asks its running one to stop (long jobs poll
+    :attr:`stop_requested`). :meth:`close` stops the thread and joins it."""
 
     def __init__(self, name: str, on_error: Callable[[str], None]) -> None:
         self.on_error = on_error
         self._cond = threading.Condition()
-        self._pending: Callable[[], None] | None = None
+        self._pending: tuple[Callable[[], None], int | None] | None = None
         self._running = False
+        self._running_client: int | None = None
+        self._cancelled = False
         self._closed = False
         self._thread = threading.Thread(target=self._loop, name=f"seqmotion-view-{name}", daemon=True)
         self._thread.start()
 
-    def submit(self, job: Callable[[], None]) -> None:
+    def submit(self, job: Callable[[], None], client: int | None = None) -> None:
+        """Run ``job`` next (replacing a pending one); ``client``: the id of the page it is for, or None."""
         with self._cond:
-            self._pending = job
+            self._pending = (job, client)
             self._cond.notify()
 
     @property
     def has_pending(self) -> bool:
         return self._pending is not None
+
+    @property
+    def stop_requested(self) -> bool:
+        """A newer job waits, the running job's client left, or the worker is closing: a long job stops."""
+        return self._pending is not None or self._cancelled or self._closed
+
+    def cancel(self, client: int) -> None:
+        """``client`` left the page: drop its pending job and ask its running job to stop."""
+        with self._cond:
+            if self._pending is not None and self._pending[1] == client:
+                self._pending = None
+            if self._running and self._running_client == client:
+                self._cancelled = True
 
     def idle(self, timeout: float = 30.0) -> bool:
         """Wait until no job runs or waits (tests, benchmarks); False on timeout."""
@@ -66,10 +88,17 @@ class Worker:
             time.sleep(0.005)
         return False
 
-    def close(self) -> None:
+    def close(self, timeout: float = 120.0) -> None:
+        """Drop the pending job, ask the running one to stop, and join the thread (a thread still inside
+        torch when the interpreter exits aborts the process). RuntimeError if it does not end in time."""
         with self._cond:
             self._closed = True
+            self._pending = None
             self._cond.notify()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
+            if self._thread.is_alive():
+                raise RuntimeError(f"{self._thread.name}: its job did not end within {timeout:g} s")
 
     def _loop(self) -> None:
         while True:
@@ -78,16 +107,17 @@ class Worker:
                     self._cond.wait()
                 if self._closed:
                     return
-                job, self._pending = self._pending, None
-                self._running = True
+                (job, self._running_client), self._pending = self._pending, None
+                self._running, self._cancelled = True, False
             try:
                 job()
             except Exception as exc:  # noqa: BLE001 - shown on the page, the server keeps running
                 self.on_error(f"{type(exc).__name__}: {exc}")
-                traceback.print_exc()
+                if not isinstance(exc, ValueError):  # bad input says all in its message; a bug needs the trace
+                    traceback.print_exc()
             finally:
                 with self._cond:
-                    self._running = False
+                    self._running, self._running_client = False, None
 
 
 def polyline(points: np.ndarray, n: int = MAX_LINE_POINTS) -> np.ndarray:
@@ -163,8 +193,9 @@ class ViewerApp:
     Args:
         model: the main model — a shipped name or a model/run directory (any task; ``"pushing"`` too).
         sliding_model: with the pancake model, the planner of the sliding panel (None: no sliding panel).
-        host, port: where the server listens (port 0: a free one).
-        out: where exports go (created on the first export).
+        host, port: where the server listens (port 0: a free one). The default 127.0.0.1 is this machine
+            only; whatever the host, a WebSocket from a page of another origin is refused (:mod:`.guard`).
+        out: where exports go (created on the first export); nothing is written outside it.
         latent_n: encodings behind the latent panel's PCA.
         simulate: show the 3-D arm (False: no MuJoCo, no scene).
     """
@@ -172,11 +203,12 @@ class ViewerApp:
     def __init__(self, model: str = "pancake", *, sliding_model: str | None = "sliding", host: str = "127.0.0.1",
                  port: int = 8080, out: str | Path = "seqmotion-view", latent_n: int = 96,
                  simulate: bool = True) -> None:
-        import viser
-
         from ..api import resolve_model
 
         self.out = Path(out)
+        self.controls = guard.Controls()  # every control the server reads, with its declared range/options
+        self.threads: list[threading.Thread] = []  # replays (joined by stop)
+        self.stopping = threading.Event()
         self.timings: dict[str, list[float]] = {}
         self.marks: dict[str, float] = {}
         self.errors: list[str] = []
@@ -185,7 +217,9 @@ class ViewerApp:
         if sliding_model is not None and sliding_model.lower() == "none":
             sliding_model = None
         planner = resolve_model(sliding_model, "sliding") if task == "pancake" and sliding_model else None
-        self.server = viser.ViserServer(host=host, port=port, label="seqmotion view", verbose=False)
+        self.server = guard.start_server(host, port, label="seqmotion view", verbose=False)
+        self.panels: dict[str, Any] = {}
+        self.server.on_client_disconnect(self._client_left)
         self.server.gui.configure_theme(control_width="large", show_logo=False, dark_mode=False)
         self.server.scene.set_up_direction("+z")
         self.server.initial_camera.position = (1.45, -1.35, 1.0)
@@ -196,7 +230,6 @@ class ViewerApp:
         self.server.scene.add_light_directional("/light/key", intensity=1.6, position=(0.8, -0.6, 2.0))
         self.server.scene.add_grid("/grid", width=2.0, height=2.0, cell_size=0.1, position=(0.35, 0.0, -0.2))
         self.simulate, self.latent_n = simulate, latent_n
-        self.panels: dict[str, Any] = {}
         try:
             self._build(model, main, task, sliding_model, planner)
         except BaseException:
@@ -225,12 +258,13 @@ class ViewerApp:
         self.scene_choice = None
         scenes = [name for name, p in self.panels.items() if getattr(p, "arm", None) is not None]
         if scenes:
-            self.scene_choice = self.server.gui.add_dropdown("3D scene", tuple(scenes), initial_value=scenes[0],
-                                                             order=-1)
-            self.scene_choice.on_update(lambda _: self.show_scene(self.scene_choice.value))
-            self.paths_box = self.server.gui.add_checkbox(
+            self.scene_choice = self.controls.declare(self.server.gui.add_dropdown(
+                "3D scene", tuple(scenes), initial_value=scenes[0], order=-1))
+            self.scene_choice.on_update(lambda _: self.reported(lambda: self.show_scene(
+                self.controls.read(self.scene_choice))))
+            self.paths_box = self.controls.declare(self.server.gui.add_checkbox(
                 "paths in 3D", True, order=-0.5,
-                hint="draw the paths in the 3-D view on every redraw (off: faster on a browser without a GPU)")
+                hint="draw the paths in the 3-D view on every redraw (off: faster on a browser without a GPU)"))
             self.paths_box.on_update(lambda _: [p.request() for p in self.panels.values() if p.arm is not None])
             self.show_scene(scenes[0])
 
@@ -239,7 +273,7 @@ class ViewerApp:
     @property
     def paths_in_3d(self) -> bool:
         box = getattr(self, "paths_box", None)
-        return True if box is None else bool(box.value)
+        return True if box is None else self.controls.read(box)
 
     @property
     def url(self) -> str:
@@ -259,6 +293,24 @@ class ViewerApp:
         self.errors.append(message)
         self.status.content = f"⚠ {message}"
 
+    def reported(self, action: Callable[[], None]) -> None:
+        """Run a control's callback that works outside a panel's worker; a refused value is shown on the page."""
+        try:
+            action()
+        except ValueError as exc:
+            self.error(f"ValueError: {exc}")
+
+    def need_simulation(self, what: str) -> None:
+        """ValueError unless the 3-D arm is on (a disabled button's click can still be sent by a page)."""
+        if not self.simulate:
+            raise ValueError(f"{what} needs the MuJoCo arm: this viewer runs with --no-sim")
+
+    def _client_left(self, client: Any) -> None:
+        """A page closed or lost its connection: its pending and running work stops (an LM adjustment of
+        many updates must not run on for nobody)."""
+        for panel in self.panels.values():
+            panel.worker.cancel(client.client_id)
+
     def record(self, what: str, seconds: float) -> None:
         self.timings.setdefault(what, []).append(seconds)
 
@@ -271,17 +323,25 @@ class ViewerApp:
         return all(p.worker.idle(timeout) for p in self.panels.values())
 
     def export_file(self, name: str, write: Callable[[Path], Path]) -> Path:
-        """Write an export into :attr:`out` and offer it to every browser as a download."""
+        """Write an export into :attr:`out` and offer it to every browser as a download; ValueError for a
+        ``name`` that would land anywhere but directly in :attr:`out` (:func:`.guard.inside`)."""
         self.out.mkdir(parents=True, exist_ok=True)
-        path = write(self.out / name)
+        path = write(guard.inside(self.out, name))
         for client in self.server.get_clients().values():
             client.send_file_download(path.name, path.read_bytes())
         return path
 
     def stop(self) -> None:
-        for panel in self.panels.values():
-            panel.worker.close()
-        self.server.stop()
+        """Stop the panels' work, the replays and the server, and join their threads: none may still run
+        (in torch, MuJoCo) when the interpreter exits."""
+        self.stopping.set()
+        try:
+            for panel in self.panels.values():
+                panel.worker.close()
+            for thread in self.threads:
+                thread.join(timeout=10.0)
+        finally:
+            self.server.stop()
 
 
 # --- panels --------------------------------------------------------------------------------------------
@@ -318,20 +378,21 @@ class PancakePanel:
         self.controls = PancakeControls()
         self.frame: PancakeFrame | None = None
         self.target = (0.1, 0.0, math.pi)
-        gui = self.server.gui
+        gui, declare = self.server.gui, app.controls.declare
         with tab:
             gui.add_markdown("Move the sketch's end pose: the model deforms it so the pancake stays on the spatula "
                              "(ch. 2). Drag the gizmo at the spatula in the 3-D view (arrows: y, z; ring: θ) to "
                              "adjust the motion's latent toward that end pose (ch. 4).")
             with gui.add_folder("Sketch"):
-                self.end_y = gui.add_slider("end y [m]", -0.3, 0.3, 0.005, self.controls.end_y)
-                self.end_z = gui.add_slider("end z [m]", -0.3, 0.3, 0.005, self.controls.end_z)
-                self.end_theta = gui.add_slider("end θ [rad]", -3.5, 3.5, 0.05, self.controls.end_theta)
-                self.length = gui.add_slider("duration K [ms]", 100, 1000, 10, self.controls.length)
-                self.timing = gui.add_dropdown("timing", ("s_curve", "linear"), initial_value="s_curve")
-                self.keep_end = gui.add_checkbox("keep_end (exact end, IPOPT)", False,
-                                                 hint="polish the learned motion so it ends exactly at the sketch's "
-                                                      "end, at rest, inside the cone (~0.3-1.5 s)")
+                self.end_y = declare(gui.add_slider("end y [m]", *END_Y, 0.005, self.controls.end_y))
+                self.end_z = declare(gui.add_slider("end z [m]", *END_Z, 0.005, self.controls.end_z))
+                self.end_theta = declare(gui.add_slider("end θ [rad]", *END_THETA, 0.05, self.controls.end_theta))
+                self.length = declare(gui.add_slider("duration K [ms]", 100, 1000, 10, self.controls.length))
+                self.timing = declare(gui.add_dropdown("timing", ("s_curve", "linear"), initial_value="s_curve"))
+                self.keep_end = declare(gui.add_checkbox(
+                    "keep_end (exact end, IPOPT)", False,
+                    hint="polish the learned motion so it ends exactly at the sketch's end, at rest, inside the cone "
+                         "(~0.3-1.5 s)"))
             self.readout = gui.add_markdown("computing…")
             self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="path (z vs y)",
                                             format="png")
@@ -349,9 +410,11 @@ class PancakePanel:
                 bands=(_band(1, 2, "rgba(44,160,44,0.12)"),), title="ψ(t) [rad] in the friction cone", aspect=1.6,
                 scales=NUMERIC_X)
             with gui.add_folder("Latent adjustment (ch. 4)"):
-                self.target_in = gui.add_vector3("target y, z, θ", self.target, step=0.005,
-                                                 hint="the end pose to reach (also set by dragging the gizmo)")
-                self.updates = gui.add_slider("LM updates", 1, 20, 1, 6)
+                self.target_in = declare(
+                    gui.add_vector3("target y, z, θ", self.target, step=0.005,
+                                    hint="the end pose to reach (also set by dragging the gizmo)"),
+                    *zip(END_Y, END_Z, END_THETA, strict=True))  # the end poses the sketch sliders reach
+                self.updates = declare(gui.add_slider("LM updates", 1, 20, 1, 6))
                 self.adjust_button = gui.add_button("Adjust latent to target")
                 self.learned_button = gui.add_button("Back to the learned motion")
             _replay_and_export(self, gui, app, speed=0.25, export="Export motion", video=True)
@@ -363,30 +426,32 @@ class PancakePanel:
             "/pancake/target", scale=0.2, active_axes=(False, True, True), depth_test=False,
             position=scene3d.planar_to_world(np.array([self.target[:2]]))[0], wxyz=about_x(self.target[2]))
         for control in (self.end_y, self.end_z, self.end_theta, self.length, self.timing, self.keep_end):
-            control.on_update(lambda _: self.request())
-        self.gizmo.on_update(self._gizmo_event)
-        self.target_in.on_update(lambda _: self._target_typed())
-        self.adjust_button.on_click(lambda _: self.request_adjust())
-        self.learned_button.on_click(lambda _: self.request())
-        self.sim_button.on_click(lambda _: self.worker.submit(self._simulate))
+            control.on_update(lambda e: self.request(e.client_id))
+        self.gizmo.on_update(lambda e: app.reported(lambda: self._gizmo_event(e)))
+        self.target_in.on_update(lambda _: app.reported(self._target_typed))
+        self.adjust_button.on_click(lambda e: self.request_adjust(e.client_id))
+        self.learned_button.on_click(lambda e: self.request(e.client_id))
+        self.sim_button.on_click(lambda e: self.worker.submit(self._simulate, e.client_id))
         self.play_button.on_click(lambda _: self._play())
-        self.export_button.on_click(lambda _: self.worker.submit(self._export))
-        self.video_button.on_click(lambda _: self.worker.submit(self._video))
+        self.export_button.on_click(lambda e: self.worker.submit(self._export, e.client_id))
+        self.video_button.on_click(lambda e: self.worker.submit(self._video, e.client_id))
         self.request()
 
     # controls → jobs
     def read_controls(self) -> PancakeControls:
-        return PancakeControls(float(self.end_y.value), float(self.end_z.value), float(self.end_theta.value),
-                               int(self.length.value), str(self.timing.value), bool(self.keep_end.value))
+        read = self.app.controls.read
+        return PancakeControls(read(self.end_y), read(self.end_z), read(self.end_theta), read(self.length),
+                               read(self.timing), read(self.keep_end))
 
-    def request(self) -> None:
+    def request(self, client: int | None = None) -> None:
+        """Redraw the learned motion (``client``: the page whose event asked, whose leaving cancels it)."""
         self.app.mark("pancake.event")
         self.app.show_scene("pancake")
-        self.worker.submit(self._redraw_learned)
+        self.worker.submit(self._redraw_learned, client)
 
-    def request_adjust(self) -> None:
+    def request_adjust(self, client: int | None = None) -> None:
         self.app.show_scene("pancake")
-        self.worker.submit(self._adjust)
+        self.worker.submit(self._adjust, client)
 
     def _redraw_learned(self) -> None:
         start = time.perf_counter()
@@ -400,27 +465,30 @@ class PancakePanel:
 
         def show(frame: PancakeFrame) -> bool:
             self.draw(frame)
-            return self.worker.has_pending  # a newer request: stop here
+            return self.worker.stop_requested  # a newer request, or its page left: stop here
 
         start = time.perf_counter()
-        self.session.adjust(self.controls, self.target, int(self.updates.value), on_update=show)
+        self.session.adjust(self.controls, self.target, self.app.controls.read(self.updates), on_update=show)
         self.app.record("pancake.adjust", time.perf_counter() - start)
 
     def _gizmo_event(self, event: Any) -> None:
         self._gizmo_moved()
         if getattr(event, "phase", "end") == "end":  # released: adjust toward where it was left
-            self.request_adjust()
+            self.request_adjust(getattr(event, "client_id", None))
 
     def _gizmo_moved(self) -> None:
         p, q = np.asarray(self.gizmo.position), np.asarray(self.gizmo.wxyz)
         origin = scene3d.planar_to_world(np.zeros((1, 2)))[0]
         theta = 2 * math.atan2(q[1], q[0])
-        theta += 2 * math.pi * round((self.target[2] - theta) / (2 * math.pi))  # continuous with the last value
-        self.target = (float(p[1] - origin[1]), float(p[2] - origin[2]), float(theta))
+        if math.isfinite(theta):
+            theta += 2 * math.pi * round((self.target[2] - theta) / (2 * math.pi))  # continuous with the last value
+        # the gizmo's pose comes from the page too: checked like the typed target (NaN refused, far clamped)
+        self.target = self.app.controls.check(self.target_in, (float(p[1] - origin[1]), float(p[2] - origin[2]),
+                                                               float(theta)))
         self.target_in.value = tuple(round(v, 4) for v in self.target)
 
     def _target_typed(self) -> None:
-        t = tuple(float(v) for v in self.target_in.value)
+        t = self.app.controls.read(self.target_in)
         if np.allclose(t, self.target, atol=1e-4):
             return
         self.target = t
@@ -455,6 +523,7 @@ class PancakePanel:
 
     # replay, export
     def _simulate(self) -> None:
+        self.app.need_simulation("a replay on the arm")
         if self.frame is None or self.arm is None:
             return
         self.app.show_scene("pancake")
@@ -470,17 +539,18 @@ class PancakePanel:
         self._play()
 
     def _play(self) -> None:
-        play(self.arm, self.speed)
+        play(self.app, self.arm, self.speed)
 
     def _export(self) -> None:
         if self.frame is None:
             return
-        fmt = self.format.value
+        fmt = self.app.controls.read(self.format)
         name = f"pancake-{self.frame.source.replace(' ', '-').replace('/', 'of')}.{fmt}"
         path = self.app.export_file(name, lambda p: self.session.export(self.frame, p))
         self.export_readout.content = f"wrote `{path}` ({len(self.frame.states)} samples; also sent to the browser)"
 
     def _video(self) -> None:
+        self.app.need_simulation("a video")  # the button is disabled then, but a page can send its click anyway
         if self.frame is None:
             return
         from ..sim import run_pancake
@@ -495,8 +565,9 @@ class PancakePanel:
         self.export_readout.content = f"wrote `{path}` (MuJoCo render, 4× slowed; also sent to the browser)"
 
 
-def play(arm: ArmView | None, speed: Any) -> None:
-    """Play the arm's latest replay in a thread, at ``speed.value`` × real time."""
+def play(app: ViewerApp, arm: ArmView | None, speed: Any) -> None:
+    """Play the arm's latest replay in a thread (joined by ``app.stop()``), at the ``speed`` control's value ×
+    real time (read, and so checked, at every pose: the page may change it while it plays)."""
     if arm is None or arm.replay is None or arm.playing:
         return
     replay = arm.replay
@@ -508,11 +579,17 @@ def play(arm: ArmView | None, speed: Any) -> None:
             for i in range(len(replay.time)):
                 began = time.perf_counter()
                 arm.pose(replay.pos[i], replay.quat[i])
-                time.sleep(max(0.0, dt / max(float(speed.value), 1e-3) - (time.perf_counter() - began)))
+                pause = dt / app.controls.read(speed) - (time.perf_counter() - began)
+                if app.stopping.wait(max(0.0, pause)):
+                    return
+        except ValueError as exc:  # a refused speed: say so, stop playing
+            app.error(f"ValueError: {exc}")
         finally:
             arm.playing = False
 
-    threading.Thread(target=run, daemon=True, name="seqmotion-view-replay").start()
+    thread = threading.Thread(target=run, daemon=True, name="seqmotion-view-replay")
+    app.threads = [t for t in app.threads if t.is_alive()] + [thread]
+    thread.start()
 
 
 class SlidingPanel:
@@ -523,27 +600,27 @@ class SlidingPanel:
         self.worker = Worker("sliding", app.error)
         c = session.defaults()
         self.frame: SlidingFrame | None = None
-        gui = self.server.gui
+        gui, declare = self.server.gui, app.controls.declare
         with tab:
             gui.add_markdown("Choose or draw the path the object should slide along on the pan: the planner (ch. 3) "
                              "shakes the pan so that it does, under the friction you set.")
             with gui.add_folder("Command"):
-                self.shape = gui.add_dropdown("shape", commands.SHAPES, initial_value=c.shape)
-                self.size = gui.add_slider("size [mm]", 10, 100, 1, round(1000 * c.size),
-                                           hint="line length, arc/circle radius, figure-eight half width")
-                self.angle = gui.add_slider("angle [deg]", -180, 180, 5, 0,
-                                            hint="line/circle: direction; arc: the angle it sweeps (0 = 90°)")
-                self.length = gui.add_slider("duration K [ms]", 200, 1500, 50, c.length)
-                self.points = gui.add_text("points x,y [mm]", c.points,
-                                           hint="spline: the points it passes through from (0, 0), e.g. "
-                                                "'30,0; 40,20; 20,40'")
-                self.draw_mode = gui.add_checkbox("click the pan to add points", False,
-                                                  hint="each click on the pan in the 3-D view appends a point to "
-                                                       "the spline")
+                self.shape = declare(gui.add_dropdown("shape", commands.SHAPES, initial_value=c.shape))
+                self.size = declare(gui.add_slider("size [mm]", 10, 100, 1, round(1000 * c.size),
+                                                   hint="line length, arc/circle radius, figure-eight half width"))
+                self.angle = declare(gui.add_slider("angle [deg]", -180, 180, 5, 0,
+                                                    hint="line/circle: direction; arc: the angle it sweeps (0 = 90°)"))
+                self.length = declare(gui.add_slider("duration K [ms]", 200, 1500, 50, c.length))
+                self.points = declare(gui.add_text("points x,y [mm]", c.points,
+                                                   hint="spline: the points it passes through from (0, 0), e.g. "
+                                                        "'30,0; 40,20; 20,40'"))
+                self.draw_mode = declare(gui.add_checkbox(
+                    "click the pan to add points", False,
+                    hint="each click on the pan in the 3-D view appends a point to the spline"))
                 self.clear_button = gui.add_button("Clear points")
             with gui.add_folder("Friction of the 2-D physics"):
-                self.mu = gui.add_slider("μ (static)", 0.1, 1.0, 0.01, c.mu)
-                self.mu_dyn = gui.add_slider("μ' (dynamic)", 0.0, 1.0, 0.01, c.mu_dyn)
+                self.mu = declare(gui.add_slider("μ (static)", 0.1, 1.0, 0.01, c.mu))
+                self.mu_dyn = declare(gui.add_slider("μ' (dynamic)", 0.0, 1.0, 0.01, c.mu_dyn))
             self.readout = gui.add_markdown("computing…")
             self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="paths on the pan (y vs x)",
                                             format="png")
@@ -562,23 +639,25 @@ class SlidingPanel:
                       "pan": SceneLine(self.server, "/sliding/pan", (255, 127, 14), 2.0)}
         self.arm = ArmView(self.server, "/sliding", "sliding") if app.simulate else None
         for control in (self.shape, self.size, self.angle, self.length, self.points, self.mu, self.mu_dyn):
-            control.on_update(lambda _: self.request())
+            control.on_update(lambda e: self.request(e.client_id))
         self.clear_button.on_click(lambda _: self._clear())
-        self.sim_button.on_click(lambda _: self.worker.submit(self._simulate))
-        self.play_button.on_click(lambda _: play(self.arm, self.speed))
-        self.export_button.on_click(lambda _: self.worker.submit(self._export))
-        self.draw_mode.on_update(lambda _: self._toggle_drawing())
+        self.sim_button.on_click(lambda e: self.worker.submit(self._simulate, e.client_id))
+        self.play_button.on_click(lambda _: play(app, self.arm, self.speed))
+        self.export_button.on_click(lambda e: self.worker.submit(self._export, e.client_id))
+        self.draw_mode.on_update(lambda _: app.reported(self._toggle_drawing))
         self.request()
 
     def read_controls(self) -> SlidingControls:
-        mu = float(self.mu.value)
-        return SlidingControls(str(self.shape.value), float(self.size.value) / 1000, float(self.angle.value),
-                               int(self.length.value), str(self.points.value), mu, min(float(self.mu_dyn.value), mu))
+        read = self.app.controls.read
+        mu = read(self.mu)
+        return SlidingControls(read(self.shape), read(self.size) / 1000, read(self.angle), read(self.length),
+                               read(self.points), mu, min(read(self.mu_dyn), mu))
 
-    def request(self) -> None:
+    def request(self, client: int | None = None) -> None:
+        """Plan again (``client``: the page whose event asked, whose leaving cancels it)."""
         self.app.mark("sliding.event")
         self.app.show_scene("sliding")
-        self.worker.submit(self._redraw)
+        self.worker.submit(self._redraw, client)
 
     def _redraw(self) -> None:
         start = time.perf_counter()
@@ -617,8 +696,8 @@ class SlidingPanel:
         self.app.mark("sliding.pushed")
 
     def _toggle_drawing(self) -> None:
-        if self.draw_mode.value:
-            self.server.scene.on_pointer_event("click")(self._clicked)
+        if self.app.controls.read(self.draw_mode):
+            self.server.scene.on_pointer_event("click")(lambda e: self.app.reported(lambda: self._clicked(e)))
         else:
             self.server.scene.remove_pointer_callback()
 
@@ -631,10 +710,10 @@ class SlidingPanel:
         s = (PAN_ORIGIN[2] - o[2]) / d[2]
         hit = o + s * d
         x, y = hit[0] - PAN_ORIGIN[0], hit[1] - PAN_ORIGIN[1]
-        if math.hypot(x, y) > 0.1:
+        if not math.hypot(x, y) <= 0.1:  # off the pan, or NaN from a page's ray
             return
-        text = str(self.points.value).strip()
-        if self.shape.value != "spline":
+        text = self.app.controls.read(self.points).strip()
+        if self.app.controls.read(self.shape) != "spline":
             self.shape.value, text = "spline", ""
         self.points.value = (text + "; " if text else "") + f"{1000 * x:.0f},{1000 * y:.0f}"
 
@@ -642,6 +721,7 @@ class SlidingPanel:
         self.points.value = ""
 
     def _simulate(self) -> None:
+        self.app.need_simulation("a replay on the arm")
         if self.frame is None or self.arm is None:
             return
         self.app.show_scene("sliding")
@@ -652,12 +732,12 @@ class SlidingPanel:
             self.sim_readout.content = f"⚠ {exc}"
             return
         self.sim_readout.content = f"{self.arm.replay.summary} (simulated {self.arm.replay.realtime:.1f}× real time)"
-        play(self.arm, self.speed)
+        play(self.app, self.arm, self.speed)
 
     def _export(self) -> None:
         if self.frame is None:
             return
-        path = self.app.export_file(f"sliding-{self.frame.controls.shape}.{self.format.value}",
+        path = self.app.export_file(f"sliding-{self.frame.controls.shape}.{self.app.controls.read(self.format)}",
                                     lambda p: self.session.export(self.frame, p))
         self.export_readout.content = f"wrote `{path}` (also sent to the browser)"
 
@@ -675,21 +755,21 @@ class TaskPanel:
         with tab:
             gui.add_markdown(f"Task `{session.model.task_def.name}`: inputs drawn from its own training generator, "
                              "and what the model generates from each (fields by the task's state layout).")
-            self.index = gui.add_slider("input #", 0, len(session.inputs) - 1, 1, 0)
-            self.field = gui.add_dropdown("field", fields, initial_value=fields[0])
+            self.index = app.controls.declare(gui.add_slider("input #", 0, len(session.inputs) - 1, 1, 0))
+            self.field = app.controls.declare(gui.add_dropdown("field", fields, initial_value=fields[0]))
             self.readout = gui.add_markdown("computing…")
             self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="path", format="png")
             k = np.arange(2, dtype=float)
             self.plot = gui.add_uplot((k, k, k), _uplot_series([("input", "#8c8c8c"), ("generated", "#1f77b4")]),
                                       title="the chosen field over time", aspect=1.6, scales=NUMERIC_X)
         for control in (self.index, self.field):
-            control.on_update(lambda _: self.worker.submit(self._redraw))
+            control.on_update(lambda e: self.worker.submit(self._redraw, e.client_id))
         self.worker.submit(self._redraw)
 
     def _redraw(self) -> None:
         start = time.perf_counter()
-        frame = self.session.update(int(self.index.value))
-        name = str(self.field.value)
+        frame = self.session.update(self.app.controls.read(self.index))
+        name = self.app.controls.read(self.field)
         gen, inp = frame.series(name)
         unit = frame.state_units[frame.state_names.index(name)]
         with self.server.atomic():
@@ -720,8 +800,9 @@ class LatentPanel:
         with tab:
             gui.add_markdown("The latent z of each input a model encodes; the sliders move along the main "
                              "directions of a set of encodings (in standard deviations) and decode live.")
-            self.choice = gui.add_dropdown("model", tuple(names), initial_value=names[0])
-            self.sliders = [gui.add_slider(f"PC{i + 1} [σ]", -3.0, 3.0, 0.1, 0.0) for i in range(5)]
+            self.choice = app.controls.declare(gui.add_dropdown("model", tuple(names), initial_value=names[0]))
+            self.sliders = [app.controls.declare(gui.add_slider(f"PC{i + 1} [σ]", -3.0, 3.0, 0.1, 0.0))
+                            for i in range(5)]
             self.reset_button = gui.add_button("Back to the mean")
             self.readout = gui.add_markdown("computing…")
             self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="decoded path", format="png")
@@ -733,15 +814,15 @@ class LatentPanel:
             self.plot = gui.add_uplot((k, k, k, k), _uplot_series([("field 1", "#1f77b4"), ("field 2", "#ff7f0e"),
                                                                    ("field 3", "#2ca02c")]),
                                       title="decoded: the first three state fields", aspect=1.6, scales=NUMERIC_X)
-        self.choice.on_update(lambda _: self.request())
+        self.choice.on_update(lambda e: self.request(e.client_id))
         for s in self.sliders:
-            s.on_update(lambda _: self.request())
+            s.on_update(lambda e: self.request(e.client_id))
         self.reset_button.on_click(lambda _: self._reset())
         self.worker.submit(self._redraw)
 
-    def request(self) -> None:
+    def request(self, client: int | None = None) -> None:
         self.app.mark("latent.event")
-        self.worker.submit(self._redraw)
+        self.worker.submit(self._redraw, client)
 
     def _reset(self) -> None:
         for s in self.sliders:
@@ -761,9 +842,9 @@ class LatentPanel:
 
     def _redraw(self) -> None:
         start = time.perf_counter()
-        name = str(self.choice.value)
+        name = self.app.controls.read(self.choice)
         session = self.session(name)
-        coords = tuple(float(s.value) for s in self.sliders)
+        coords = tuple(self.app.controls.read(s) for s in self.sliders)
         if isinstance(session, PushingLatentSession):
             self._draw_pushing(session, coords[:3])
         else:
@@ -871,11 +952,11 @@ def _replay_and_export(panel: Any, gui: Any, app: Any, *, speed: float, export: 
     (with ``video``) and ``export_readout``."""
     with gui.add_folder("Arm replay (MuJoCo)"):
         panel.sim_button = gui.add_button("Simulate on the arm", disabled=not app.simulate)
-        panel.speed = gui.add_slider("speed × real time", 0.05, 1.0, 0.05, speed)
+        panel.speed = app.controls.declare(gui.add_slider("speed × real time", 0.05, 1.0, 0.05, speed))
         panel.play_button = gui.add_button("Play again")
         panel.sim_readout = gui.add_markdown("")
     with gui.add_folder("Export"):
-        panel.format = gui.add_dropdown("format", ("csv", "npz"), initial_value="csv")
+        panel.format = app.controls.declare(gui.add_dropdown("format", ("csv", "npz"), initial_value="csv"))
         panel.export_button = gui.add_button(export)
         if video:
             panel.video_button = gui.add_button("Export video (MP4)", disabled=not app.simulate)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 
@@ -17,7 +18,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="shipped model name or model/run directory, of any task (default: pancake)")
     p.add_argument("--sliding-model", default="sliding",
                    help="with the pancake model: the planner of the Sliding panel ('none': no Sliding panel)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: reachable from elsewhere)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: reachable from "
+                        "elsewhere, with no authentication). A WebSocket from a page of any other origin than the "
+                        "served host is refused either way")
     p.add_argument("--port", type=int, default=8080, help="port (0: any free one)")
     p.add_argument("--out", default="seqmotion-view", help="folder for exported motions and videos")
     p.add_argument("--no-sim", action="store_true", help="no MuJoCo arm in the 3-D scene (and no replay/video)")
@@ -43,6 +47,10 @@ def run(args: argparse.Namespace) -> int:
     from .app import ViewerApp
 
     sliding = None if args.sliding_model.lower() == "none" else args.sliding_model
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"seqmotion view: warning: --host {args.host} makes the viewer reachable from other machines, and "
+              "the page has no authentication: anyone who can reach the port can use every control and write "
+              f"exports into {args.out}", file=sys.stderr, flush=True)
     app = ViewerApp(args.model, sliding_model=sliding, host=args.host, port=args.port, out=args.out,
                     simulate=not args.no_sim)
     print(f"seqmotion view: open {app.url} in a browser (Ctrl-C stops)", flush=True)

@@ -1,0 +1,288 @@
+"""What the viewer accepts from a page, checked on the server (a page, or any program, can send anything).
+
+viser trusts its page: a WebSocket from any Origin gets every control, a control's value arrives as the
+client sent it (a number far outside its slider, NaN, a dropdown value that is none of its options), and
+a ``GuiUpdateMessage`` may rewrite any property of a control (``disabled``, ``options``, its callbacks).
+Each defence is in one place here:
+
+* :func:`start_server` — a viser server whose WebSocket handshake answers **403** to a page of a foreign
+  origin (:func:`checking_origin`) and whose pages may change a control's ``value`` and nothing else
+  (:func:`values_only`).
+* :class:`Controls` — every control the server reads is declared with its range (sliders, vectors),
+  options (dropdowns) or length (text); :meth:`Controls.read` clamps a number into its range and
+  refuses, by the control's name, what is not a number or not an option.
+* :func:`inside` — an export's path, resolved, must be a file directly in the output folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import http
+import ipaddress
+import logging
+import math
+import threading
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+"""Hosts whose origin (at the served port) a page may always come from."""
+WILDCARD_HOSTS = ("", "0.0.0.0", "::")
+"""Bind addresses that mean "every interface" (not a host a page can be served from)."""
+MAX_TEXT = 2000
+"""The most characters a text control takes unless declared otherwise (the spline's 50 points fit easily)."""
+
+
+# --- the WebSocket handshake -----------------------------------------------------------------------
+
+
+def _url_host(host: str) -> str:
+    """``host`` as it appears in a URL: an IPv6 address in brackets (an IPv4 one a dual-stack socket reports
+    as ``::ffff:a.b.c.d``: as IPv4), names lower case."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        return host
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        return host
+    if ip.version == 6 and ip.ipv4_mapped is not None:
+        return str(ip.ipv4_mapped)
+    return f"[{ip}]" if ip.version == 6 else str(ip)
+
+
+def allowed_origins(host: str, local_address: Sequence[Any]) -> set[str]:
+    """The origins a page may have to connect: ``http://`` + a loopback name, the address the connection
+    arrived at (so a page opened by IP, e.g. ``http://192.168.1.5:8080`` under ``--host 0.0.0.0``, works),
+    or ``host`` itself (``--host``), each at the port served (``local_address``: the socket's ``(ip, port)``)."""
+    port = int(local_address[1])
+    hosts = {*LOOPBACK_HOSTS, _url_host(str(local_address[0]))}
+    if host not in WILDCARD_HOSTS:
+        hosts.add(_url_host(host))
+    origins = {f"http://{h}:{port}" for h in hosts}
+    if port == 80:  # a browser leaves out the default port
+        origins |= {f"http://{h}" for h in hosts}
+    return origins
+
+
+def origin_allowed(origins: Sequence[str], host: str, local_address: Sequence[Any]) -> bool:
+    """Whether a WebSocket handshake with these ``Origin`` header values may proceed.
+
+    No ``Origin`` header: allowed — every browser sends one on a WebSocket, so such a client is a program
+    on a machine that can reach the port (on the default 127.0.0.1: this machine), which could as well
+    write the files itself; more than one: refused (RFC 6454 allows one)."""
+    if not origins:
+        return True
+    return len(origins) == 1 and origins[0].strip().lower() in allowed_origins(host, local_address)
+
+
+_SERVE_LOCK = threading.Lock()
+_log = logging.getLogger(__name__)
+
+
+def start_server(host: str, port: int, **kwargs: Any) -> Any:
+    """A ``viser.ViserServer`` at ``host:port`` (``kwargs``: its other arguments) that refuses foreign origins
+    (:func:`checking_origin`) and lets a page change values only (:func:`values_only`); RuntimeError, and no
+    server left running, where either cannot be installed (a viser version that works differently)."""
+    import viser
+
+    wrapped: list[int] = []
+    with checking_origin(host, wrapped):
+        server = viser.ViserServer(host=host, port=port, **kwargs)
+    try:
+        if not wrapped:
+            raise RuntimeError("viser did not start its server through websockets.asyncio.server.serve: the "
+                               "viewer's Origin check could not be installed (an unsupported viser version?)")
+        values_only(server)
+    except BaseException:
+        server.stop()
+        raise
+    return server
+
+
+@contextlib.contextmanager
+def checking_origin(host: str, wrapped: list[int]) -> Iterator[None]:
+    """Start a ``viser.ViserServer`` inside this block and its WebSocket handshake refuses foreign origins.
+
+    viser has no hook for its handshake: its server thread calls ``websockets.asyncio.server.serve(...,
+    process_request=...)`` (every attempt at a port, before the constructor returns). While this block
+    runs, that function is replaced by one that wraps viser's ``process_request``: a WebSocket upgrade
+    whose Origin :func:`origin_allowed` refuses gets HTTP 403 before viser sees it. Each wrapped call
+    appends to ``wrapped`` (empty afterwards: viser started its server some other way, unchecked).
+    """
+    import websockets.asyncio.server as ws_server
+
+    original = ws_server.serve
+
+    def serve(*args: Any, **kwargs: Any) -> Any:
+        inner = kwargs.get("process_request")
+
+        def process_request(connection: Any, request: Any) -> Any:
+            if any("websocket" in v.lower() for v in request.headers.get_all("Upgrade")):
+                origins = request.headers.get_all("Origin")
+                if not origin_allowed(origins, host, connection.local_address):
+                    return connection.respond(http.HTTPStatus.FORBIDDEN,
+                                              f"seqmotion view: origin {', '.join(origins)} refused\n")
+            return None if inner is None else inner(connection, request)
+
+        kwargs["process_request"] = process_request
+        wrapped.append(1)
+        return original(*args, **kwargs)
+
+    with _SERVE_LOCK:  # one server starts at a time: the replacement is never seen by anyone else's
+        ws_server.serve = serve
+        try:
+            yield
+        finally:
+            ws_server.serve = original
+
+
+def values_only(server: Any) -> None:
+    """Let a page change a control's ``value`` only: viser applies every property a ``GuiUpdateMessage``
+    names (``disabled``, ``options``, ``min``, the callback list …), while its own page only ever sends
+    ``value``. Wraps viser's one handler of that message (RuntimeError if it is not where expected)."""
+    from viser._messages import GuiUpdateMessage
+
+    websock, handler = server._websock_server, server.gui._handle_gui_updates
+    if handler not in websock._incoming_handlers.get(GuiUpdateMessage, []):
+        raise RuntimeError("viser's GuiUpdateMessage handler was not found: the viewer cannot restrict what a "
+                           "page may change (an unsupported viser version?)")
+    websock.unregister_handler(GuiUpdateMessage, handler)
+
+    async def only_value(client_id: Any, message: Any) -> None:
+        if not isinstance(message.updates, dict):
+            return
+        message.updates = {k: v for k, v in message.updates.items() if k == "value"}
+        if not message.updates:
+            return
+        try:
+            await handler(client_id, message)
+        except (TypeError, ValueError, OverflowError) as exc:  # viser cannot even cast it to the control's type
+            _log.warning("seqmotion view: dropped a value for control %s: %s", message.uuid, _short(str(exc)))
+
+    websock.register_handler(GuiUpdateMessage, only_value)
+
+
+# --- control values -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Declared:
+    """What the server declared for a control when it built it (a page cannot change this copy).
+
+    Attributes:
+        label: the control's label (named in every refusal).
+        initial: the value it started with (a refused value is replaced by it).
+        lo, hi: per component bounds of a number or vector (a number: one component), or None.
+        integer: its values are whole numbers (an int slider, an index).
+        options: a dropdown's values, or None.
+        max_chars: a text's most characters, or None.
+    """
+
+    label: str
+    initial: Any
+    lo: tuple[float, ...] | None = None
+    hi: tuple[float, ...] | None = None
+    integer: bool = False
+    options: tuple[str, ...] | None = None
+    max_chars: int | None = None
+
+    def check(self, value: Any) -> Any:
+        """``value`` made valid: a number clamped into ``[lo, hi]``; ValueError naming the control for a value
+        that is not a finite/infinite number, not an option, or too long a text."""
+        if self.options is not None:
+            if not isinstance(value, str) or value not in self.options:
+                raise ValueError(f"control {self.label!r}: {_short(value)} is not one of {', '.join(self.options)}")
+            return value
+        if isinstance(self.initial, bool):
+            return bool(value)
+        if isinstance(self.initial, str):
+            text = str(value)
+            if self.max_chars is not None and len(text) > self.max_chars:
+                raise ValueError(f"control {self.label!r}: {len(text)} characters, at most {self.max_chars}")
+            return text
+        vector = isinstance(self.initial, tuple)
+        values = tuple(value) if vector and isinstance(value, (tuple, list)) else (value,)
+        if self.lo is None or self.hi is None or len(values) != len(self.lo):
+            raise ValueError(f"control {self.label!r}: {_short(value)} is not {len(self.lo or ())} number(s)")
+        out = []
+        for v, lo, hi in zip(values, self.lo, self.hi, strict=True):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
+                raise ValueError(f"control {self.label!r}: {_short(value)} is not a number in [{lo:g}, {hi:g}]")
+            v = min(max(float(v), lo), hi)  # out of range (±inf too): the nearest end of the slider
+            out.append(int(round(v)) if self.integer else v)
+        return tuple(out) if vector else out[0]
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class Controls:
+    """The controls the server reads, each with what it declared (:class:`Declared`); the one place a
+    control's value from the page is checked."""
+
+    def __init__(self) -> None:
+        self._declared: dict[int, tuple[Any, Declared]] = {}
+
+    def declare(self, handle: Any, lo: Sequence[float] | float | None = None, hi: Sequence[float] | float | None = None,
+                max_chars: int = MAX_TEXT) -> Any:
+        """Record ``handle``'s range/options as built (a slider's min/max/step, a dropdown's options; a vector's
+        ``lo``/``hi`` per component) and return it."""
+        initial = handle.value
+        options = getattr(handle, "options", None)
+        if options is not None:
+            spec = Declared(handle.label, initial, options=tuple(options))
+        elif isinstance(initial, (bool, str)):
+            spec = Declared(handle.label, initial, max_chars=max_chars if isinstance(initial, str) else None)
+        else:
+            if lo is None and hasattr(handle, "min"):
+                lo, hi = handle.min, handle.max
+            if lo is None or hi is None:
+                raise ValueError(f"control {handle.label!r}: declare its range")
+            lo_t = tuple(float(v) for v in (lo if isinstance(lo, Sequence) else (lo,)))
+            hi_t = tuple(float(v) for v in (hi if isinstance(hi, Sequence) else (hi,)))
+            integer = isinstance(initial, int) and float(getattr(handle, "step", 1) or 1).is_integer()
+            spec = Declared(handle.label, initial, lo_t, hi_t, integer)
+        self._declared[id(handle)] = (handle, spec)
+        return handle
+
+    def check(self, handle: Any, value: Any) -> Any:
+        """``value`` made valid for ``handle`` (:meth:`Declared.check`), without touching the control."""
+        return self._declared[id(handle)][1].check(value)
+
+    def read(self, handle: Any) -> Any:
+        """The control's value made valid. A clamped value is written back, a refused one replaced by the
+        initial value (and ValueError raised): either way the page then shows what the server uses."""
+        spec = self._declared[id(handle)][1]
+        value = handle.value
+        try:
+            checked = spec.check(value)
+        except ValueError:
+            handle.value = spec.initial
+            raise
+        if checked != value:
+            handle.value = checked
+        return checked
+
+    @property
+    def handles(self) -> list[Any]:
+        """Every declared control (the tests send each of them hostile values)."""
+        return [h for h, _ in self._declared.values()]
+
+
+# --- files ------------------------------------------------------------------------------------------
+
+
+def inside(out: Path, name: str) -> Path:
+    """``out / name`` resolved; ValueError unless it is a file directly in ``out`` (resolved too), so no
+    ``..``, absolute path or symlink in a name can place an export elsewhere."""
+    root = Path(out).resolve()
+    path = (root / name).resolve()
+    if path.parent != root:
+        raise ValueError(f"export {_short(name)} would be written outside the output folder {root} (--out): "
+                         "refused")
+    return path

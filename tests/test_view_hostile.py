@@ -1,0 +1,327 @@
+"""``seqmotion view`` against a hostile client: a scripted WebSocket client (``websockets`` + viser's message
+format, no browser) sends what a page of another site, or a program, could send.
+
+One server for the module (the pancake and sliding models, ``--no-sim``, port 0); each test talks to it
+through its own connection. Nothing may be written outside the server's ``out`` folder: the folder is
+three levels down in the module's temporary folder, which every test checks is otherwise empty.
+"""
+
+from __future__ import annotations
+
+import http.client
+import importlib.util
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+if importlib.util.find_spec("viser") is None:
+    pytest.skip("viser is not installed (pip install -e '.[dev]')", allow_module_level=True)
+
+import msgspec
+import viser
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import ClientConnection, connect
+
+from seqmotion.view import guard
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    from seqmotion.view.app import ViewerApp
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("hostile")
+    app = ViewerApp("pancake", port=0, out=root / "a" / "b" / "exports", latent_n=16, simulate=False)
+    app.root = root
+    try:
+        assert app.wait_idle(120)
+        yield app
+    finally:
+        app.stop()
+        torch.set_num_threads(threads)
+
+
+def client(app, origin: str | None = None, camera: bool = True) -> ClientConnection:
+    """A scripted client of ``app`` (what viser's page would open), sending ``Origin: origin`` if given; with
+    ``camera``, it reports its camera as a page does first (viser runs a client's callbacks only after that)."""
+    ws = connect(app.url.replace("http://", "ws://"), origin=origin, proxy=None, open_timeout=10,
+                 subprotocols=[f"viser-v{viser.__version__}"], max_size=None, max_queue=None, compression=None)
+    if camera:
+        before = set(app.server.get_clients())
+        ws.send(msgspec.msgpack.encode({
+            "type": "ViewerCameraMessage", "wxyz": (1.0, 0.0, 0.0, 0.0), "position": (1.0, 1.0, 1.0), "fov": 1.0,
+            "near": 0.01, "far": 100.0, "image_height": 480, "image_width": 640, "look_at": (0.0, 0.0, 0.0),
+            "up_direction": (0.0, 0.0, 1.0)}))
+        wait_for(lambda: set(app.server.get_clients()) - before, what="the client's registration")
+    return ws
+
+
+def send(ws: ClientConnection, handle: Any, value: Any, prop: str = "value") -> None:
+    """Send what viser's page sends when a control changes (a button: value True)."""
+    ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": handle._impl.uuid,
+                                    "updates": {prop: value}}))
+
+
+def wait_for(condition, timeout: float = 30.0, what: str = "the server") -> None:
+    end = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what} did not get there within {timeout} s")
+        time.sleep(0.01)
+
+
+def settle(app, mark: str | None = None, since: float = 0.0) -> None:
+    """Wait until ``mark`` was set after ``since`` (the event reached the panel), then until every worker idles."""
+    if mark is not None:
+        wait_for(lambda: app.marks.get(mark, 0.0) > since, what=f"{mark}")
+    assert app.wait_idle(120)
+
+
+def files_outside_out(app) -> list[Path]:
+    out = Path(app.out).resolve()
+    return [p for p in Path(app.root).rglob("*") if p.is_file() and out not in p.resolve().parents]
+
+
+@pytest.fixture(autouse=True)
+def _nothing_outside_out(app):
+    yield
+    assert files_outside_out(app) == []
+
+
+# --- the handshake --------------------------------------------------------------------------------
+
+
+def test_the_viewer_binds_to_this_machine_only_by_default(app):
+    from seqmotion.cli import build_parser
+
+    assert app.server.get_host() == "127.0.0.1"
+    assert build_parser().parse_args(["view"]).host == "127.0.0.1"
+
+
+def test_a_page_of_another_origin_is_refused_at_the_handshake(app):
+    port = app.server.get_port()
+    for origin in ("http://evil.example", f"http://evil.example:{port}", f"http://127.0.0.1:{port + 1}",
+                   f"https://127.0.0.1:{port}", "null"):
+        with pytest.raises(InvalidStatus) as refused:
+            client(app, origin, camera=False).close()
+        assert refused.value.response.status_code == 403, origin
+    for origin in (f"http://127.0.0.1:{port}", f"http://localhost:{port}", f"http://LOCALHOST:{port}", None):
+        client(app, origin).close()  # the page's own origins, and a program (no Origin) are let in
+
+
+def test_the_allowed_origins_follow_the_host_and_the_address_served():
+    assert guard.allowed_origins("127.0.0.1", ("127.0.0.1", 8080)) == {
+        "http://127.0.0.1:8080", "http://localhost:8080", "http://[::1]:8080"}
+    exposed = guard.allowed_origins("0.0.0.0", ("192.168.1.5", 8080))  # a page opened by the machine's address
+    assert "http://192.168.1.5:8080" in exposed and "http://0.0.0.0:8080" not in exposed
+    assert "http://viewer.lan:80" in guard.allowed_origins("viewer.lan", ("10.0.0.2", 80, 0, 0))
+    assert "http://[fe80::1]:8080" in guard.allowed_origins("::", ("fe80::1", 8080, 0, 0))
+    assert "http://192.168.1.5:8080" in guard.allowed_origins("::", ("::ffff:192.168.1.5", 8080, 0, 0))
+    assert not guard.origin_allowed(["http://localhost:8080", "http://localhost:8080"], "127.0.0.1",
+                                    ("127.0.0.1", 8080))  # one Origin only
+
+
+# --- files ------------------------------------------------------------------------------------------
+
+
+def test_an_export_format_outside_the_options_writes_nothing(app):
+    pancake, sliding = app.panels["pancake"], app.panels["sliding"]
+    with client(app) as ws:
+        for panel in (pancake, sliding):
+            errors = len(app.errors)
+            send(ws, panel.format, "x/../../../victim.csv")
+            wait_for(lambda p=panel: p.format.value != "csv", what="the dropdown's value")
+            send(ws, panel.export_button, True)
+            wait_for(lambda n=errors: len(app.errors) > n, what="a refusal")
+            assert app.wait_idle(60)
+            assert "'format'" in app.errors[-1] and "not one of csv, npz" in app.errors[-1]
+            assert panel.format.value == "csv"  # the page shows what the server uses again
+    assert not list(Path(app.root).rglob("victim*"))
+
+
+@pytest.mark.parametrize("name", ["../victim.csv", "x/../../victim.csv", "/tmp/victim.csv", "sub/file.csv", ".."])
+def test_an_export_path_outside_out_is_refused(tmp_path, name):
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(ValueError, match="outside the output folder"):
+        guard.inside(out, name)
+    assert guard.inside(out, "pancake-learned.csv") == out.resolve() / "pancake-learned.csv"
+
+
+def test_an_export_through_a_symlink_in_out_is_refused(app):
+    target = Path(app.root) / "elsewhere.csv"
+    link = Path(app.out) / "pancake-learned.csv"
+    link.parent.mkdir(parents=True, exist_ok=True)
+    link.symlink_to(target)
+    try:
+        with pytest.raises(ValueError, match="outside the output folder"):
+            app.export_file(link.name, lambda p: p.write_text("x") and p)
+        assert not target.exists()
+    finally:
+        link.unlink()
+
+
+# --- values -----------------------------------------------------------------------------------------
+
+
+def test_a_duration_beyond_its_slider_is_clamped(app):
+    panel = app.panels["pancake"]
+    with client(app) as ws:
+        since = time.perf_counter()
+        send(ws, panel.length, 1e8)
+        send(ws, panel.end_y, -5.0)
+        settle(app, "pancake.event", since)
+        wait_for(lambda: panel.frame.controls.length == 1000 and panel.frame.controls.end_y == -0.3,
+                 what="the clamped redraw")
+        assert len(panel.frame.states) == 1000
+        assert panel.length.value == 1000 and panel.end_y.value == -0.3  # written back: the page shows it
+        send(ws, panel.length, 500)
+        send(ws, panel.end_y, 0.2)
+        wait_for(lambda: panel.frame.controls.length == 500 and panel.frame.controls.end_y == 0.2)
+        assert app.wait_idle(60)
+
+
+def test_lm_updates_beyond_the_slider_are_clamped(app):
+    panel = app.panels["pancake"]
+    sources = []
+    draw = panel.draw
+
+    def drawn(frame):  # after the adjustment's first update, ask for a redraw: it stops there
+        draw(frame)
+        if frame.source.startswith("latent"):
+            sources.append(frame.source)
+            panel.request()
+
+    panel.draw = drawn
+    try:
+        with client(app) as ws:
+            send(ws, panel.updates, 1e9)
+            wait_for(lambda: panel.updates.value != 6, what="the slider's value")
+            send(ws, panel.adjust_button, True)
+            wait_for(lambda: sources, what="the adjustment")
+            assert app.wait_idle(60)
+    finally:
+        panel.draw = draw
+        panel.updates.value = 6
+    assert sources == ["latent 1/20"]
+
+
+def test_a_clients_adjustment_stops_when_it_leaves(app):
+    panel = app.panels["pancake"]
+    sources = []
+    left = threading.Event()
+    draw = panel.draw
+
+    def drawn(frame):  # hold the adjustment's first update until its client has gone
+        draw(frame)
+        if frame.source.startswith("latent"):
+            sources.append(frame.source)
+            left.wait(30)
+
+    panel.draw = drawn
+    try:
+        ws = client(app)
+        send(ws, panel.updates, 20)
+        wait_for(lambda: panel.updates.value == 20, what="the slider's value")
+        send(ws, panel.adjust_button, True)
+        wait_for(lambda: sources, what="the adjustment")
+        ws.close()
+        wait_for(lambda: panel.worker.stop_requested, what="the disconnect")
+        assert not panel.worker.has_pending  # the stop comes from the client leaving, not from a newer job
+        left.set()
+        assert app.wait_idle(60)
+    finally:
+        left.set()
+        panel.draw = draw
+        panel.updates.value = 6
+    assert sources == ["latent 1/20"]  # not 20 updates for nobody
+
+
+def test_a_disabled_video_button_renders_nothing_under_no_sim(app):
+    panel = app.panels["pancake"]
+    assert panel.video_button.disabled
+    with client(app) as ws:
+        for button in (panel.video_button, panel.sim_button, app.panels["sliding"].sim_button):
+            errors = len(app.errors)
+            send(ws, button, True)
+            wait_for(lambda n=errors: len(app.errors) > n, what="a refusal")
+            assert "--no-sim" in app.errors[-1]
+        assert app.wait_idle(60)
+    assert not list(Path(app.root).rglob("*.mp4"))
+
+
+def test_a_page_may_change_a_controls_value_only(app):
+    panel = app.panels["pancake"]
+    with client(app) as ws:
+        send(ws, panel.video_button, False, prop="disabled")
+        send(ws, panel.format, ["csv", "../x"], prop="options")
+        send(ws, panel.length, [], prop="update_cb")  # would leave the slider without its callback
+        since = time.perf_counter()
+        send(ws, panel.length, 600)
+        settle(app, "pancake.event", since)
+    assert panel.video_button.disabled and tuple(panel.format.options) == ("csv", "npz")
+    assert panel.frame.controls.length == 600
+    panel.length.value = 500
+    assert app.wait_idle(60)
+
+
+HOSTILE = [1e308, -1e308, 1e8, -1e8, math.nan, math.inf, -math.inf, 0, -1, "x/../../../victim.csv", "../victim",
+           "", [1, 2, 3], [math.nan, 0.0, 0.0], [1e9, -1e9, 1e9], {"a": 1}, None, True, "9" * 5000, "x" * 100_000]
+"""Out of range, NaN, wrong types and huge values, as a client can send them to any control."""
+
+
+def test_every_control_survives_hostile_values(app):
+    # every input of the page, buttons too (viser's registry: a control added later is fuzzed as well)
+    handles = list(app.server.gui._gui_input_handle_from_uuid.values())
+    assert set(map(id, app.controls.handles)) <= set(map(id, handles)) and len(handles) > 25
+    with client(app) as ws:
+        for handle in handles:
+            for value in HOSTILE:
+                send(ws, handle, value)
+        ws.ping().wait(30)  # every message has reached the server
+    assert app.wait_idle(120)
+    # it still answers, at once: the page, a new connection, and a control's next change
+    start = time.monotonic()
+    connection = http.client.HTTPConnection("127.0.0.1", app.server.get_port(), timeout=1)
+    connection.request("GET", "/")
+    assert connection.getresponse().status == 200
+    client(app, f"http://127.0.0.1:{app.server.get_port()}").close()
+    assert time.monotonic() - start < 1.0
+    panel = app.panels["pancake"]
+    with client(app) as ws:
+        for handle, value in ((panel.keep_end, False), (panel.length, 500), (panel.end_y, 0.15)):
+            send(ws, handle, value)
+        wait_for(lambda: panel.frame.controls == type(panel.frame.controls)(end_y=0.15, end_z=panel.end_z.value,
+                                                                             end_theta=panel.end_theta.value,
+                                                                             timing=panel.timing.value),
+                 what="the redraw after the fuzzing")
+    # a control still holding a hostile value is refused by name when read, and holds a valid one after
+    for handle in app.controls.handles:
+        try:
+            app.controls.read(handle)
+        except ValueError as exc:
+            assert repr(handle.label) in str(exc)
+        app.controls.read(handle)
+    assert np.all(np.isfinite(panel.frame.states))
+    assert app.wait_idle(120)
+
+
+def test_a_value_that_is_not_a_number_is_refused_by_name(app):
+    panel = app.panels["pancake"]
+    with client(app) as ws:
+        for handle, value, label in ((panel.end_z, math.nan, "'end z [m]'"),
+                                     (panel.target_in, [math.nan, 0.0, 1.0], "'target y, z, θ'")):
+            errors = len(app.errors)
+            send(ws, handle, value)
+            wait_for(lambda n=errors: len(app.errors) > n, what="a refusal")
+            assert label in app.errors[-1] and "not a number" in app.errors[-1]
+            assert app.wait_idle(60)
+    assert panel.end_z.value == 0.0 and panel.frame.controls.end_z == 0.0  # back to where it started
+    assert panel.target_in.value == pytest.approx((0.1, 0.0, math.pi)) and all(map(math.isfinite, panel.target))
