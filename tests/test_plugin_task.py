@@ -102,12 +102,15 @@ def test_the_plug_in_exports_to_onnx_and_steps_past_its_end(run, tmp_path):
     assert np.abs(mine["states"] - ref.states).max() <= 1e-4
     assert np.abs(mine["violation"] - ref.violation).max() <= 1e-4
     for gen in (model.generator(sketch), OnnxStepper(tmp_path / "onnx", sketch)):
-        u, x = gen.step(), sketch[0]
-        while gen.time < 150 + 400:  # past K: brought to rest within the tilt limit
+        u, x, peak = gen.step(), sketch[0], 0.0
+        while not gen.done:  # past K: brought to rest within the tilt limit
+            assert gen.time < 150 + 5000, "never came to rest"
+            if gen.stopping:
+                peak = max(peak, np.abs(u).max())
             states = integrate_numpy(x, u)
             x = states[-1]
             u = gen.step(states[1:])
-        assert gen.done and np.abs(x[2:]).max() < 1e-4 and np.degrees(np.arctan(np.abs(u).max() / 9.8)) < 15
+        assert np.abs(x[2:]).max() <= 1e-6 and np.all(u == 0) and np.degrees(np.arctan(peak / 9.8)) < 15
 
 
 def test_lm_reaches_an_end_point_on_a_residual_objective(run):

@@ -85,12 +85,31 @@ def test_past_the_end_it_stops_within_the_cone_and_holds(pancake):
     for sizes, after_end in (([1], 700), ([50], 1000), ([3, 20], 1000)):
         gen = pancake.generator(sketch)
         accel, states = drive(gen, sketch[0], sizes, until=149 + after_end)
-        assert gen.done
+        assert gen.done or gen.stopping  # past the end: at rest, or still (within 1e-4 m/s) decelerating
         after = slice(149, None)
         violation = pancake.violation_torch(torch.from_numpy(states[None]), torch.from_numpy(accel[None]))[0]
         assert float(violation[after].max()) <= 1e-6  # the pancake stays on while stopping
         assert np.abs(states[-1, 3:]).max() < (1e-4 if after_end == 700 else 1e-5)  # at rest (from 1.3 m/s)
         assert np.abs(states[-1, :3] - states[148, :3]).max() < 0.25  # no run-away (the issue: z = -3.4 m)
+
+
+def test_done_means_at_rest_and_a_while_not_done_loop_ends_standing_still(pancake):
+    """Issue 32 item 5: ``done`` turned True at K while the stop ramp still ran (a ``while not gen.done`` loop left
+    the pancake at 2.9 m/s; the stop took 1,600 samples more). Now ``stopping`` covers the ramp, ``done`` rest."""
+    sketch = sm.data.pancake.straight((0.3, 0.0, 3.0), 200)
+    gen = pancake.generator(sketch)
+    x, u, phases = sketch[0], gen.step(), []
+    while not gen.done:
+        assert gen.time < 20_000, "never came to rest"
+        phases.append((gen.time, gen.stopping))
+        states = gen._predict(x[None], u[None])[0]
+        x = states[-1]
+        u = gen.step(states)
+    speeds = np.abs(x[3:])
+    assert speeds.max() <= 1e-6 and np.all(gen.step(gen._predict(x[None], u[None])[0]) == 0.0)  # at rest, holds 0
+    stopping = [t for t, flag in phases if flag]
+    assert stopping and min(stopping) >= 199 and not any(flag for t, flag in phases if t < 199)
+    assert gen.time - 199 > 50  # the ramp took time the old flag did not wait for
 
 
 def test_the_sliding_pan_stops_and_the_object_comes_to_rest(sliding):
@@ -131,7 +150,7 @@ def test_set_latent_restart_starts_a_new_motion_here(pancake):
     other = pancake.deform(sm.data.pancake.straight((-0.1, 0.0, -0.5), 200)).latent
     gen = pancake.generator(sketch)
     accel, states = drive(gen, sketch[0], [50], until=150)  # past the first motion's end
-    assert gen.done
+    assert gen.done or gen.stopping  # past the end
     with pytest.raises(ValueError, match="ended"):
         gen.set_latent(other)
     gen.set_latent(other, restart=True, length=200)
@@ -139,7 +158,7 @@ def test_set_latent_restart_starts_a_new_motion_here(pancake):
     u = gen.step(gen._predict(here[None], np.zeros((1, 50, 3)))[0])  # the boundary: the new motion starts
     fresh = pancake.generator(latent=other, x0=gen._latest[0], length=200).step()
     np.testing.assert_array_equal(u, fresh)
-    assert not gen.done and gen.length == 200
+    assert not gen.done and not gen.stopping and gen.length == 200
 
 
 def test_reset_starts_over_and_takes_a_new_start_state(pancake):

@@ -45,9 +45,10 @@ cross a chunk boundary: a chunk's last output is always the last row returned).
   returned samples within ``stop.violation_tolerance`` of what coasting (zero acceleration) would
   give — so ≤ the tolerance wherever coasting keeps the constraint; if none does, the least
   violating s, or s = 1 where coasting breaks the constraint too (it cannot be kept: stop promptly);
-  once every ``|v| ≤ stop.rest_velocity`` the output is exactly 0 (hold). It is recomputed at every
-  call from the latest measured state (or, in the chunk where the motion ends, from the state the
-  plan predicts at K−1). The decoder is not run past the end.
+  once every ``|v| ≤ stop.rest_velocity`` the output is exactly 0 (hold). ``gen.stopping`` is True
+  while it decelerates, ``gen.done`` once the latest measured state is at rest (every output then 0).
+  The stop is recomputed at every call from the latest measured state (or, in the chunk where the
+  motion ends, from the state the plan predicts at K−1). The decoder is not run past the end.
 
 **set_latent(z, restart=False, length=None).** Replay (default): takes effect at the next chunk
 boundary; the decoder state there becomes the one it would have had with ``z`` from the start, fed
@@ -324,9 +325,23 @@ class StepperCore:
         return self._t
 
     @property
+    def stopping(self) -> bool:
+        """Whether the motion is past its end (t ≥ K−1) and the robot not yet at rest: the outputs decelerate it."""
+        return self._past_end and not self._at_rest()
+
+    @property
     def done(self) -> bool:
-        """Whether the motion is over (t ≥ K−1): outputs now stop the robot, then hold."""
+        """Whether the motion is over and the robot at rest: t ≥ K−1 and every velocity column of the latest
+        measured state within ``stop.rest_velocity``, so every output from here on is exactly 0 (a batch: all
+        of its motions). ``while not gen.done`` loops until the robot stands still."""
+        return self._past_end and self._at_rest()
+
+    @property
+    def _past_end(self) -> bool:
         return self._t - self._origin >= self._length - 1
+
+    def _at_rest(self) -> bool:
+        return self._velocity is None or bool(np.all(np.abs(self._latest[:, self._velocity]) <= self._rest))
 
     @property
     def latent(self) -> np.ndarray:
@@ -364,7 +379,7 @@ class StepperCore:
         if restart:
             self._pending = (z, length)
             return
-        if self._started and self.done:
+        if self._started and self._past_end:
             raise ValueError("the motion has ended; set_latent(z, restart=True) starts a new one from here")
         self._pending = None
         state = self._initial_state(z)
