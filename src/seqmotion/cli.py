@@ -140,7 +140,7 @@ def cmd_deform(args: argparse.Namespace) -> int:
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--input": args.input})
     model = _trained_model(args.model)
-    inputs = read_trajectory(args.input)
+    inputs = read_trajectory(args.input, columns=model.input_layout.names)
     result = model.generate(inputs, keep_end=args.keep_end)
     columns, names = result_columns(result, model)
     write_arrays(args.output, columns, names)

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         steps = args.steps  # the method's default
     objective = objective.bind(model)  # refuses a model of another layout, an end pose of another size, by name
     if args.input:
-        states = read_trajectory(args.input)
+        states = read_trajectory(args.input, columns=model.input_layout.names)
     else:
         states = task.sketch(sketch_end, args.length, timing="linear" if args.preset == "j2" else "s_curve")
     if args.optimizer == "lm" and args.lr is not None:

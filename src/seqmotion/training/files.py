@@ -109,19 +109,27 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def parse_csv(text: str | Iterable[str], source: str = "CSV") -> np.ndarray:
+def parse_csv(text: str | Iterable[str], source: str = "CSV", columns: Sequence[str] | None = None) -> np.ndarray:
     """``(rows, columns)`` float64 from comma-separated text (a string, or lines as they are read).
 
     Blank lines and lines starting with ``#`` are skipped; the first remaining row is a header
     if none of its fields is a number (``y,z,theta``); every other row must hold exactly as
     many numbers as the first data row.
 
+    Args:
+        columns: the names the columns must have (a task's layout, e.g. ``y, z, theta, v_y, v_z,
+            v_theta``). A header is then matched to them by name, in any order, and the columns are
+            returned in this order; a unit in brackets may follow a name (``y [m]``). Without a header
+            the columns are taken to be in this order.
+
     Raises:
         ValueError: a field that is not a number (naming its line and column), rows of different
             widths, no data row, or more data rows than a motion may have (refused at the first row
-            too many: lines are parsed as they come, the rest is never read).
+            too many: lines are parsed as they come, the rest is never read); with ``columns``, a
+            header name that is none of them, one given twice, or one of them missing.
     """
     lines = text.splitlines() if isinstance(text, str) else text
+    order: list[int] | None = None  # the header's column of each of `columns`
     values = array.array("d")  # 8 bytes a number: a list of Python floats would take ~4 times that
     rows = 0
     width = None
@@ -135,6 +143,8 @@ def parse_csv(text: str | Iterable[str], source: str = "CSV") -> np.ndarray:
         if not seen_first:
             seen_first = True
             if not any(_is_number(f) for f in fields):
+                if columns is not None:
+                    order = header_order(fields, columns, f"{source}, line {number}")
                 continue  # a header row: names only
         row = []
         for column, field in enumerate(fields, start=1):
@@ -157,7 +167,37 @@ def parse_csv(text: str | Iterable[str], source: str = "CSV") -> np.ndarray:
         rows += 1
     if not rows:
         raise ValueError(f"{source} holds no data rows")
-    return np.frombuffer(values, dtype=np.float64).reshape(rows, width)  # no copy: it keeps `values` alive
+    data = np.frombuffer(values, dtype=np.float64).reshape(rows, width)  # no copy: it keeps `values` alive
+    if order is not None:
+        if width != len(order):
+            raise ValueError(f"{source}: the header names {len(order)} columns, the data rows hold {width}")
+        data = data[:, order]
+    return data
+
+
+def header_order(names: Sequence[str], columns: Sequence[str], where: str) -> list[int]:
+    """For each of ``columns``, the index of the header field ``names`` that names it. Case, spaces,
+    underscores and θ for ``theta`` do not matter (``vy``, ``V_Y`` and ``v_y`` are one name), and a unit in
+    brackets may follow a name (``y [m]``).
+
+    Raises:
+        ValueError: a name that is none of ``columns``, a name given twice, or one of ``columns`` missing.
+    """
+    def key(name: str) -> str:
+        return name.split("[")[0].strip().lower().replace("θ", "theta").replace("_", "").replace(" ", "")
+
+    given, wanted = [key(name) for name in names], [key(name) for name in columns]
+    unknown = [name for name, k in zip(names, given, strict=True) if k not in wanted]
+    if unknown:
+        raise ValueError(f"{where}: header column {unknown[0].strip()!r} is not one of {', '.join(columns)} "
+                         "(name the columns so, in any order, or leave the header out for that order)")
+    twice = [name for name, k in zip(names, given, strict=True) if given.count(k) > 1]
+    if twice:
+        raise ValueError(f"{where}: header column {twice[0].strip()!r} appears more than once")
+    missing = [name for name, k in zip(columns, wanted, strict=True) if k not in given]
+    if missing:
+        raise ValueError(f"{where}: the header has no column {missing[0]!r} (needs {', '.join(columns)})")
+    return [given.index(k) for k in wanted]
 
 
 def _csv_lines(path: Path) -> Iterator[str]:
@@ -242,7 +282,7 @@ def read_npz(path: str | Path, keys: Sequence[str], required: int = 1) -> dict[s
     return arrays
 
 
-def read_trajectory(path: str | Path, key: str = "states") -> np.ndarray:
+def read_trajectory(path: str | Path, key: str = "states", columns: Sequence[str] | None = None) -> np.ndarray:
     """Read ``(K, dim)`` samples from ``.npz`` (array ``key``) or ``.csv`` (one sample per row, an optional header).
 
     Raises:
@@ -250,12 +290,14 @@ def read_trajectory(path: str | Path, key: str = "states") -> np.ndarray:
             module docstring), an unsupported suffix, a file or array too large (checked before
             it is read).
     """
-    return read_arrays(path, (key,))[key]
+    return read_arrays(path, (key,), columns)[key]
 
 
-def read_arrays(path: str | Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
+def read_arrays(
+    path: str | Path, keys: Sequence[str], columns: Sequence[str] | None = None
+) -> dict[str, np.ndarray]:
     """Like :func:`read_trajectory` for several arrays of an ``.npz`` (the first required, the rest
-    optional); a ``.csv`` gives the first."""
+    optional); a ``.csv`` gives the first (its header matched to ``columns`` by name, :func:`parse_csv`)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{path} does not exist" if not path.exists() else f"{path} is not a file")
@@ -268,7 +310,7 @@ def read_arrays(path: str | Path, keys: Sequence[str]) -> dict[str, np.ndarray]:
         return read_npz(path, keys)
     if suffix == ".csv":
         try:
-            return {keys[0]: parse_csv(_csv_lines(path), str(path))}
+            return {keys[0]: parse_csv(_csv_lines(path), str(path), columns)}
         except OSError as exc:
             raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
     raise ValueError(f"unsupported trajectory file {path} (use .npz or .csv)")
