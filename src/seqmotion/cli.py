@@ -207,8 +207,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     mu = planner.options.mu if args.mu is None else args.mu
     mu_dyn = planner.options.mu_dyn if args.mu_dyn is None else args.mu_dyn
     columns, names = result_columns(plan, planner)
-    write_arrays(args.output, {**columns, "command": command}, {**names, "command": [f"command.{n}" for n in
-                                                                                      planner.input_layout.names]})
+    # The friction it was planned at travels with the plan: `seqmotion simulate sliding` compares it with the arm's.
+    write_arrays(args.output, {**columns, "command": command, "friction": np.array([mu, mu_dyn])},
+                 {**names, "command": [f"command.{n}" for n in planner.input_layout.names]})
     rmse = 1000 * np.sqrt(((plan.rel_states[:, :2] - command[:, :2]) ** 2).sum(1).mean())
     reach = 1000 * np.linalg.norm(plan.pan_states[:, :2], axis=1).max()
     print(f"planned {len(command)} samples → {args.output}: object RMSE {rmse:.1f} mm against the command, "
@@ -216,6 +217,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
     tolerance = {} if args.tolerance is None else {"tracking_rmse_m": args.tolerance}
     for line in planner.trust_lines(plan, tolerance):
         print(line)
+    from seqmotion.sim.sliding import ARM_FRICTION  # constants only: MuJoCo is not imported
+
+    arm = (ARM_FRICTION["mu"], ARM_FRICTION["mu_dyn"])
+    if (mu, mu_dyn) != arm:  # a plan (a refined one above all) exploits the friction it was made at
+        print(f"note: the simulated arm's object has μ = {arm[0]:g}, μ' = {arm[1]:g}; to execute this plan with "
+              f"`seqmotion simulate sliding`, plan at that friction (--mu {arm[0]:g} --mu-dyn {arm[1]:g})")
     return 0
 
 

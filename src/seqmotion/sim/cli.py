@@ -12,8 +12,9 @@ Trajectory files:
   ``y, z, θ, v_y, v_z, v_θ`` (a first row of names only is a header; text anywhere else is an
   error naming its line); 1 ms per sample.
 * sliding — ``.npz`` with ``pan_states`` ``(K, 4)`` and optionally ``rel_states`` (the plan's
-  predicted object path) and ``command`` (the object path asked for), or ``.csv`` with rows
-  ``x_p, y_p, vx_p, vy_p``.
+  predicted object path), ``command`` (the object path asked for) and ``friction`` ``(μ, μ')``
+  (what ``seqmotion plan`` planned at: a warning names a friction other than the arm's), or
+  ``.csv`` with rows ``x_p, y_p, vx_p, vy_p``.
 """
 
 from __future__ import annotations
@@ -106,8 +107,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.mu is not None:
             raise ValueError("--mu applies to the pancake scene only (the sliding measurements use no friction cone)")
-        arrays = _read(path, ("pan_states", "rel_states", "command"), 4)
+        from .sliding import ARM_FRICTION
+
+        arrays = _read(path, ("pan_states", "rel_states", "command", "friction"), 4)
         pan = arrays["pan_states"]
+        planned = np.asarray(arrays.get("friction", []), dtype=np.float64).ravel()
+        arm = np.array([ARM_FRICTION["mu"], ARM_FRICTION["mu_dyn"]])
+        if planned.shape == (2,) and not np.allclose(planned, arm):
+            print(f"warning: {path} was planned at μ = {planned[0]:g}, μ' = {planned[1]:g}, the arm's object has "
+                  f"μ = {arm[0]:g}, μ' = {arm[1]:g}: plan at the arm's friction (seqmotion plan --mu {arm[0]:g} "
+                  f"--mu-dyn {arm[1]:g}) for a plan that holds here")
         if "rel_states" in arrays:
             plan = argparse.Namespace(pan_states=pan, rel_states=arrays["rel_states"])
             result = run_sliding(plan, arrays.get("command"), gains=args.gains or "ch3", **common)

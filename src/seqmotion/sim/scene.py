@@ -51,6 +51,13 @@ the calibration is in ``tests/test_sim_physics.py`` and ``benchmarks/RESULTS_sim
   the reference acceleration). With ``b = 1/h`` the creep is ≤ 0.6 mm over such motions.
   NoSlip is then left off (:data:`NOSLIP_ITERATIONS` = 0): with it, creep at 40° fell from
   3 µm to 0 over 1.5 s and nothing else changed, at 20–40 % more time per step. The
+  frying pan's object does **not** get this damping (:data:`OBJECT_FRICTION_DAMPING`): its
+  friction rows use the contact's own ``solref``. Why: the pan stays level (no ``J̇ q̇`` tilt
+  creep to remove: 0.1 mm in 0.6 s held at 0.85 μg without it), and with it an object that
+  slides for long stretches rocks and hops on its rim (the solver raises the normal force to
+  buy the friction that the stiff rows ask for): on a pan circle at 2 μg it tilted 7.7° and
+  rose 3.8 mm (0.9° and 0.6 mm without), and the refined 5 cm circle plan of the README
+  was airborne 85 % of its motion, 23° tilted (benchmarks/bench_refine_arm.py). The
   object–tool contacts are explicit ``<pair>`` elements (tool surfaces have ``contype="2"
   conaffinity="0"`` so they are not also generated dynamically); their friction coefficient
   is the pair's.
@@ -154,7 +161,9 @@ CONTACT_SOLIMP = "0.95 0.99 0.001"
 CONTACT_DEFAULTS = f'condim="3" solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}"'
 """Contact parameters shared by every colliding geom (see the module docstring)."""
 FRICTION_DAMPING = 1.0 / PHYSICS_DT
-"""Damping of the friction rows of object–tool contacts [1/s]: slip removed within one step."""
+"""Damping of the friction rows of the pancake–spatula contacts [1/s]: slip removed within one step."""
+OBJECT_FRICTION_DAMPING: float | None = None
+"""The object–pan contacts' friction-row damping: none (their own ``solref``; module docstring)."""
 TOOL_SURFACE = 'contype="2" conaffinity="0"'
 """Tool surfaces touch the object only through explicit pairs (see the module docstring)."""
 
@@ -301,11 +310,16 @@ def _object_xml() -> str:
     </body>"""
 
 
-def _pairs_xml(objects: list[str], surface: str, mu: float) -> str:
-    """Explicit contact pairs between the object's contact geoms and the tool surface."""
+def _pairs_xml(objects: list[str], surface: str, mu: float, friction_damping: float | None) -> str:
+    """Explicit contact pairs between the object's contact geoms and the tool surface.
+
+    ``friction_damping`` [1/s]: the friction rows' damping ``b`` (``solreffriction="-1 -b"``), or
+    ``None`` for MuJoCo's default (the friction rows follow ``solref``).
+    """
+    damping = "" if friction_damping is None else f' solreffriction="-1 {-friction_damping:g}"'
     rows = [
         f'    <pair geom1="{g}" geom2="{surface}" condim="3" friction="{mu} {mu} 0.005 0.0001 0.0001" '
-        f'solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}" solreffriction="-1 {-FRICTION_DAMPING:g}"/>'
+        f'solref="{CONTACT_SOLREF}" solimp="{CONTACT_SOLIMP}"{damping}/>'
         for g in objects
     ]
     return "  <contact>\n" + "\n".join(rows) + "\n  </contact>"
@@ -315,13 +329,14 @@ def scene_xml(kind: str) -> str:
     """The full MJCF text of the ``"pancake"`` or ``"sliding"`` scene."""
     if kind == "pancake":
         tool, obj = _spatula_xml(), _pancake_xml()
-        pairs = _pairs_xml([f"pancake_{i}" for i in range(PANCAKE_RING + 1)], "blade", MU_PANCAKE)
+        pairs = _pairs_xml([f"pancake_{i}" for i in range(PANCAKE_RING + 1)], "blade", MU_PANCAKE,
+                           FRICTION_DAMPING)
         cameras = """
     <camera name="front" pos="1.4 0 0.4" xyaxes="0 1 0 0 0 1" fovy="42"/>
     <camera name="oblique" pos="1.25 -0.75 0.75" xyaxes="0.64 0.77 0 -0.3 0.25 0.92" fovy="45"/>"""
     elif kind == "sliding":
         tool, obj = _pan_xml(), _object_xml()
-        pairs = _pairs_xml([f"foot_{i}" for i in range(OBJECT_FEET)], "pan", MU_OBJECT)
+        pairs = _pairs_xml([f"foot_{i}" for i in range(OBJECT_FEET)], "pan", MU_OBJECT, OBJECT_FRICTION_DAMPING)
         cameras = """
     <camera name="front" pos="1.5 -0.75 0.95" xyaxes="0.45 0.89 0 -0.45 0.23 0.86" fovy="45"/>
     <camera name="top" pos="0.65 0 0.95" xyaxes="0 1 0 -1 0 0" fovy="40"/>"""
