@@ -2,8 +2,9 @@
 
 ``add_parser(subparsers)`` registers the ``lfd`` command on the main parser; its
 subcommands are ``collect`` (record the datasets), ``info`` (summarise a file), ``train``
-(SeqAE, CNNs and the end-to-end baseline), ``evaluate`` (closed-loop success rate) and
-``export`` (ship a policy with its model card). Heavy
+(SeqAE, CNNs and the end-to-end baseline), ``evaluate`` (closed-loop success rate),
+``export`` (ship a policy with its model card) and ``export-lerobot`` / ``import-lerobot``
+(LeRobot v3.0 datasets, :mod:`seqmotion.lfd.lerobot`). Heavy
 modules (MuJoCo, h5py, torch) are imported only when a subcommand runs.
 """
 
@@ -41,7 +42,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("path", help="an .h5 file written by 'seqmotion lfd collect'")
 
     p = sub.add_parser("train", help="train the SeqAE + CNN policy (and/or the end-to-end baseline)")
-    p.add_argument("--data", required=True, help="dataset directory written by 'seqmotion lfd collect'")
+    p.add_argument(
+        "--data", required=True,
+        help="dataset directory written by 'seqmotion lfd collect', LeRobot v3.0 dataset folders (<set>/, as "
+        "'export-lerobot' writes them) or one LeRobot v3.0 dataset folder",
+    )
     p.add_argument("--out", required=True, help="output directory; one <method>_<camera>/ model per policy")
     p.add_argument(
         "--preset",
@@ -116,6 +121,32 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="JSON files of 'seqmotion lfd evaluate --json' to quote on the card",
     )
     p.add_argument("--notes", default="", help="free text for the card")
+
+    p = sub.add_parser(
+        "export-lerobot", help="write every set of a collected dataset as a LeRobot v3.0 dataset (OUT/<set>/)"
+    )
+    p.add_argument("data_dir", help="dataset directory written by 'seqmotion lfd collect' (or one .h5 file)")
+    p.add_argument("out", help="output directory; one LeRobot dataset folder per set")
+    p.add_argument("--repo-id", default="seqmotion/pushing", help="Hub name for the dataset cards (<NAME>_<set>)")
+    p.add_argument("--videos", action="store_true", help="the webcam as mp4 video instead of PNG images")
+    p.add_argument("--codec", choices=["av1", "h264"], default="av1", help="video codec with --videos (default av1)")
+    p.add_argument("--fps", type=int, default=50, help="frame rate; divides the 1 kHz recording (default 50: the "
+                   "decoder's 20 ms period)")
+
+    p = sub.add_parser("import-lerobot", help="read a LeRobot v3.0 dataset folder into OUT_DIR/<set>.h5")
+    p.add_argument("lerobot_dir", help="a LeRobot v3.0 dataset folder (meta/info.json inside)")
+    p.add_argument("out_dir", help="output directory for the .h5 file")
+    p.add_argument(
+        "--map", action="append", default=[], metavar="FIELD=KEY",
+        help="take FIELD (master_theta, master_dtheta, master_tau, slave_theta, slave_dtheta, slave_tau, block_pose, "
+        "image) from the dataset's feature KEY (default: action, observation.state, observation.effort, "
+        "observation.environment_state, observation.images.webcam); 'image=' imports no camera",
+    )
+    p.add_argument("--set", dest="set_name", help="set name, i.e. the file name (default: the folder's name if it is "
+                   "a seqmotion set, else pairs_default with a camera, motions without)")
+    p.add_argument("--trim", action="store_true", help="cut every episode to the shortest (else unequal lengths "
+                   "are an error)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
     parser.set_defaults(func=run)
     return parser
 
@@ -176,6 +207,21 @@ def run(args: argparse.Namespace) -> int:
 
         target = export_policy(args.policy, args.name, args.evaluations, args.notes)
         print(f"shipped {args.policy} as {args.name!r} in {target} (with MODEL_CARD.md)")
+        return 0
+    if args.lfd_command == "export-lerobot":
+        from .lerobot import to_lerobot
+
+        written = to_lerobot(args.data_dir, args.out, args.repo_id, args.videos, args.fps, args.codec)
+        for name, path in written.items():
+            print(f"{name}: LeRobot v3.0 dataset -> {path}")
+        return 0
+    if args.lfd_command == "import-lerobot":
+        from .lerobot import import_lerobot, parse_map
+
+        check_writable_dir(args.out_dir, "OUT_DIR")
+        path = import_lerobot(args.lerobot_dir, args.out_dir, parse_map(args.map), args.set_name, args.trim,
+                              args.overwrite)
+        print(f"{args.lerobot_dir} -> {path}")
         return 0
     raise ValueError(f"unknown lfd subcommand {args.lfd_command!r}")  # argparse prevents this
 

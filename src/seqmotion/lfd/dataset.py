@@ -446,6 +446,49 @@ def _check_sizes(path: Path, f: object) -> None:  # f: an open h5py.File
                          f"take ({MAX_FILE_BYTES / 2**30:.0f} GiB)")
 
 
+def save_dataset(data: PushingDataset, path: str | Path, overwrite: bool = False) -> Path:
+    """Write a :class:`PushingDataset` held in memory (e.g. one read from a LeRobot dataset by
+    :func:`seqmotion.lfd.lerobot.from_lerobot`) in this module's format, atomically.
+
+    Writes the attributes, every ``/motions`` array it has (float32), the per-episode values (a
+    missing ``side`` as ``""``), ``/operator`` and the images; :func:`load_dataset` reads it back.
+    """
+    import h5py
+
+    from ..training.checkpoint import atomic_path, check_writable
+
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise ValueError(f"{path} already exists (pass overwrite=True to replace it)")
+    check_writable(path, (".h5",), "dataset")
+    n = len(data)
+    json_attrs = ("motion_columns", "phases", "scene", "gains")
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        for key, value in data.attrs.items():
+            f.attrs[key] = json.dumps(value) if key in json_attrs else value
+        f.attrs.update(format=FORMAT, version=VERSION, n_episodes=n, complete=True)
+        motions = f.create_group("motions")
+        for key, value in data.motions.items():
+            dtype = "i1" if key == "phase" else "f4"
+            motions.create_dataset(key, data=np.asarray(value).astype(dtype), compression="gzip")
+        episodes = f.create_group("episodes")
+        for key, value in data.episodes.items():
+            if key == "variation":
+                continue
+            episodes[key] = np.asarray(value, dtype="S5") if key == "side" else np.asarray(value)
+        if "side" not in data.episodes:
+            episodes["side"] = np.full(n, b"", dtype="S5")
+        variation = episodes.create_group("variation")
+        for key, value in data.episodes.get("variation", {}).items():
+            variation[key] = np.asarray(value)
+        operator = f.create_group("operator")
+        for key, value in data.operator.items():
+            operator[key] = np.asarray(value)
+        if data.images is not None:
+            f.create_dataset("images", data=np.asarray(data.images, dtype=np.uint8))
+    return path
+
+
 def _decode_attr(key: str, value: object) -> object:
     if key in ("motion_columns", "phases", "scene", "gains"):
         return json.loads(value)

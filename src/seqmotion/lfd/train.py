@@ -532,7 +532,7 @@ def train(
     """Train policies from ``data_dir`` (``motions.h5``, ``pairs_<camera>.h5``) into ``out/<method>_<camera>/``.
 
     Args:
-        data_dir: written by ``seqmotion lfd collect``.
+        data_dir: written by ``seqmotion lfd collect``, or LeRobot v3.0 datasets (see :func:`_open_set`).
         out: output directory.
         preset_name: SeqAE size (``original``, ``larger``, ``smaller``).
         methods: ``"proposed"`` and/or ``"end_to_end"``.
@@ -551,8 +551,6 @@ def train(
             ``out/checkpoints/`` (written every :data:`CHECKPOINT_EVERY` epochs) when there are
             some; False deletes them and starts over.
     """
-    from .dataset import load_dataset
-
     data_dir, out = Path(data_dir), Path(out)
     seed = _seed(seed)
     config = preset(preset_name)
@@ -567,10 +565,8 @@ def train(
     seqae_settings = _with_seed(seqae_settings or defaults[0], seed)
     e2e_settings = _with_seed(e2e_settings or defaults[1], seed)
     cnn_settings = _with_seed(cnn_settings or defaults[2], seed)
-    pair_paths = {c: data_dir / f"pairs_{c}.h5" for c in cameras}
-    for path in [data_dir / "motions.h5", *pair_paths.values()]:
-        if ("proposed" in methods or path.name != "motions.h5") and not path.is_file():
-            raise ValueError(f"{path} is missing: run 'seqmotion lfd collect --out {data_dir}' first")
+    pairs = {c: _open_set(data_dir, f"pairs_{c}") for c in cameras}
+    motions_data = _open_set(data_dir, "motions") if "proposed" in methods else None
 
     report = TrainReport(out)
     checkpoints = out / "checkpoints"
@@ -579,10 +575,8 @@ def train(
 
         shutil.rmtree(checkpoints)
     record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_record()}
-    pairs = {c: load_dataset(p) for c, p in pair_paths.items()}
 
     if "proposed" in methods:
-        motions_data = load_dataset(data_dir / "motions.h5")
         keep_motions = _episodes(motions_data, successful_only)
         motions = motions_data.motion(episodes=keep_motions)  # trains the SeqAE and/or sets the CNN's targets
         if seqae_from is not None:
@@ -613,7 +607,7 @@ def train(
             )
             cnn_record = _record(
                 report, f"cnn_{camera}", cnn_settings, history, pairs=int(len(keep)), of=len(data),
-                dataset=str(pair_paths[camera]),
+                dataset=str(data.path),
             )
             training = {**record, "seqae": seqae_record, "cnn": cnn_record}
             policy = PushingPolicy(
@@ -645,7 +639,7 @@ def train(
             )
             e2e_record = _record(
                 report, f"end_to_end_{camera}", e2e_settings, history, pairs=int(len(keep)), of=len(data),
-                dataset=str(pair_paths[camera]),
+                dataset=str(data.path),
             )
             policy.config.training = {**record, "end_to_end": e2e_record}
             report.policies[f"end_to_end_{camera}"] = policy.save_pretrained(out / f"end_to_end_{camera}")
@@ -665,6 +659,41 @@ def train(
         runs = []
     atomic_write_bytes(log_path, (json.dumps({"runs": [*runs, entry]}, indent=2) + "\n").encode())
     return report
+
+
+def _open_set(data_dir: Path, name: str) -> Any:
+    """The set ``name`` (``motions``, ``pairs_<camera>``) of ``data_dir`` as a ``PushingDataset``.
+
+    Looked for as ``data_dir/<name>.h5`` (``seqmotion lfd collect``), then as a LeRobot v3.0
+    folder ``data_dir/<name>/`` (``seqmotion lfd export-lerobot``), then ``data_dir`` itself
+    when it is one LeRobot dataset: it then serves as every set (its motions train the SeqAE,
+    its camera images the CNN). ``ValueError`` when none is there, when a pairs set has no
+    images, or when the motions are not of the 3-joint arm the networks are built for.
+    """
+    from .dataset import load_dataset
+    from .lerobot import from_lerobot, is_lerobot_dataset
+    from .models import MOTION_DIM
+    from .timing import COMMAND_INTERVAL
+
+    if (data_dir / f"{name}.h5").is_file():
+        return load_dataset(data_dir / f"{name}.h5")
+    folder = data_dir / name if is_lerobot_dataset(data_dir / name) else data_dir
+    if not is_lerobot_dataset(folder):
+        raise ValueError(f"{data_dir / name}.h5 is missing: run 'seqmotion lfd collect --out {data_dir}' first "
+                         "(or pass a LeRobot dataset folder)")
+    data = from_lerobot(folder, name=name)
+    fps = round(1 / data.dt, 6)
+    if round(fps * COMMAND_INTERVAL, 6) != round(fps * COMMAND_INTERVAL):  # the decoder reads every 20 ms
+        raise ValueError(f"{folder} is recorded at {fps:g} fps; the decoder runs every {COMMAND_INTERVAL * 1000:g} ms, "
+                         f"so training needs a rate that is a multiple of {1 / COMMAND_INTERVAL:g} Hz")
+    columns = data.motion(every=1).shape[-1]
+    if columns != MOTION_DIM:
+        raise ValueError(f"{folder} has {columns // 6}-joint motions; the SeqAE and its decoder are built for the "
+                         f"3-joint arm ({MOTION_DIM} columns: master and slave theta, dtheta, tau)")
+    if name.startswith("pairs_") and data.images is None:
+        raise ValueError(f"{folder} has no camera images: it cannot train the CNN of {name!r} "
+                         "(map its camera with 'seqmotion lfd import-lerobot --map image=KEY')")
+    return data
 
 
 def _record(report: TrainReport, part: str, settings: Any, history: dict, **counts: Any) -> dict[str, Any]:

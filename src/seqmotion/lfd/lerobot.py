@@ -1,0 +1,823 @@
+"""LeRobotDataset v3.0 export and import of the pushing demonstrations (no ``lerobot`` import needed).
+
+:func:`to_lerobot` turns every set of a dataset directory written by ``seqmotion lfd collect``
+(``<set>.h5``) into one LeRobot v3.0 dataset folder ``OUT/<set>/``; :func:`from_lerobot` reads a
+LeRobot v3.0 folder back into a :class:`~seqmotion.lfd.dataset.PushingDataset` (in memory;
+:func:`import_lerobot` writes it as ``<set>.h5``), so that ``seqmotion lfd train --data`` takes
+either. Writers and readers are pyarrow (parquet) and PyAV (mp4), the ``lerobot`` extra.
+
+On disk (LeRobot's v3.0 layout, one file of each kind: the sets are small)::
+
+    meta/info.json                 codebase_version "v3.0", fps, features, totals, path templates
+    meta/stats.json                per feature: min, max, mean, std, count, q01 q10 q50 q90 q99
+    meta/tasks.parquet             task_index, task (the pandas index)
+    meta/episodes/chunk-000/file-000.parquet
+                                   per episode: episode_index, tasks, length, data/chunk_index,
+                                   data/file_index, dataset_from_index, dataset_to_index,
+                                   videos/<key>/chunk_index|file_index|from_timestamp|to_timestamp,
+                                   meta/episodes/chunk_index|file_index, stats/<feature>/<stat>,
+                                   seqmotion/position_index, seqmotion/success
+    data/chunk-000/file-000.parquet one row per frame, one row group per episode
+    videos/observation.images.webcam/chunk-000/file-000.mp4   (``videos=True`` only)
+
+Features (J = 3 joints named ``yaw``, ``shoulder``, ``elbow``; float32):
+
+* ``observation.state`` ``(2J,)``: the slave's joint angles [rad] then velocities [rad/s]
+  (``yaw.pos`` ... ``elbow.vel``).
+* ``observation.effort`` ``(J,)``: the slave's reaction torques τ_s [N m] (``yaw.effort`` ...);
+  the decoder reads them with θ and θ̇.
+* ``action`` ``(3J,)``: **the master's θ, θ̇, τ** (``.pos``, ``.vel``, ``.effort``). This is
+  what the chapter-5 controller takes from the policy: the decoder stands in for the master
+  (Fig. 5.7) and the slave's half of the 4-channel bilateral law is driven by the master's
+  angle, velocity and torque (:func:`seqmotion.lfd.teleop.run_autonomous`). ``action[t]`` is
+  the master at the same frame, LeRobot's teleoperation convention (the leader arm at t), i.e.
+  the command the slave's controller received at t. seqmotion's decoder, trained on these
+  frames, predicts one frame ahead (it reads ``state[t]`` and emits ``action[t+1]``, which the
+  controller then holds for a frame); a LeRobot policy (ACT, Diffusion Policy) learns
+  ``action[t]`` from ``observation[t]`` and its output goes into the same slot.
+* ``observation.environment_state`` ``(7,)``: the block's centre [m] and quaternion (w, x, y, z).
+* ``observation.images.webcam`` ``(64, 64, 3)``: seqmotion takes one webcam image per episode,
+  just before the motion; it is stored on every frame of the episode (LeRobot wants one per
+  frame; the scene in front of the camera is what the policy sees when it starts). ``image``
+  dtype (PNG in the parquet) by default, an mp4 (AV1 or H.264) with ``videos=True``. The
+  import takes each episode's first frame.
+* ``timestamp``, ``frame_index``, ``episode_index``, ``index``, ``task_index`` as LeRobot has them;
+  one task string, :data:`TASK`.
+
+Frame rate: :data:`DEFAULT_FPS` = 50 Hz, every 20th sample of the 1 kHz recording, the decoder's
+period Δt_NN (what the policy trains on and what LeRobot users record at, 10-50 Hz); ``fps``
+may be any divisor of the recording's rate (1000 for the full recording). Export then import is
+exact (float32) at the exported rate.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import re
+from collections.abc import Mapping, Sequence
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MAX_LENGTH
+from .dataset import FORMAT, MOTION_KEYS, SETS, VERSION, PushingDataset
+
+CODEBASE_VERSION = "v3.0"
+INFO_PATH = "meta/info.json"
+STATS_PATH = "meta/stats.json"
+TASKS_PATH = "meta/tasks.parquet"
+EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+CHUNKS_SIZE = 1000
+"""LeRobot's defaults for files per chunk folder and file sizes [MB], recorded in ``info.json``."""
+
+STATE, EFFORT, ACTION, ENVIRONMENT, WEBCAM = (
+    "observation.state", "observation.effort", "action", "observation.environment_state", "observation.images.webcam"
+)
+TASK = "Push the block across the robot's centre line."
+DEFAULT_FPS = 50
+DEFAULT_REPO_ID = "seqmotion/pushing"
+QUANTILES = (0.01, 0.10, 0.50, 0.90, 0.99)
+"""The quantiles LeRobot's stats carry (``q01`` ... ``q99``)."""
+CODECS = {"av1": "libsvtav1", "h264": "libx264"}
+"""``videos=True`` encoders (LeRobot's default is AV1 via SVT-AV1), GOP 2 and CRF 30 as LeRobot's."""
+BLOCK_NAMES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+MAX_META_BYTES = 16 * 2**20
+"""The largest ``info.json`` / ``stats.json`` read [bytes]."""
+IMAGE_SHAPE = (64, 64, 3)
+
+FIELDS = ("master_theta", "master_dtheta", "master_tau", "slave_theta", "slave_dtheta", "slave_tau", "block_pose",
+          "image")
+"""What :func:`from_lerobot` fills, each from a LeRobot feature (``mapping`` overrides :data:`DEFAULT_MAP`)."""
+DEFAULT_MAP = {
+    "master_theta": ACTION, "master_dtheta": ACTION, "master_tau": ACTION,
+    "slave_theta": STATE, "slave_dtheta": STATE, "slave_tau": EFFORT,
+    "block_pose": ENVIRONMENT, "image": WEBCAM,
+}
+_QUANTITY = {"theta": "pos", "dtheta": "vel", "tau": "effort"}
+"""Name suffix of each quantity's columns inside a feature (``yaw.pos``, ``yaw.vel``, ``yaw.effort``)."""
+
+
+def _pyarrow() -> Any:
+    try:
+        import pyarrow
+        import pyarrow.parquet  # noqa: F401 - the submodule is used as pyarrow.parquet
+    except ImportError:
+        raise ValueError("LeRobot datasets need pyarrow: pip install 'seqmotion[lerobot]'") from None
+    return pyarrow
+
+
+def _av() -> Any:
+    try:
+        import av
+    except ImportError:
+        raise ValueError("LeRobot videos need PyAV: pip install 'seqmotion[lerobot]'") from None
+    return av
+
+
+# ----------------------------------------------------------------------------------------------
+# Export
+# ----------------------------------------------------------------------------------------------
+def to_lerobot(
+    data_dir: str | Path,
+    out: str | Path,
+    repo_id: str = DEFAULT_REPO_ID,
+    videos: bool = False,
+    fps: int = DEFAULT_FPS,
+    codec: str = "av1",
+) -> dict[str, Path]:
+    """Export every ``<set>.h5`` of ``data_dir`` as a LeRobot v3.0 dataset ``out/<set>/``.
+
+    Args:
+        data_dir: a directory written by ``seqmotion lfd collect`` (or one ``.h5`` file).
+        out: output directory; each ``out/<set>`` must not exist yet (or be empty).
+        repo_id: the Hub name the dataset card suggests (``<repo_id>_<set>``); nothing is uploaded.
+        videos: store the webcam as an mp4 per dataset instead of PNGs in the parquet.
+        fps: frame rate [Hz]; must divide the recording's rate (1 kHz).
+        codec: ``"av1"`` (LeRobot's default) or ``"h264"`` (with ``videos``).
+
+    Returns:
+        ``{set name: dataset folder}``. Each folder is written whole or not at all.
+    """
+    from ..training.checkpoint import check_writable_dir
+    from .dataset import load_dataset
+
+    data_dir, out = Path(data_dir), Path(out)
+    if not re.fullmatch(r"[A-Za-z0-9][\w.-]*/[\w.-]+", str(repo_id)):
+        raise ValueError(f"repo id must look like 'owner/name', got {repo_id!r}")
+    if codec not in CODECS:
+        raise ValueError(f"codec must be one of {sorted(CODECS)}, got {codec!r}")
+    if data_dir.is_file():
+        files = [data_dir]
+    elif data_dir.is_dir():
+        files = [data_dir / f"{name}.h5" for name in SETS if (data_dir / f"{name}.h5").is_file()]
+        if not files:
+            raise ValueError(f"{data_dir} holds no dataset ({', '.join(f'{n}.h5' for n in SETS)}): "
+                             f"run 'seqmotion lfd collect --out {data_dir}' first")
+    else:
+        raise ValueError(f"{data_dir} does not exist")
+    targets = {f: out / f.stem for f in files}
+    for target in targets.values():  # refused before any work: nothing is replaced
+        if target.exists() and (not target.is_dir() or any(target.iterdir())):
+            raise ValueError(f"{target} already exists: remove it or export into another folder")
+    check_writable_dir(out, "LeRobot output directory")
+    written = {}
+    for path, target in targets.items():
+        data = load_dataset(path)
+        written[path.stem] = export_set(data, target, f"{repo_id}_{path.stem}", videos, fps, codec)
+    return written
+
+
+def export_set(
+    data: PushingDataset, target: str | Path, repo_id: str = DEFAULT_REPO_ID, videos: bool = False,
+    fps: int = DEFAULT_FPS, codec: str = "av1",
+) -> Path:
+    """Write one :class:`PushingDataset` as the LeRobot v3.0 folder ``target`` (atomically: a temporary sibling
+    renamed when complete); see the module docstring for the layout."""
+    from ..training.checkpoint import atomic_path
+
+    frames = _frames(data, fps)
+    has_images = data.images is not None
+    features = _features(frames["joints"], ENVIRONMENT in frames, has_images, videos)
+    with atomic_path(Path(target), directory=True) as tmp:
+        _write_data(tmp, frames, data.images if has_images and not videos else None, features)
+        video_rows = _write_video(tmp, frames, data.images, fps, codec) if has_images and videos else None
+        if video_rows is not None:
+            features[WEBCAM]["info"] = _video_info(tmp / VIDEO_PATH.format(video_key=WEBCAM, chunk_index=0,
+                                                                             file_index=0))
+        stats = _write_episodes(tmp, frames, data, features, video_rows)
+        _write_tasks(tmp)
+        _write_json(tmp / STATS_PATH, stats)
+        _write_json(tmp / INFO_PATH, _info(frames, features, fps, videos))
+        (tmp / "README.md").write_text(_card(repo_id, data, fps, videos))
+    return Path(target)
+
+
+def _frames(data: PushingDataset, fps: int) -> dict[str, Any]:
+    """The per-frame columns ``{name: (total_frames, ...)}`` at ``fps``, plus ``lengths`` per episode."""
+    if isinstance(fps, bool) or not isinstance(fps, int | np.integer) or fps < 1:
+        raise ValueError(f"fps must be a positive integer, got {fps!r}")
+    rate = 1.0 / data.dt
+    every = round(rate / fps)
+    if every < 1 or abs(every * fps - rate) > 1e-6 * rate:
+        raise ValueError(f"fps must divide the recording's rate of {rate:g} Hz (e.g. 50: every 20th sample), "
+                         f"got {fps}")
+    m = {k: np.asarray(data.motions[k][:, ::every], dtype=np.float32) for k in (*MOTION_KEYS, "block_pose")
+         if k in data.motions}  # block_pose: absent from an imported dataset that had none
+    n, length, joints = m["slave_theta"].shape
+
+    def flat(*parts: np.ndarray) -> np.ndarray:
+        return np.concatenate(parts, axis=-1).reshape(n * length, -1)
+
+    episode = np.repeat(np.arange(n, dtype=np.int64), length)
+    frame = np.tile(np.arange(length, dtype=np.int64), n)
+    return {
+        STATE: flat(m["slave_theta"], m["slave_dtheta"]),
+        EFFORT: flat(m["slave_tau"]),
+        ACTION: flat(m["master_theta"], m["master_dtheta"], m["master_tau"]),
+        **({ENVIRONMENT: flat(m["block_pose"])} if "block_pose" in m else {}),
+        "timestamp": (frame / fps).astype(np.float32),
+        "frame_index": frame,
+        "episode_index": episode,
+        "index": np.arange(n * length, dtype=np.int64),
+        "task_index": np.zeros(n * length, dtype=np.int64),
+        "lengths": np.full(n, length, dtype=np.int64),
+        "joints": joints,
+    }
+
+
+def _joint_names(joints: int) -> list[str]:
+    from ..sim.pushing import JOINT_NAMES
+
+    return list(JOINT_NAMES) if joints == len(JOINT_NAMES) else [f"joint{j}" for j in range(joints)]
+
+
+def _features(joints: int, block_pose: bool, images: bool, videos: bool) -> dict[str, dict]:
+    names = _joint_names(joints)
+
+    def named(*quantities: str) -> list[str]:
+        return [f"{joint}.{q}" for q in quantities for joint in names]
+
+    features: dict[str, dict] = {
+        STATE: {"dtype": "float32", "shape": [2 * joints], "names": named("pos", "vel")},
+        EFFORT: {"dtype": "float32", "shape": [joints], "names": named("effort")},
+        ACTION: {"dtype": "float32", "shape": [3 * joints], "names": named("pos", "vel", "effort")},
+    }
+    if block_pose:
+        features[ENVIRONMENT] = {"dtype": "float32", "shape": [7], "names": list(BLOCK_NAMES)}
+    if images:
+        features[WEBCAM] = {"dtype": "video" if videos else "image", "shape": list(IMAGE_SHAPE),
+                            "names": ["height", "width", "channels"]}
+    for key, dtype in (("timestamp", "float32"), ("frame_index", "int64"), ("episode_index", "int64"),
+                       ("index", "int64"), ("task_index", "int64")):
+        features[key] = {"dtype": dtype, "shape": [1], "names": None}
+    return features
+
+
+def _png(image: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image, dtype=np.uint8)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def _write_data(root: Path, frames: dict, images: np.ndarray | None, features: dict) -> None:
+    """``data/chunk-000/file-000.parquet``: one row per frame, one row group per episode."""
+    pa = _pyarrow()
+    columns: dict[str, Any] = {}
+    for key, feature in features.items():
+        if feature["dtype"] == "video":
+            continue
+        if feature["dtype"] == "image":
+            png = [_png(image) for image in images]  # one PNG per episode, referenced by each of its frames
+            image_type = pa.struct([("bytes", pa.binary()), ("path", pa.string())])
+            rows = [{"bytes": png[e], "path": None} for e in frames["episode_index"]]
+            columns[key] = pa.array(rows, type=image_type)
+        elif feature["shape"] == [1]:
+            columns[key] = pa.array(frames[key])
+        else:  # a fixed-size list, as the Hugging Face `datasets` library stores a sequence of known length
+            values = frames[key]
+            columns[key] = pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1)), values.shape[1])
+    table = pa.table(columns)
+    path = root / DATA_PATH.format(chunk_index=0, file_index=0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with pa.parquet.ParquetWriter(path, table.schema, compression="snappy") as writer:
+        start = 0
+        for length in frames["lengths"]:
+            writer.write_table(table.slice(start, int(length)))
+            start += int(length)
+
+
+def _write_video(root: Path, frames: dict, images: np.ndarray, fps: int, codec: str) -> list[dict]:
+    """One mp4 of all episodes back to back (each episode's image on each of its frames); its per-episode
+    rows for the episodes table (``videos/<key>/...``)."""
+    av = _av()
+    path = root / VIDEO_PATH.format(video_key=WEBCAM, chunk_index=0, file_index=0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rows, pts = [], 0
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream(CODECS[codec], rate=fps)
+        stream.width, stream.height = IMAGE_SHAPE[1], IMAGE_SHAPE[0]
+        stream.pix_fmt = "yuv420p"
+        stream.time_base = Fraction(1, fps)
+        stream.options = {"g": "2", "crf": "30"}
+        for image, length in zip(images, frames["lengths"], strict=True):
+            rows.append({"chunk_index": 0, "file_index": 0, "from_timestamp": pts / fps,
+                         "to_timestamp": (pts + int(length)) / fps})
+            for _ in range(int(length)):
+                frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image, dtype=np.uint8), format="rgb24")
+                frame.pts, frame.time_base = pts, Fraction(1, fps)
+                container.mux(stream.encode(frame))
+                pts += 1
+        container.mux(stream.encode())
+    return rows
+
+
+def _video_info(path: Path) -> dict[str, Any]:
+    """The ``info`` of a video feature as LeRobot records it (probed from the file)."""
+    av = _av()
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        return {"video.height": stream.height, "video.width": stream.width,
+                "video.codec": stream.codec.canonical_name, "video.pix_fmt": stream.pix_fmt,
+                "video.fps": int(stream.base_rate), "video.channels": 3, "video.g": 2, "video.crf": 30,
+                "is_depth_map": False, "has_audio": False}
+
+
+def _stats(values: np.ndarray, image: bool = False) -> dict[str, np.ndarray]:
+    """LeRobot's per-feature statistics of ``values`` ``(frames, ...)``: per column, or per colour channel
+    ``(3, 1, 1)`` in [0, 1] for images ``(frames, H, W, 3)``."""
+    if image:
+        x = values.reshape(-1, 3).astype(np.float64) / 255.0
+        shape: tuple[int, ...] = (3, 1, 1)
+    else:
+        x = values.reshape(len(values), -1).astype(np.float64)
+        shape = (x.shape[1],)
+    stats = {"min": x.min(0), "max": x.max(0), "mean": x.mean(0), "std": x.std(0)}
+    for q in QUANTILES:
+        stats[f"q{round(q * 100):02d}"] = np.quantile(x, q, axis=0)
+    stats = {k: v.reshape(shape) for k, v in stats.items()}
+    stats["count"] = np.array([len(values)], dtype=np.int64)
+    return stats
+
+
+def _all_stats(frames: dict, images: np.ndarray | None, features: dict, rows: slice,
+               episodes: slice) -> dict[str, dict[str, np.ndarray]]:
+    out = {}
+    for key, feature in features.items():
+        if feature["dtype"] in ("image", "video"):
+            # every frame of an episode shows its one image and the episodes are equally long, so the
+            # statistics of the per-episode images are those of the frames
+            out[key] = _stats(images[episodes], image=True)
+            out[key]["count"] = np.array([rows.stop - rows.start], dtype=np.int64)
+        else:
+            out[key] = _stats(frames[key][rows])
+    return out
+
+
+def _write_episodes(root: Path, frames: dict, data: PushingDataset, features: dict,
+                    video_rows: list[dict] | None) -> dict:
+    """``meta/episodes/chunk-000/file-000.parquet``; returns the whole dataset's stats."""
+    pa = _pyarrow()
+    rows, start = [], 0
+    for e, length in enumerate(frames["lengths"]):
+        stop = start + int(length)
+        row: dict[str, Any] = {
+            "episode_index": e, "tasks": [TASK], "length": int(length),
+            "data/chunk_index": 0, "data/file_index": 0, "dataset_from_index": start, "dataset_to_index": stop,
+        }
+        if video_rows is not None:
+            row.update({f"videos/{WEBCAM}/{k}": v for k, v in video_rows[e].items()})
+        row.update({"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
+        for key, stats in _all_stats(frames, data.images, features, slice(start, stop), slice(e, e + 1)).items():
+            row.update({f"stats/{key}/{name}": value.tolist() for name, value in stats.items()})
+        # seqmotion's own per-episode facts (LeRobot ignores extra columns): what the CNN targets need
+        row["seqmotion/position_index"] = int(data.episodes["position_index"][e])
+        row["seqmotion/success"] = bool(data.episodes["success"][e])
+        rows.append(row)
+        start = stop
+    path = root / EPISODES_PATH.format(chunk_index=0, file_index=0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pa.parquet.write_table(pa.Table.from_pylist(rows), path)
+    total = _all_stats(frames, data.images, features, slice(0, len(frames["index"])), slice(None))
+    return {key: {name: value.tolist() for name, value in stats.items()} for key, stats in total.items()}
+
+
+def _write_tasks(root: Path) -> None:
+    """``meta/tasks.parquet``: ``task_index`` with the task string as the pandas index (how LeRobot reads it)."""
+    pa = _pyarrow()
+    table = pa.table({"task_index": pa.array([0], pa.int64()), "task": pa.array([TASK], pa.string())})
+    pandas_meta = {
+        "index_columns": ["task"],
+        "column_indexes": [{"name": None, "field_name": None, "pandas_type": "unicode", "numpy_type": "object",
+                            "metadata": {"encoding": "UTF-8"}}],
+        "columns": [
+            {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
+             "metadata": None},
+            {"name": "task", "field_name": "task", "pandas_type": "unicode", "numpy_type": "object", "metadata": None},
+        ],
+        "creator": {"library": "pyarrow", "version": pa.__version__},
+        "pandas_version": "2.2.3",
+    }
+    table = table.replace_schema_metadata({"pandas": json.dumps(pandas_meta)})
+    pa.parquet.write_table(table, root / TASKS_PATH)
+
+
+def _info(frames: dict, features: dict, fps: int, videos: bool) -> dict[str, Any]:
+    n = len(frames["lengths"])
+    return {
+        "codebase_version": CODEBASE_VERSION, "robot_type": "seqmotion_touch_3dof", "fps": int(fps),
+        "total_episodes": n, "total_frames": int(frames["lengths"].sum()), "total_tasks": 1,
+        "chunks_size": CHUNKS_SIZE, "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+        "data_path": DATA_PATH, "video_path": VIDEO_PATH if videos and WEBCAM in features else None,
+        "splits": {"train": f"0:{n}"}, "features": features,
+    }
+
+
+def _write_json(path: Path, data: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def _card(repo_id: str, data: PushingDataset, fps: int, videos: bool) -> str:
+    camera = data.attrs.get("camera") or "none"
+    return (
+        "---\nlicense: mit\ntask_categories:\n- robotics\ntags:\n- LeRobot\n- seqmotion\n"
+        "configs:\n- config_name: default\n  data_files: data/*/*.parquet\n---\n\n"
+        f"# {repo_id}\n\nPushing demonstrations of seqmotion (set `{data.attrs.get('set_name', '?')}`, "
+        f"{len(data)} episodes, webcam `{camera}`, {'mp4' if videos else 'PNG'} images) at {fps} Hz, exported "
+        "by `seqmotion lfd export-lerobot`. `action` is the master arm's joint angle, velocity and torque "
+        "(the bilateral controller's command to the slave); `observation.state` the slave's angles and "
+        "velocities, `observation.effort` its torques.\n"
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Import
+# ----------------------------------------------------------------------------------------------
+def is_lerobot_dataset(path: str | Path) -> bool:
+    """Whether ``path`` is a folder with a ``meta/info.json`` (a LeRobot dataset of some version)."""
+    return (Path(path) / INFO_PATH).is_file()
+
+
+def _read_json(path: Path, what: str) -> Any:
+    if not path.is_file():
+        raise ValueError(f"{path} is missing: not a complete LeRobot v3.0 dataset ({what})")
+    if path.stat().st_size > MAX_META_BYTES:
+        raise ValueError(f"{path} is {path.stat().st_size} bytes, more than a LeRobot {what} may be "
+                         f"({MAX_META_BYTES} bytes)")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+
+
+def _count(info: dict, key: str, path: Path, limit: int) -> int:
+    value = info.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= limit:
+        raise ValueError(f"{path}: field {key!r} must be an integer in 1..{limit}, got {value!r}")
+    return value
+
+
+def read_info(root: str | Path) -> dict[str, Any]:
+    """``meta/info.json`` of a LeRobot v3.0 dataset, checked (version, fps, totals, features) before any data
+    is read; ``ValueError`` naming the file and field otherwise."""
+    root = Path(root)
+    if not root.is_dir():
+        if not root.exists() and re.fullmatch(r"[\w.-]+/[\w.-]+", str(root)):
+            raise ValueError(f"{root} is not a folder; Hub ids are not downloaded here: fetch it first "
+                             f"(huggingface-cli download --repo-type dataset {root} --local-dir DIR) and pass DIR")
+        raise ValueError(f"{root} is not a folder")
+    path = root / INFO_PATH
+    if not path.is_file():
+        raise ValueError(f"{root} is not a LeRobot dataset: it has no {INFO_PATH}")
+    info = _read_json(path, "info.json")
+    if not isinstance(info, dict):
+        raise ValueError(f"{path} must hold a JSON object")
+    version = info.get("codebase_version")
+    if not isinstance(version, str) or not version.startswith("v3."):
+        hint = (" Convert it with LeRobot (python -m lerobot.scripts.convert_dataset_v21_to_v30 --repo-id=ID) "
+                "and import the converted folder." if isinstance(version, str) and version.startswith("v2") else "")
+        raise ValueError(f"{path}: codebase_version is {version!r}; this reads LeRobot v3.0 datasets.{hint}")
+    fps = info.get("fps")
+    if isinstance(fps, bool) or not isinstance(fps, int | float) or not math.isfinite(fps) or not 0 < fps <= 10_000:
+        raise ValueError(f"{path}: field 'fps' must be a frame rate in (0, 10000] Hz, got {fps!r}")
+    _count(info, "total_episodes", path, MAX_LENGTH)
+    _count(info, "total_frames", path, 2**31)
+    features = info.get("features")
+    if not isinstance(features, dict) or not features:
+        raise ValueError(f"{path}: field 'features' must be a non-empty object")
+    for key, feature in features.items():
+        shape = feature.get("shape") if isinstance(feature, dict) else None
+        if (not isinstance(shape, list) or not shape or len(shape) > 3
+                or not all(isinstance(s, int) and not isinstance(s, bool) and 0 < s <= 10_000 for s in shape)):
+            raise ValueError(f"{path}: feature {key!r} has no valid 'shape' (1-3 sizes up to 10000), got {shape!r}")
+    return info
+
+
+def _names(feature: dict) -> list[str]:
+    names = feature.get("names")
+    if isinstance(names, dict):  # older datasets: {"motors": [...]}
+        names = next(iter(names.values()), None)
+    return [str(n) for n in names] if isinstance(names, list) else []
+
+
+def _columns(field: str, key: str, feature: dict, explicit: bool) -> np.ndarray:
+    """Which columns of feature ``key`` hold ``field`` (by the ``.pos``/``.vel``/``.effort`` suffixes of its
+    names; a feature mapped explicitly without such names is taken whole)."""
+    width = math.prod(feature["shape"])
+    quantity = field.split("_", 1)[1] if field not in ("block_pose", "image") else None
+    names = _names(feature)
+    if quantity is not None and len(names) == width:
+        suffix = _QUANTITY[quantity]
+        picked = [i for i, n in enumerate(names) if n.rsplit(".", 1)[-1] == suffix or n.endswith(f"_{suffix}")]
+        if picked:
+            return np.array(picked)
+        if not explicit:
+            raise ValueError(f"cannot map {field}: feature {key!r} has no '.{suffix}' columns (names {names}); "
+                             f"name the feature that holds it with --map {field}=KEY")
+    return np.arange(width)
+
+
+def _resolve_map(info: dict, mapping: Mapping[str, str] | None, root: Path) -> dict[str, tuple[str, np.ndarray]]:
+    """``{field: (feature key, column indices)}`` for every field found; ``ValueError`` naming what is missing."""
+    mapping = dict(mapping or {})
+    unknown = sorted(set(mapping) - set(FIELDS))
+    if unknown:
+        raise ValueError(f"--map names unknown fields {unknown}; choose from {list(FIELDS)}")
+    features = info["features"]
+    resolved: dict[str, tuple[str, np.ndarray]] = {}
+    for field in FIELDS:
+        key = mapping.get(field, DEFAULT_MAP[field])
+        if field == "image" and field not in mapping and key not in features:
+            cameras = [k for k, f in features.items() if f.get("dtype") in ("image", "video")]
+            key = cameras[0] if len(cameras) == 1 else ""
+        if not key:  # "--map image=": no images
+            continue
+        if key not in features:
+            if field in ("block_pose", "image") and field not in mapping:
+                continue  # optional: a dataset without block pose or camera imports as motions only
+            raise ValueError(f"{root}: cannot map {field}: the dataset has no feature {key!r} "
+                             f"(it has {sorted(features)}); pass --map {field}=KEY")
+        feature = features[key]
+        if field == "image":
+            if feature.get("dtype") not in ("image", "video"):
+                raise ValueError(f"{root}: feature {key!r} is {feature.get('dtype')!r}, not an image or video")
+            if tuple(feature["shape"]) not in (IMAGE_SHAPE, (3, 64, 64)):
+                raise ValueError(f"{root}: camera {key!r} is {feature['shape']}; seqmotion's CNN takes 64 x 64 RGB "
+                                 f"images (pass --map image= to import the motions only)")
+            resolved[field] = (key, np.arange(0))
+        else:
+            if feature.get("dtype") not in ("float32", "float64"):
+                raise ValueError(f"{root}: feature {key!r} is {feature.get('dtype')!r}; {field} needs float32/64")
+            resolved[field] = (key, _columns(field, key, feature, field in mapping))
+    joints = {f: len(c) for f, (_, c) in resolved.items() if f not in ("block_pose", "image")}
+    if len(set(joints.values())) != 1:
+        raise ValueError(f"{root}: the motion fields have different joint counts {joints}; fix them with --map")
+    if "block_pose" in resolved and len(resolved["block_pose"][1]) != 7:
+        raise ValueError(f"{root}: block pose {resolved['block_pose'][0]!r} has {len(resolved['block_pose'][1])} "
+                         "values, not 7 (x, y, z, qw, qx, qy, qz)")
+    return resolved
+
+
+def _read_episodes(root: Path, total: int) -> list[dict]:
+    """The episodes table's rows (without the ``stats/`` columns), sorted by episode index, checked."""
+    pa = _pyarrow()
+    files = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
+    if not files:
+        raise ValueError(f"{root}: no meta/episodes/chunk-*/file-*.parquet: not a complete LeRobot v3.0 dataset")
+    rows: list[dict] = []
+    for path in files:
+        try:
+            meta = pa.parquet.read_metadata(path)
+            if len(rows) + meta.num_rows > total:
+                raise ValueError(f"{path}: more episode rows than total_episodes = {total} in {INFO_PATH}")
+            names = [n for n in pa.parquet.read_schema(path).names if not n.startswith("stats/")]
+            rows.extend(pa.parquet.read_table(path, columns=names).to_pylist())
+        except (OSError, pa.ArrowException) as exc:
+            raise ValueError(f"{path} is not a readable parquet file: {str(exc).splitlines()[0]}") from None
+    if len(rows) != total:
+        raise ValueError(f"{root}: {len(rows)} episode rows in meta/episodes but total_episodes = {total}")
+    for row in rows:
+        for field in ("episode_index", "length"):
+            value = row.get(field)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_LENGTH:
+                raise ValueError(f"{root}: meta/episodes field {field!r} must be an integer in 0..{MAX_LENGTH}, "
+                                 f"got {value!r}")
+    rows.sort(key=lambda r: r["episode_index"])
+    if [r["episode_index"] for r in rows] != list(range(total)):
+        raise ValueError(f"{root}: meta/episodes does not number its episodes 0..{total - 1}")
+    return rows
+
+
+def _read_frames(root: Path, info: dict, columns: list[str], rows: list[dict]) -> dict[str, Any]:
+    """The data parquet columns ``columns`` of every frame, in episode order, checked against the episodes."""
+    from ..training.files import MAX_FILE_BYTES
+
+    pa = _pyarrow()
+    files = sorted((root / "data").glob("chunk-*/file-*.parquet"))
+    if not files:
+        raise ValueError(f"{root}: no data/chunk-*/file-*.parquet: not a complete LeRobot v3.0 dataset")
+    total, size = info["total_frames"], 0
+    for path in files:
+        size += path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise ValueError(f"{root}: its data files take {size / 2**30:.1f} GiB, more than an input may take "
+                         f"({MAX_FILE_BYTES / 2**30:.0f} GiB)")
+    tables = []
+    seen = 0
+    for path in files:
+        try:
+            meta = pa.parquet.read_metadata(path)
+            seen += meta.num_rows
+            if seen > total:
+                raise ValueError(f"{path}: more frames than total_frames = {total} in {INFO_PATH}")
+            missing = [c for c in columns if c not in pa.parquet.read_schema(path).names]
+            if missing:
+                raise ValueError(f"{path} has no column(s) {missing} (declared in {INFO_PATH})")
+            tables.append(pa.parquet.read_table(path, columns=columns))
+        except (OSError, pa.ArrowException) as exc:
+            raise ValueError(f"{path} is not a readable parquet file: {str(exc).splitlines()[0]}") from None
+    if seen != total:
+        raise ValueError(f"{root}: the data files hold {seen} frames but total_frames = {total}")
+    try:
+        table = pa.concat_tables(tables)
+        episode = np.asarray(table.column("episode_index").to_numpy(), dtype=np.int64)
+        frame = np.asarray(table.column("frame_index").to_numpy(), dtype=np.int64)
+    except (pa.ArrowException, TypeError, ValueError) as exc:  # schemas that differ, nulls, non-integers
+        raise ValueError(f"{root}: the data files' episode_index/frame_index columns are unusable: "
+                         f"{str(exc).splitlines()[0]}") from None
+    order = np.lexsort((frame, episode))
+    table, episode, frame = table.take(pa.array(order)), episode[order], frame[order]
+    lengths = np.bincount(episode, minlength=len(rows)) if len(episode) and episode.min() >= 0 else None
+    if lengths is None or len(lengths) != len(rows):
+        raise ValueError(f"{root}: the data's episode_index values do not match meta/episodes (0..{len(rows) - 1})")
+    for e, row in enumerate(rows):
+        if lengths[e] != row["length"]:
+            raise ValueError(f"{root}: episode {e} has {lengths[e]} frames in data/ but length {row['length']} "
+                             "in meta/episodes")
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    if not np.array_equal(frame, np.arange(len(frame)) - np.repeat(starts, lengths)):
+        raise ValueError(f"{root}: frame_index is not 0, 1, 2, ... within every episode")
+    return {"table": table, "lengths": lengths, "starts": starts}
+
+
+def _decode_png(blob: Any, where: str) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    if not isinstance(blob, dict) or not isinstance(blob.get("bytes"), bytes):
+        raise ValueError(f"{where}: image is not stored as embedded bytes (struct of 'bytes', 'path')")
+    try:
+        with Image.open(io.BytesIO(blob["bytes"])) as image:
+            if image.size != IMAGE_SHAPE[:2][::-1]:
+                raise ValueError(f"{where}: image is {image.size[0]} x {image.size[1]}, not 64 x 64")
+            return np.asarray(image.convert("RGB"), dtype=np.uint8)
+    except (UnidentifiedImageError, OSError) as exc:
+        raise ValueError(f"{where}: image cannot be decoded: {exc}") from None
+
+
+def _first_video_frames(root: Path, info: dict, key: str, rows: list[dict]) -> np.ndarray:
+    """Each episode's first frame of the video feature ``key``, found by its ``from_timestamp``."""
+    av = _av()
+    template = info.get("video_path")
+    if not isinstance(template, str):
+        raise ValueError(f"{root / INFO_PATH}: field 'video_path' is missing but {key!r} is a video")
+    wanted: dict[Path, dict[int, int]] = {}
+    for e, row in enumerate(rows):
+        try:
+            chunk, file = int(row[f"videos/{key}/chunk_index"]), int(row[f"videos/{key}/file_index"])
+            start = float(row[f"videos/{key}/from_timestamp"])
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"{root}: meta/episodes lacks videos/{key}/chunk_index|file_index|from_timestamp "
+                             f"for episode {e}") from None
+        path = root / template.format(video_key=key, chunk_index=chunk, file_index=file)
+        wanted.setdefault(path, {})[round(start * info["fps"])] = e
+    images = np.zeros((len(rows), *IMAGE_SHAPE), dtype=np.uint8)
+    found = set()
+    for path, by_frame in wanted.items():
+        if not path.is_file():
+            raise ValueError(f"{path} is missing (video of {key!r})")
+        try:
+            with av.open(str(path)) as container:
+                for frame in container.decode(video=0):
+                    index = round(float(frame.time) * info["fps"])
+                    if index in by_frame:
+                        if (frame.height, frame.width) != IMAGE_SHAPE[:2]:
+                            raise ValueError(f"{path}: frames are {frame.width} x {frame.height}, not 64 x 64")
+                        images[by_frame[index]] = frame.to_ndarray(format="rgb24")
+                        found.add(by_frame[index])
+                    if index > max(by_frame):
+                        break
+        except av.error.FFmpegError as exc:
+            raise ValueError(f"{path} cannot be decoded: {exc}") from None
+    missing = sorted(set(range(len(rows))) - found)
+    if missing:
+        raise ValueError(f"{root}: no video frame at the start of episodes {missing[:10]} of {key!r}")
+    return images
+
+
+def from_lerobot(
+    path: str | Path, mapping: Mapping[str, str] | None = None, name: str | None = None, trim: bool = False,
+) -> PushingDataset:
+    """Read a LeRobot v3.0 dataset folder as a :class:`PushingDataset` (sampled at the dataset's fps).
+
+    Features are mapped by name (:data:`DEFAULT_MAP`: what :func:`to_lerobot` writes): the slave's
+    θ and θ̇ are the ``.pos`` and ``.vel`` columns of ``observation.state``, its τ
+    ``observation.effort``, the master's θ, θ̇, τ the ``.pos``, ``.vel``, ``.effort`` columns of
+    ``action``; block pose and webcam are optional. ``mapping`` (``--map FIELD=KEY``) points a
+    field of :data:`FIELDS` at another feature (another robot's keys); ``image=""`` drops the
+    camera. The joint count is the dataset's. Episodes without seqmotion's columns count as
+    successful, at an unknown block position (``-1``).
+
+    Args:
+        path: the dataset folder (``meta/info.json`` inside).
+        mapping: ``{field: feature key}`` overrides.
+        name: the set name recorded in ``attrs`` (default: the folder's name if it is one of
+            seqmotion's sets, else ``pairs_default`` with images and ``motions`` without).
+        trim: cut every episode to the shortest (otherwise unequal lengths are an error).
+
+    Raises:
+        ValueError: not a folder, not v3.0 (a v2.x one gets the conversion command), a feature
+            that cannot be mapped, counts or lengths that disagree, declared sizes over the caps.
+    """
+    from ..training.files import check_declared_size
+
+    root = Path(path)
+    info = read_info(root)
+    resolved = _resolve_map(info, mapping, root)
+    rows = _read_episodes(root, info["total_episodes"])
+    features = info["features"]
+    # what will be read, as float64, refused by its declared size before anything is read
+    per_frame = sum(math.prod(features[k]["shape"]) for k in {k for k, _ in resolved.values()}
+                    if features[k]["dtype"] not in ("image", "video"))
+    check_declared_size((info["total_frames"], per_frame), 8, f"{root / INFO_PATH}: total_frames")
+    for key in ("episode_index", "frame_index"):
+        if key not in features:
+            raise ValueError(f"{root / INFO_PATH}: feature {key!r} is missing")
+    image_key = resolved.get("image", ("", None))[0]
+    image_in_data = bool(image_key) and features[image_key]["dtype"] == "image"
+    wanted = sorted({k for f, (k, _) in resolved.items() if f != "image"} | {"episode_index", "frame_index"}
+                    | ({image_key} if image_in_data else set()))
+    frames = _read_frames(root, info, wanted, rows)
+    lengths = frames["lengths"]
+    if len(set(lengths.tolist())) != 1 and not trim:
+        raise ValueError(f"{root}: episodes have different lengths ({lengths.min()}..{lengths.max()} frames); "
+                         "seqmotion's datasets are rectangular: pass trim=True (--trim) to cut all to the shortest")
+    k = int(lengths.min())
+    if k < 2:
+        raise ValueError(f"{root}: an episode has {k} frame(s); a motion needs at least 2")
+    take = (frames["starts"][:, None] + np.arange(k)[None]).reshape(-1)
+    table = frames["table"]
+    n = len(rows)
+
+    pa = _pyarrow()
+
+    def column(key: str) -> np.ndarray:
+        try:
+            values = table.column(key).combine_chunks()
+            flat = np.asarray(values.flatten() if hasattr(values, "flatten") else values, dtype=np.float64)
+        except (pa.ArrowException, TypeError, ValueError) as exc:
+            raise ValueError(f"{root}: column {key!r} is not numeric: {str(exc).splitlines()[0]}") from None
+        width = math.prod(features[key]["shape"])
+        if flat.size != len(values) * width:
+            raise ValueError(f"{root}: column {key!r} does not hold {width} values per frame as {INFO_PATH} declares")
+        return flat.reshape(len(values), width)[take]
+
+    cache: dict[str, np.ndarray] = {}
+    motions = {}
+    for field, (key, cols) in resolved.items():
+        if field == "image":
+            continue
+        if key not in cache:
+            cache[key] = column(key)
+        values = cache[key][:, cols].reshape(n, k, len(cols))
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"{root}: {key!r} ({field}) contains NaN or inf")
+        motions[field] = values
+    images = None
+    if image_key:
+        if image_in_data:
+            blobs = table.column(image_key).take(frames["starts"]).to_pylist()
+            images = np.stack([_decode_png(b, f"{root}: episode {e}, {image_key!r}") for e, b in enumerate(blobs)])
+        else:
+            images = _first_video_frames(root, info, image_key, rows)
+    joints = len(resolved["slave_theta"][1])
+    episodes = {
+        "position_index": np.array([r.get("seqmotion/position_index", -1) for r in rows], dtype=np.int8),
+        "success": np.array([r.get("seqmotion/success", True) for r in rows], dtype=bool),
+    }
+    if name is None:
+        name = root.name if root.name in SETS else ("pairs_default" if images is not None else "motions")
+    camera = name.removeprefix("pairs_") if images is not None and name.startswith("pairs_") else ""
+    attrs = {"format": FORMAT, "version": VERSION, "set_name": name, "seed": -1, "dt": 1.0 / info["fps"],
+             "duration": k / info["fps"], "n_episodes": n, "samples": k, "camera": camera,
+             "image_size": IMAGE_SHAPE[0], "complete": True, "joints": joints, "source": f"lerobot:{root}"}
+    return PushingDataset(root, attrs, motions, episodes, {}, images)
+
+
+def import_lerobot(
+    path: str | Path, out_dir: str | Path, mapping: Mapping[str, str] | None = None, name: str | None = None,
+    trim: bool = False, overwrite: bool = False,
+) -> Path:
+    """:func:`from_lerobot`, written as ``out_dir/<name>.h5`` (seqmotion's format; atomically)."""
+    from .dataset import save_dataset
+
+    data = from_lerobot(path, mapping, name, trim)
+    return save_dataset(data, Path(out_dir) / f"{data.attrs['set_name']}.h5", overwrite=overwrite)
+
+
+def parse_map(items: Sequence[str] | None) -> dict[str, str]:
+    """``["FIELD=KEY", ...]`` (the ``--map`` option) → ``{field: key}``; ``ValueError`` on a malformed item."""
+    mapping = {}
+    for item in items or ():
+        field, sep, key = item.partition("=")
+        if not sep or field not in FIELDS:
+            raise ValueError(f"--map needs FIELD=KEY with FIELD one of {list(FIELDS)}, got {item!r}")
+        mapping[field] = key
+    return mapping
