@@ -60,3 +60,15 @@ def test_deform_reads_a_permuted_header_by_name(tmp_path, capsys):
     write_csv(tmp_path / "abc.csv", list("abcdef"), sketch)
     assert main(["deform", "--input", str(tmp_path / "abc.csv"), "--output", str(tmp_path / "abc.npz")]) == 2
     assert "header column 'a'" in capsys.readouterr().err and not (tmp_path / "abc.npz").exists()
+
+
+def test_plan_reads_a_permuted_command_header_by_name(tmp_path):
+    from seqmotion.data import sliding as commands
+
+    command = commands.line(0.05, 300)
+    write_csv(tmp_path / "c.csv", ["y", "x", "v_y", "v_x"], command[:, [1, 0, 3, 2]])
+    write_csv(tmp_path / "d.csv", ["x", "y", "v_x", "v_y"], command)
+    for name in ("c", "d"):
+        assert main(["plan", "--command", str(tmp_path / f"{name}.csv"), "--output", str(tmp_path / f"{name}.npz")
+                     ]) == 0
+    np.testing.assert_array_equal(np.load(tmp_path / "c.npz")["pan_accel"], np.load(tmp_path / "d.npz")["pan_accel"])

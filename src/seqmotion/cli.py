@@ -197,7 +197,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.circle is not None:
         command = commands.circle(args.circle, args.length)
     else:
-        command = read_trajectory(args.command_file)
+        command = read_trajectory(args.command_file, columns=planner.input_layout.names)
     if args.refine:  # ch. 4's machinery on the planner: refine z through the contact physics (seconds)
         from seqmotion.latent import refine_plan
 
