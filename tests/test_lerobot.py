@@ -21,6 +21,7 @@ pa = pytest.importorskip("pyarrow")
 import pyarrow.parquet as pq  # noqa: E402
 
 from seqmotion.lfd import cli, dataset, lerobot, train  # noqa: E402
+from seqmotion.lfd.models import PushingPolicy  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -321,9 +322,14 @@ def test_import_failure_writes_nothing(exported, tmp_path):
 
 
 def test_train_refuses_a_dataset_without_images_for_the_cnn(exported, tmp_path):
-    with pytest.raises(ValueError, match="has no camera images"):
+    """A motions-only dataset cannot train the CNN (the error names the way out); the SeqAE alone trains on it."""
+    with pytest.raises(ValueError, match="has no camera images.*--methods seqae"):
         train.train(exported["images"] / "motions", tmp_path / "m", "tiny", ("proposed",), ("default",),
                     progress=False)
+    report = train.train(exported["images"] / "motions", tmp_path / "m", "tiny", ("seqae",), progress=False,
+                         seqae_settings=train.SeqAETraining(epochs=1, batch_size=4), successful_only=False)
+    assert set(report.policies) == {"seqae"} and report.policies["seqae"] == tmp_path / "m" / "seqae"
+    assert PushingPolicy.from_pretrained(report.policies["seqae"]).seqae_config.joints == 3
 
 
 def test_wrong_column_type_is_named(exported, tmp_path):

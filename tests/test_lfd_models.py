@@ -159,6 +159,42 @@ def test_corrupt_or_mismatched_checkpoints(tmp_path):
     assert issubclass(CheckpointError, ValueError)
 
 
+def test_joint_count_comes_from_the_config(tmp_path):
+    """J = 2: 12 motion columns, 6 decoder inputs and outputs, σ² pooled over the 2 joints; saved and loaded as
+    a SeqAE-only model; a config without ``joints`` (every model saved before it existed) is the 3-joint arm."""
+    two = dataclasses.replace(TINY, joints=2)
+    motions = _motions(4, 10)[..., np.r_[0:2, 3:5, 6:8, 9:11, 12:14, 15:17]]  # (4, 10, 12): joints 0, 1
+    torch.manual_seed(0)
+    model = SeqAE(two)
+    model.scaler.fit(motions)
+    command, z = model(torch.as_tensor(motions, dtype=torch.float32))
+    assert command.shape == (4, 9, 6) and z.shape == (4, 8) and two.slave == slice(6, 12)
+    flat = motions.reshape(-1, 12)
+    for v in range(3):  # θ, θ̇, τ of the master: columns 2v, 2v + 1
+        np.testing.assert_allclose(model.scaler.variance.numpy()[2 * v : 2 * v + 2],
+                                   flat[:, 2 * v : 2 * v + 2].var(ddof=1), rtol=1e-5)
+    with pytest.raises(ValueError, match=r"\(K, 12\) or \(B, K, 12\) \(2 joints\)"):
+        models.check_motions(_motions(1, 10), joints=2)
+
+    policy = PushingPolicy(PolicyConfig("seqae", "tiny", dataclasses.asdict(two)), model)
+    assert policy.cnn is None and policy.encode(motions).shape == (4, 8)
+    policy.save_pretrained(tmp_path / "two")
+    loaded = PushingPolicy.from_pretrained(tmp_path / "two")
+    assert loaded.seqae_config == two and loaded.config.kind == "seqae"
+    np.testing.assert_array_equal(loaded.encode(motions), policy.encode(motions))
+    with pytest.raises(ValueError, match="takes no CNN"):
+        PushingPolicy(PolicyConfig("seqae", "tiny", dataclasses.asdict(two)), model, ImageEncoder(CNNConfig()))
+
+    _policy().save_pretrained(tmp_path / "old")  # the 3-joint arm, its config.json as an older version wrote it
+    cfg_path = tmp_path / "old" / "config.json"
+    config = json.loads(cfg_path.read_text())
+    assert config["policy"]["seqae"].pop("joints") == 3
+    config["config_sha256"] = config_digest(config)
+    cfg_path.write_text(json.dumps(config))
+    old = PushingPolicy.from_pretrained(tmp_path / "old")
+    assert old.seqae_config.joints == 3
+    np.testing.assert_array_equal(old.encode(_motions(2, 10)), _policy().encode(_motions(2, 10)))
+
 def test_cnn_learns_a_tiny_image_to_latent_mapping():
     """Six images of a bright square at six places → six distinct latents, fitted by train_cnn."""
     from seqmotion.lfd.train import CNNTraining, train_cnn

@@ -41,11 +41,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p = sub.add_parser("info", help="summarise a dataset file")
     p.add_argument("path", help="an .h5 file written by 'seqmotion lfd collect'")
 
-    p = sub.add_parser("train", help="train the SeqAE + CNN policy (and/or the end-to-end baseline)")
+    p = sub.add_parser("train", help="train the SeqAE + CNN policy (and/or the end-to-end baseline; or the SeqAE)")
     p.add_argument(
         "--data", required=True,
         help="dataset directory written by 'seqmotion lfd collect', LeRobot v3.0 dataset folders (<set>/, as "
-        "'export-lerobot' writes them) or one LeRobot v3.0 dataset folder",
+        "'export-lerobot' writes them) or one LeRobot v3.0 dataset folder (any robot: the SeqAE takes its joint "
+        "count)",
     )
     p.add_argument("--out", required=True, help="output directory; one <method>_<camera>/ model per policy")
     p.add_argument(
@@ -53,7 +54,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="model size: original (7x64) | larger (10x128) | smaller (3x32) | "
         "tiny (1x16, for tests); default: seqmotion.lfd.train.DEFAULT_PRESET (smaller)",
     )
-    p.add_argument("--methods", nargs="+", default=["proposed"], choices=["proposed", "end_to_end"])
+    p.add_argument(
+        "--methods", nargs="+", default=["proposed"], choices=["proposed", "end_to_end", "seqae"],
+        help="proposed (SeqAE, then a CNN per camera; default), end_to_end (the baseline), seqae (the SeqAE alone, "
+        "into OUT/seqae/: motions only, e.g. another robot's LeRobot dataset without 64x64 images or block positions)",
+    )
+    p.add_argument(
+        "--map", action="append", default=[], metavar="FIELD=KEY",
+        help="LeRobot --data only: take FIELD from the dataset's feature KEY, as 'import-lerobot --map' does",
+    )
     p.add_argument(
         "--cameras",
         nargs="+",
@@ -236,6 +245,7 @@ def _set_threads(threads: int) -> None:
 
 def _train(args: argparse.Namespace) -> int:
     from . import train as training
+    from .lerobot import parse_map
 
     _set_threads(args.threads)
     preset_name = args.preset
@@ -280,6 +290,7 @@ def _train(args: argparse.Namespace) -> int:
         command=command,
         successful_only=not args.keep_failed,
         resume=not args.no_resume,
+        mapping=parse_map(args.map),
     )
     for name, path in report.policies.items():
         print(f"{name}: {path}")

@@ -142,15 +142,20 @@ def evaluate(
         An :class:`Evaluation`.
 
     Raises:
-        ValueError: an unknown camera, a bad position index, ``trials < 1``, a negative seed.
+        ValueError: an unknown camera, a bad position index, ``trials < 1``, a negative seed; a
+            policy whose SeqAE is not the 3-joint arm's (trained on another robot's motions: the
+            simulated slave is the arm), or one without a CNN (kind ``seqae``) and no ``latents``.
     """
     from ..sim import pushing
-    from .models import PushingPolicy
+    from .models import PushingPolicy, require_arm
 
     if not isinstance(policy, PushingPolicy):
         raise ValueError(
             f"policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')), got {type(policy).__name__}"
         )
+    require_arm(policy.seqae_config, "the closed-loop evaluation in MuJoCo")
+    if policy.cnn is None and latents is None:
+        raise ValueError("a 'seqae' model has no CNN to turn the webcam image into z: pass latents (--oracle-latents)")
     camera = policy.config.camera if camera is None else camera
     if camera not in pushing.CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")

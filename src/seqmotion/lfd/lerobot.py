@@ -20,7 +20,8 @@ On disk (LeRobot's v3.0 layout, one file of each kind: the sets are small)::
     data/chunk-000/file-000.parquet one row per frame, one row group per episode
     videos/observation.images.webcam/chunk-000/file-000.mp4   (``videos=True`` only)
 
-Features (J = 3 joints named ``yaw``, ``shoulder``, ``elbow``; float32):
+Features (J joints: the arm's 3 named ``yaw``, ``shoulder``, ``elbow``, another count ``joint0``,
+``joint1``, ...; float32):
 
 * ``observation.state`` ``(2J,)``: the slave's joint angles [rad] then velocities [rad/s]
   (``yaw.pos`` ... ``elbow.vel``).
@@ -412,12 +413,18 @@ def _write_tasks(root: Path) -> None:
 def _info(frames: dict, features: dict, fps: int, videos: bool) -> dict[str, Any]:
     n = len(frames["lengths"])
     return {
-        "codebase_version": CODEBASE_VERSION, "robot_type": "seqmotion_touch_3dof", "fps": int(fps),
+        "codebase_version": CODEBASE_VERSION, "robot_type": _robot_type(frames["joints"]), "fps": int(fps),
         "total_episodes": n, "total_frames": int(frames["lengths"].sum()), "total_tasks": 1,
         "chunks_size": CHUNKS_SIZE, "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
         "data_path": DATA_PATH, "video_path": VIDEO_PATH if videos and WEBCAM in features else None,
         "splits": {"train": f"0:{n}"}, "features": features,
     }
+
+
+def _robot_type(joints: int) -> str:
+    """``info.json``'s ``robot_type``: seqmotion's 3-joint Touch-like arm, or a J-joint robot's motions that
+    were imported (from another robot's dataset) and are exported again."""
+    return "seqmotion_touch_3dof" if joints == 3 else f"seqmotion_{joints}dof"
 
 
 def _write_json(path: Path, data: Any) -> None:

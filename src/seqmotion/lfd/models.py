@@ -1,16 +1,19 @@
 """Chapter-5 networks: the sequence autoencoder (SeqAE), the image CNN and the combined policy.
 
 Data conventions (dissertation 5.2.1 and 5.3.4). A motion is sampled every Δt_NN = 20 ms;
-sample k holds 18 columns (:data:`seqmotion.lfd.teleop.MOTION_COLUMNS`): master θ, θ̇, τ,
-then slave θ, θ̇, τ, each over the 3 joints [rad, rad/s, N m].
+sample k holds 6J columns (:data:`seqmotion.lfd.teleop.MOTION_COLUMNS` for the arm): master θ,
+θ̇, τ, then slave θ, θ̇, τ, each over the J joints [rad, rad/s, N m]. J is
+:attr:`SeqAEConfig.joints`: 3 for the dissertation's arm (the default, and every shipped
+model), another robot's joint count when the SeqAE is trained on its LeRobot dataset; the
+shapes below are written for J = 3 (18 = 6J columns, 9 = 3J state or command values).
 
 * **Encoder** — a stacked LSTM reads the whole motion ``(B, K, 18)``; a linear layer maps the
   last layer's final hidden state to the latent ``z`` ``(B, 8)``.
 * **Decoder** — a stacked LSTM that, at step k, reads ``z`` and the slave's measured state
   ``s[k]`` (θ, θ̇, τ: 9) and emits the master command for the next step ``m̂[k+1]`` (θ, θ̇, τ:
-  9). In closed loop it is called every 20 ms by :func:`seqmotion.lfd.teleop.run_autonomous`
-  and its recurrent state carries the history; in training it is teacher-forced on the
-  recorded slave states (as in the dissertation).
+  9). In closed loop (the 3-joint arm only) it is called every 20 ms by
+  :func:`seqmotion.lfd.teleop.run_autonomous` and its recurrent state carries the history; in
+  training it is teacher-forced on the recorded slave states (as in the dissertation).
 * **CNN** — five stride-2 convolutions, each followed by ReLU and BatchNorm (that order, as
   the dissertation states), then a linear layer: a 64 × 64 RGB image → ``ẑ`` ``(B, 8)``.
 * **Policy** — the CNN in the encoder's place in front of the decoder (Fig. 5.2). The same
@@ -42,13 +45,38 @@ from ..training.pretrained import PretrainedModel
 from ..training.provenance import describe_machine
 from .timing import COMMAND_INTERVAL
 
-MOTION_DIM = 18
-"""Columns per motion sample: master θ, θ̇, τ and slave θ, θ̇, τ (3 joints each)."""
-STATE_DIM = 9
-"""Slave state the decoder reads (θ, θ̇, τ) and master command it writes (θ, θ̇, τ)."""
-MASTER = slice(0, 9)
-SLAVE = slice(9, 18)
+ARM_JOINTS = 3
+"""Joints of the dissertation's arm (yaw, shoulder, elbow): the default J of a SeqAE, and the only J
+the closed loop in MuJoCo (:class:`DecoderSource`, :func:`seqmotion.lfd.evaluation.evaluate`) runs."""
 VARIABLES = ("theta", "dtheta", "tau")
+
+
+def motion_dim(joints: int = ARM_JOINTS) -> int:
+    """Columns per motion sample: master θ, θ̇, τ and slave θ, θ̇, τ, ``joints`` each (6J)."""
+    return 2 * len(VARIABLES) * joints
+
+
+def state_dim(joints: int = ARM_JOINTS) -> int:
+    """Slave state the decoder reads (θ, θ̇, τ) and master command it writes (θ, θ̇, τ): 3J values."""
+    return len(VARIABLES) * joints
+
+
+def master_columns(joints: int = ARM_JOINTS) -> slice:
+    """The master's θ, θ̇, τ in a motion sample (the first 3J columns)."""
+    return slice(0, state_dim(joints))
+
+
+def slave_columns(joints: int = ARM_JOINTS) -> slice:
+    """The slave's θ, θ̇, τ in a motion sample (the last 3J columns)."""
+    return slice(state_dim(joints), motion_dim(joints))
+
+
+MOTION_DIM = motion_dim()
+"""Columns per motion sample of the 3-joint arm (18)."""
+STATE_DIM = state_dim()
+"""Slave state / master command values of the 3-joint arm (9)."""
+MASTER = master_columns()
+SLAVE = slave_columns()
 
 
 READOUTS = ("top", "all_layers")
@@ -66,6 +94,9 @@ class SeqAEConfig:
         normalize_latent: end the encoder with a BatchNorm without scale and shift, so that z
             has zero mean and unit variance over the data (a fixed signal level for the latent
             noise of training; not in the dissertation).
+        joints: J, the robot's joint count (3: the dissertation's arm); a motion sample has 6J
+            columns (see the module docstring). A config saved without it (every model before
+            it existed) is the arm's 3.
         readout: what the encoder's linear layer reads (one of :data:`READOUTS`): ``"top"``
             (the dissertation) the last layer's final hidden state; ``"all_layers"`` the final
             hidden states of every layer, concatenated. A deep stack at its initial weights
@@ -82,16 +113,37 @@ class SeqAEConfig:
     latent: int = 8
     normalize_latent: bool = False
     readout: str = "top"
+    joints: int = ARM_JOINTS
 
     def __post_init__(self) -> None:
         if not isinstance(self.normalize_latent, bool):
             raise ValueError(f"SeqAEConfig.normalize_latent must be a bool, got {self.normalize_latent!r}")
         if self.readout not in READOUTS:
             raise ValueError(f"SeqAEConfig.readout must be one of {READOUTS}, got {self.readout!r}")
-        for name in ("layers", "hidden", "latent"):
+        for name in ("layers", "hidden", "latent", "joints"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"SeqAEConfig.{name} must be a positive integer, got {value!r}")
+
+    @property
+    def motion_dim(self) -> int:
+        """Columns of a motion sample (6J)."""
+        return motion_dim(self.joints)
+
+    @property
+    def state_dim(self) -> int:
+        """Values of the slave state the decoder reads and of the command it writes (3J)."""
+        return state_dim(self.joints)
+
+    @property
+    def master(self) -> slice:
+        """The master's columns of a motion sample."""
+        return master_columns(self.joints)
+
+    @property
+    def slave(self) -> slice:
+        """The slave's columns of a motion sample."""
+        return slave_columns(self.joints)
 
 
 PRESETS: dict[str, SeqAEConfig] = {
@@ -141,26 +193,28 @@ class MotionScaler(nn.Module):
     """Per-column statistics of the training motions, stored as buffers (they travel with the weights).
 
     Buffers:
-        mean, std: ``(18,)`` per-column mean and standard deviation (std floored at 1e-6).
-        variance: ``(9,)`` eq. 5.1's σ² for each master column: the variance of its variable
-            (θ, θ̇ or τ) pooled over the three joints and all samples.
+        mean, std: ``(6J,)`` per-column mean and standard deviation (std floored at 1e-6).
+        variance: ``(3J,)`` eq. 5.1's σ² for each master column: the variance of its variable
+            (θ, θ̇ or τ) pooled over the J joints and all samples.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, joints: int = ARM_JOINTS) -> None:
         super().__init__()
-        self.register_buffer("mean", torch.zeros(MOTION_DIM))
-        self.register_buffer("std", torch.ones(MOTION_DIM))
-        self.register_buffer("variance", torch.ones(STATE_DIM))
+        self.joints = joints
+        self.register_buffer("mean", torch.zeros(motion_dim(joints)))
+        self.register_buffer("std", torch.ones(motion_dim(joints)))
+        self.register_buffer("variance", torch.ones(state_dim(joints)))
 
     @torch.no_grad()
     def fit(self, motions: np.ndarray | torch.Tensor) -> MotionScaler:
-        """Set the statistics from motions ``(N, K, 18)`` (raw units)."""
-        flat = torch.as_tensor(np.asarray(motions), dtype=torch.float64).reshape(-1, MOTION_DIM)
+        """Set the statistics from motions ``(N, K, 6J)`` (raw units)."""
+        j = self.joints
+        flat = torch.as_tensor(np.asarray(motions), dtype=torch.float64).reshape(-1, motion_dim(j))
         self.mean.copy_(flat.mean(0))
         self.std.copy_(flat.std(0).clamp_min(1e-6))
-        master = flat[:, MASTER]
-        for v in range(3):  # θ, θ̇, τ: one σ² per variable (eq. 5.1), shared by its 3 joints
-            cols = slice(3 * v, 3 * v + 3)
+        master = flat[:, master_columns(j)]
+        for v in range(len(VARIABLES)):  # θ, θ̇, τ: one σ² per variable (eq. 5.1), shared by its J joints
+            cols = slice(j * v, j * v + j)
             self.variance[cols] = master[:, cols].var().clamp_min(1e-12)
         return self
 
@@ -172,20 +226,20 @@ class MotionScaler(nn.Module):
 
 
 def motion_loss(command: torch.Tensor, target: torch.Tensor, variance: torch.Tensor) -> torch.Tensor:
-    """Eq. 5.1, averaged: ``mean_{b,k} Σ_c (m̂_c − m_c)² / σ²_{v(c)}`` over the 9 command columns.
+    """Eq. 5.1, averaged: ``mean_{b,k} Σ_c (m̂_c − m_c)² / σ²_{v(c)}`` over the 3J command columns.
 
     Args:
-        command: predicted master commands ``(B, K, 9)`` [raw units].
-        target: recorded master states ``(B, K, 9)``.
-        variance: ``(9,)`` σ² of each column's variable (see :class:`MotionScaler`).
+        command: predicted master commands ``(B, K, 3J)`` [raw units].
+        target: recorded master states ``(B, K, 3J)``.
+        variance: ``(3J,)`` σ² of each column's variable (see :class:`MotionScaler`).
 
     Returns:
         A scalar. Eq. 5.1 sums over the K samples; dividing by B·K only rescales it, so
         the learning rate does not depend on the sequence length or batch size.
     """
-    if command.shape != target.shape or command.shape[-1] != STATE_DIM:
+    if command.shape != target.shape or command.shape[-1] != variance.shape[-1]:
         raise ValueError(
-            f"motion_loss needs (..., {STATE_DIM}) tensors of equal shape, got "
+            f"motion_loss needs (..., {variance.shape[-1]}) tensors of equal shape, got "
             f"{tuple(command.shape)} and {tuple(target.shape)}"
         )
     return ((command - target) ** 2 / variance).sum(-1).mean()
@@ -195,11 +249,11 @@ def motion_loss(command: torch.Tensor, target: torch.Tensor, variance: torch.Ten
 # Networks
 # ----------------------------------------------------------------------------------------------
 class MotionEncoder(nn.Module):
-    """LSTM over normalised motions ``(B, K, 18)`` → z ``(B, latent)`` (final hidden state(s) → linear)."""
+    """LSTM over normalised motions ``(B, K, 6J)`` → z ``(B, latent)`` (final hidden state(s) → linear)."""
 
     def __init__(self, config: SeqAEConfig) -> None:
         super().__init__()
-        self.lstm = nn.LSTM(MOTION_DIM, config.hidden, config.layers, batch_first=True)
+        self.lstm = nn.LSTM(config.motion_dim, config.hidden, config.layers, batch_first=True)
         self.all_layers = config.readout == "all_layers"
         self.out = nn.Linear(config.hidden * (config.layers if self.all_layers else 1), config.latent)
         self.norm = nn.BatchNorm1d(config.latent, affine=False) if config.normalize_latent else None
@@ -215,13 +269,13 @@ class CommandDecoder(nn.Module):
 
     def __init__(self, config: SeqAEConfig) -> None:
         super().__init__()
-        self.lstm = nn.LSTM(config.latent + STATE_DIM, config.hidden, config.layers, batch_first=True)
-        self.out = nn.Linear(config.hidden, STATE_DIM)
+        self.lstm = nn.LSTM(config.latent + config.state_dim, config.hidden, config.layers, batch_first=True)
+        self.out = nn.Linear(config.hidden, config.state_dim)
 
     def forward(
         self, z: torch.Tensor, slave_n: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor] | None = None
     ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
-        """``z (B, latent)``, ``slave_n (B, K, 9)`` → commands ``(B, K, 9)`` and the LSTM state.
+        """``z (B, latent)``, ``slave_n (B, K, 3J)`` → commands ``(B, K, 3J)`` and the LSTM state.
 
         Called with the whole recorded sequence in training (one fused LSTM call) and with
         ``K = 1`` plus the carried state in closed loop.
@@ -269,13 +323,15 @@ def check_images(images: Any) -> np.ndarray:
     return arr
 
 
-def check_motions(motions: Any, name: str = "motions") -> np.ndarray:
-    """``(K, 18)`` or ``(B, K, 18)`` finite motion(s), K ≥ 2 → ``(B, K, 18)`` float64."""
+def check_motions(motions: Any, name: str = "motions", joints: int = ARM_JOINTS) -> np.ndarray:
+    """``(K, 6J)`` or ``(B, K, 6J)`` finite motion(s) of ``joints`` = J joints, K ≥ 2 → ``(B, K, 6J)`` float64."""
     arr = np.asarray(motions, dtype=np.float64) if not isinstance(motions, np.ndarray) else motions
     if arr.ndim == 2:
         arr = arr[None]
-    if arr.ndim != 3 or arr.shape[-1] != MOTION_DIM:
-        raise ValueError(f"{name} must be (K, {MOTION_DIM}) or (B, K, {MOTION_DIM}), got shape {np.shape(motions)}")
+    width = motion_dim(joints)
+    if arr.ndim != 3 or arr.shape[-1] != width:
+        joint_text = f" ({joints} joints)" if joints != ARM_JOINTS else ""
+        raise ValueError(f"{name} must be (K, {width}) or (B, K, {width}){joint_text}, got shape {np.shape(motions)}")
     if arr.shape[1] < 2:
         raise ValueError(f"{name} need at least K = 2 samples, got {arr.shape[1]}")
     if not np.all(np.isfinite(arr)):
@@ -293,12 +349,12 @@ class SeqAE(nn.Module):
     def __init__(self, config: SeqAEConfig = PRESETS["original"]) -> None:
         super().__init__()
         self.config = config
-        self.scaler = MotionScaler()
+        self.scaler = MotionScaler(config.joints)
         self.encoder = MotionEncoder(config)
         self.decoder = CommandDecoder(config)
 
     def encode(self, motion: torch.Tensor) -> torch.Tensor:
-        """Raw motions ``(B, K, 18)`` → z ``(B, latent)``."""
+        """Raw motions ``(B, K, 6J)`` → z ``(B, latent)``."""
         return self.encoder(self.scaler.normalize(motion))
 
     def decode(
@@ -308,21 +364,21 @@ class SeqAE(nn.Module):
         state: tuple[torch.Tensor, torch.Tensor] | None = None,
         slave_noise: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
-        """Raw slave states ``(B, K, 9)`` → raw master commands ``(B, K, 9)`` (one step ahead) and the LSTM state.
+        """Raw slave states ``(B, K, 3J)`` → raw master commands ``(B, K, 3J)`` (one step ahead) and the LSTM state.
 
-        ``slave_noise`` (``(B, K, 9)``, in normalised units) is added to the decoder's input
+        ``slave_noise`` (``(B, K, 3J)``, in normalised units) is added to the decoder's input
         only: training-time noise injection (see :mod:`seqmotion.lfd.train`).
         """
-        slave_n = self.scaler.normalize(slave, SLAVE)
+        slave_n = self.scaler.normalize(slave, self.config.slave)
         if slave_noise is not None:
             slave_n = slave_n + slave_noise
         out, state = self.decoder(z, slave_n, state)
-        return self.scaler.denormalize(out, MASTER), state
+        return self.scaler.denormalize(out, self.config.master), state
 
     def forward(self, motion: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Teacher-forced reconstruction: ``(B, K, 18)`` → (commands ``(B, K-1, 9)`` for m[1:], z)."""
+        """Teacher-forced reconstruction: ``(B, K, 6J)`` → (commands ``(B, K-1, 3J)`` for m[1:], z)."""
         z = self.encode(motion)
-        command, _ = self.decode(z, motion[:, :-1, SLAVE])
+        command, _ = self.decode(z, motion[:, :-1, self.config.slave])
         return command, z
 
 
@@ -338,8 +394,19 @@ CNN_TARGET_TEXT = {
 }
 """How a model card describes each choice of :attr:`seqmotion.lfd.train.CNNTraining.targets`."""
 
-KINDS = ("proposed", "end_to_end")
-"""``proposed``: SeqAE on motions, then CNN → z; ``end_to_end``: CNN + decoder trained on pairs."""
+KINDS = ("proposed", "end_to_end", "seqae")
+"""``proposed``: SeqAE on motions, then CNN → z; ``end_to_end``: CNN + decoder trained on pairs;
+``seqae``: the SeqAE alone, no CNN (``seqmotion lfd train --methods seqae``: motions without the
+images or block positions a CNN needs, e.g. another robot's LeRobot dataset)."""
+
+
+def require_arm(config: SeqAEConfig, what: str) -> None:
+    """``ValueError`` unless the SeqAE is the 3-joint arm's: ``what`` (a closed loop in MuJoCo) drives that arm."""
+    if config.joints != ARM_JOINTS:
+        raise ValueError(
+            f"{what} drives the simulated {ARM_JOINTS}-joint arm; this model's SeqAE has joints={config.joints} "
+            "(trained on another robot's motions): encode and decode its motions with policy.seqae() instead"
+        )
 
 
 @dataclass
@@ -347,7 +414,7 @@ class PolicyConfig:
     """Everything needed to rebuild a :class:`PushingPolicy` (stored in ``config.json``).
 
     Attributes:
-        kind: ``"proposed"`` or ``"end_to_end"``.
+        kind: one of :data:`KINDS` (``"proposed"``, ``"end_to_end"``, ``"seqae"``).
         preset: SeqAE size name (informational; ``seqae`` is authoritative).
         seqae: :class:`SeqAEConfig` as a dict.
         cnn: :class:`CNNConfig` as a dict.
@@ -382,7 +449,8 @@ class PushingPolicy(nn.Module, PretrainedModel):
     or simply ``policy.run(scene, position, variation)`` (takes the image, then runs).
 
     Modules: ``scaler`` (motion statistics), ``encoder`` (the SeqAE's motion encoder; kept
-    for ``kind == "proposed"``, absent in the end-to-end baseline), ``decoder``, ``cnn``.
+    for ``kind == "proposed"`` and ``"seqae"``, absent in the end-to-end baseline), ``decoder``,
+    ``cnn`` (absent, ``None``, in a ``"seqae"`` model: the SeqAE alone).
 
     Saved and loaded like every trained seqmotion model (:class:`~seqmotion.training.pretrained.PretrainedModel`):
     ``policy.save_pretrained(directory)`` writes ``model.safetensors`` (tensor prefixes
@@ -403,8 +471,10 @@ class PushingPolicy(nn.Module, PretrainedModel):
             raise ValueError(f"the SeqAE's shape {seqae.config} differs from the config's {seq_cfg}")
         self.scaler = seqae.scaler
         self.decoder = seqae.decoder
-        self.encoder = seqae.encoder if config.kind == "proposed" else None
-        self.cnn = cnn if cnn is not None else ImageEncoder(CNNConfig(**config.cnn))
+        self.encoder = seqae.encoder if config.kind != "end_to_end" else None
+        if config.kind == "seqae" and cnn is not None:
+            raise ValueError("a 'seqae' model is the SeqAE alone: it takes no CNN")
+        self.cnn = None if config.kind == "seqae" else cnn if cnn is not None else ImageEncoder(CNNConfig(**config.cnn))
         self.eval()
 
     @property
@@ -412,7 +482,7 @@ class PushingPolicy(nn.Module, PretrainedModel):
         return SeqAEConfig(**self.config.seqae)
 
     def seqae(self) -> SeqAE:
-        """A :class:`SeqAE` view sharing this policy's scaler, encoder and decoder (``proposed`` only)."""
+        """A :class:`SeqAE` view sharing this policy's scaler, encoder and decoder (not ``end_to_end``)."""
         if self.encoder is None:
             raise ValueError("an end-to-end policy has no motion encoder (it never saw motions without images)")
         model = SeqAE(self.seqae_config)
@@ -445,6 +515,20 @@ class PushingPolicy(nn.Module, PretrainedModel):
     def card_summary(self, name: str) -> list[str]:
         cfg = self.config
         seq, cnn = cfg.seqae, cfg.cnn
+        joints = seq.get("joints", ARM_JOINTS)
+        if cfg.kind == "seqae":
+            return [
+                f"Task `pushing` (dissertation ch. 5) — the sequence autoencoder alone (kind `seqae`, no CNN): an "
+                f"encoder ({seq['layers']} × {seq['hidden']} LSTM, preset `{cfg.preset}`) from a motion of "
+                f"{joints} joints to z ∈ R^{seq['latent']}, and a decoder that reads z and the slave state and emits "
+                f"the next master command every {cfg.command_interval * 1000:g} ms.",
+                "",
+                "```python",
+                "import seqmotion as sm",
+                f"seqae = sm.load_pretrained({name!r}).seqae()",
+                "command, z = seqae(motions)   # teacher-forced reconstruction of (B, K, 6J) motions",
+                "```",
+            ]
         encoder = (
             "the SeqAE's motion encoder is kept"
             if cfg.kind == "proposed"
@@ -520,16 +604,18 @@ class PushingPolicy(nn.Module, PretrainedModel):
     @torch.no_grad()
     def latent(self, images: Any) -> np.ndarray:
         """ẑ of ``(64, 64, 3)`` → ``(latent,)`` or ``(B, 64, 64, 3)`` → ``(B, latent)`` images (uint8 RGB)."""
+        if self.cnn is None:
+            raise ValueError("a 'seqae' model has no CNN: it maps motions to z (encode), not images")
         arr = check_images(images)
         z = self.cnn.eval()(torch.as_tensor(arr)).double().numpy()
         return z[0] if np.ndim(images) == 3 else z
 
     @torch.no_grad()
     def encode(self, motions: Any) -> np.ndarray:
-        """z of recorded motions ``(K, 18)`` → ``(latent,)`` or ``(B, K, 18)`` → ``(B, latent)`` (20 ms samples)."""
+        """z of recorded motions ``(K, 6J)`` → ``(latent,)`` or ``(B, K, 6J)`` → ``(B, latent)`` (20 ms samples)."""
         if self.encoder is None:
             raise ValueError("an end-to-end policy has no motion encoder (it never saw motions without images)")
-        arr = check_motions(motions)
+        arr = check_motions(motions, joints=self.seqae_config.joints)
         z = self.encoder(self.scaler.normalize(torch.as_tensor(arr, dtype=torch.float32))).double().numpy()
         return z[0] if np.ndim(motions) == 2 else z
 
@@ -581,9 +667,11 @@ class DecoderSource:
     One instance per episode. It must be called at t = 0, Δt_NN, 2 Δt_NN, … (as
     :func:`~seqmotion.lfd.teleop.run_autonomous` does); a skipped or repeated call would
     desynchronise the recurrent state from the time steps it was trained on, so it is refused.
+    The simulated slave is the 3-joint arm: a SeqAE of another joint count is refused.
     """
 
     def __init__(self, policy: PushingPolicy, z: Any) -> None:
+        require_arm(policy.seqae_config, "the closed-loop decoder")
         z_arr = np.asarray(z, dtype=np.float64)
         latent = policy.seqae_config.latent
         if z_arr.shape != (latent,) or not np.all(np.isfinite(z_arr)):

@@ -2,7 +2,8 @@
 
 Three procedures, each seeded and deterministic on a given machine and thread count:
 
-1. :func:`train_seqae` — the SeqAE on motions without images (the 90 demonstrations),
+1. :func:`train_seqae` — the SeqAE on motions without images (the 90 demonstrations, or the
+   motions of another robot: the SeqAE's joint count J is the data's),
    teacher-forced, loss eq. 5.1 (:func:`~seqmotion.lfd.models.motion_loss`), Adam, mini-batches of 16.
 2. :func:`train_cnn` — the CNN on image–motion pairs (18 per camera): target = the trained
    encoder's z of the paired motion, loss ``|z − ẑ|²`` (eq. 5.2), Adam, mini-batches of 8, 100 epochs.
@@ -51,7 +52,8 @@ import hashlib
 import json
 import math
 import sys
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -63,8 +65,6 @@ from ..training.checkpoint import atomic_write_bytes
 from ..training.loop import TrainingLoop
 from ..training.provenance import machine_record
 from .models import (
-    MASTER,
-    SLAVE,
     CNNConfig,
     ImageEncoder,
     PolicyConfig,
@@ -240,7 +240,7 @@ def train_seqae(
     progress: bool = False,
     checkpoint_dir: str | Path | None = None,
 ) -> tuple[SeqAE, dict]:
-    """Train a SeqAE on motions ``(N, K, 18)`` sampled every 20 ms (raw units).
+    """Train a SeqAE on motions ``(N, K, 6J)`` sampled every 20 ms (raw units), J = ``config.joints``.
 
     ``checkpoint_dir``: write resumable checkpoints there and continue from one found there.
 
@@ -249,7 +249,7 @@ def train_seqae(
         "seconds": wall time}``.
     """
     settings = settings or SeqAETraining()
-    motions = check_motions(motions)
+    motions = check_motions(motions, joints=config.joints)
     if len(motions) < 2:
         raise ValueError(f"need at least 2 motions to train a SeqAE, got {len(motions)}")
     torch.manual_seed(settings.seed)
@@ -338,7 +338,7 @@ def _epochs(
 
 
 def state_noise(shape: tuple[int, ...], settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor | None:
-    """Noise ``(B, K, 9)`` for the decoder's inputs: white, or AR(1) with the configured correlation time."""
+    """Noise ``(B, K, 3J)`` for the decoder's inputs: white, or AR(1) with the configured correlation time."""
     if settings.state_noise <= 0:
         return None
     white = torch.randn(shape, generator=gen)
@@ -359,16 +359,17 @@ def _seqae_loss(model: SeqAE, batch: torch.Tensor, settings: SeqAETraining, gen:
     penalty = 0.5 * settings.latent_penalty * (z**2).sum(-1).mean() if settings.latent_penalty > 0 else 0.0
     if settings.latent_noise > 0:
         z = z + settings.latent_noise * torch.randn(z.shape, generator=gen)
-    slave = batch[:, :-1, SLAVE]
+    slave = batch[:, :-1, model.config.slave]
     command, _ = model.decode(z, slave, slave_noise=state_noise(tuple(slave.shape), settings, gen))
-    return motion_loss(command, batch[:, 1:, MASTER], model.scaler.variance) + penalty
+    return motion_loss(command, batch[:, 1:, model.config.master], model.scaler.variance) + penalty
 
 
 @torch.no_grad()
 def encode_motions(model: SeqAE, motions: np.ndarray) -> np.ndarray:
-    """z ``(N, latent)`` of motions ``(N, K, 18)`` with a trained SeqAE."""
+    """z ``(N, latent)`` of motions ``(N, K, 6J)`` with a trained SeqAE."""
     model.eval()
-    return model.encode(torch.as_tensor(check_motions(motions), dtype=torch.float32)).double().numpy()
+    arr = check_motions(motions, joints=model.config.joints)
+    return model.encode(torch.as_tensor(arr, dtype=torch.float32)).double().numpy()
 
 
 def mean_latent_per_position(z: np.ndarray, position_index: np.ndarray, medoid: bool = False) -> np.ndarray:
@@ -449,7 +450,7 @@ def train_end_to_end(
     """
     settings = settings or SeqAETraining()
     cnn_config = cnn_config or CNNConfig(latent=config.latent)
-    images, motions = check_images(images), check_motions(motions)
+    images, motions = check_images(images), check_motions(motions, joints=config.joints)
     if len(images) != len(motions):
         raise ValueError(f"{len(images)} images but {len(motions)} motions: pairs must match")
     if len(images) < 2:
@@ -472,11 +473,12 @@ def train_end_to_end(
         if settings.latent_noise > 0:
             z = z + settings.latent_noise * torch.randn(z.shape, generator=gen)
         batch = data[idx]
-        slave = batch[:, :-1, SLAVE]
+        slave = batch[:, :-1, config.slave]
         noise = state_noise(tuple(slave.shape), settings, gen)
-        slave_n = policy.scaler.normalize(slave, SLAVE) + (0 if noise is None else noise)
+        slave_n = policy.scaler.normalize(slave, config.slave) + (0 if noise is None else noise)
         out, _ = policy.decoder(z, slave_n)
-        loss = motion_loss(policy.scaler.denormalize(out, MASTER), batch[:, 1:, MASTER], policy.scaler.variance)
+        loss = motion_loss(policy.scaler.denormalize(out, config.master), batch[:, 1:, config.master],
+                           policy.scaler.variance)
         return loss + penalty
 
     # BatchNorm in the CNN needs two images per batch
@@ -489,7 +491,9 @@ def train_end_to_end(
 # ----------------------------------------------------------------------------------------------
 # From a dataset directory to policy directories
 # ----------------------------------------------------------------------------------------------
-METHODS = ("proposed", "end_to_end")
+METHODS = ("proposed", "end_to_end", "seqae")
+"""``proposed`` (SeqAE, then a CNN per camera), ``end_to_end`` (the baseline), ``seqae`` (the SeqAE
+alone, written to ``out/seqae/``: for motions without the images or block positions a CNN needs)."""
 
 
 @dataclass
@@ -528,14 +532,20 @@ def train(
     command: str | None = None,
     successful_only: bool = True,
     resume: bool = True,
+    mapping: Mapping[str, str] | None = None,
 ) -> TrainReport:
     """Train policies from ``data_dir`` (``motions.h5``, ``pairs_<camera>.h5``) into ``out/<method>_<camera>/``.
+
+    The SeqAE's joint count J (:attr:`~seqmotion.lfd.models.SeqAEConfig.joints`) is the data's:
+    3 for seqmotion's arm, another robot's count for its LeRobot dataset (whose models cannot run
+    the closed loop in MuJoCo, which is the 3-joint arm's).
 
     Args:
         data_dir: written by ``seqmotion lfd collect``, or LeRobot v3.0 datasets (see :func:`_open_set`).
         out: output directory.
         preset_name: SeqAE size (``original``, ``larger``, ``smaller``).
-        methods: ``"proposed"`` and/or ``"end_to_end"``.
+        methods: any of :data:`METHODS`: ``"proposed"``, ``"end_to_end"``, ``"seqae"`` (the SeqAE
+            alone, into ``out/seqae/``; it needs the motions only).
         cameras: which image–motion sets to train on (``default``, ``position1``, ``position2``).
             The proposed method trains one SeqAE and one CNN per camera (the SeqAE reused).
         seed: seeds everything (overrides the settings' seeds).
@@ -550,6 +560,8 @@ def train(
         resume: continue the SeqAE and end-to-end trainings from their checkpoints in
             ``out/checkpoints/`` (written every :data:`CHECKPOINT_EVERY` epochs) when there are
             some; False deletes them and starts over.
+        mapping: ``{field: feature key}`` for LeRobot folders (``--map``, see
+            :func:`seqmotion.lfd.lerobot.from_lerobot`): another robot's feature names.
     """
     data_dir, out = Path(data_dir), Path(out)
     seed = _seed(seed)
@@ -557,6 +569,8 @@ def train(
     methods = tuple(methods)
     if not methods or any(m not in METHODS for m in methods):
         raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {methods!r}")
+    if "seqae" in methods and seqae_from is not None:
+        raise ValueError("methods 'seqae' trains a SeqAE and seqae_from (--seqae-from) reuses one: pass one of them")
     from ..sim.pushing import CAMERAS
 
     if not cameras or any(c not in CAMERAS for c in cameras):
@@ -565,8 +579,12 @@ def train(
     seqae_settings = _with_seed(seqae_settings or defaults[0], seed)
     e2e_settings = _with_seed(e2e_settings or defaults[1], seed)
     cnn_settings = _with_seed(cnn_settings or defaults[2], seed)
-    pairs = {c: _open_set(data_dir, f"pairs_{c}") for c in cameras}
-    motions_data = _open_set(data_dir, "motions") if "proposed" in methods else None
+    # the SeqAE alone needs motions only; a CNN (proposed, end to end) needs the image-motion pairs
+    needs_pairs = "proposed" in methods or "end_to_end" in methods
+    pairs = {c: _open_set(data_dir, f"pairs_{c}", mapping) for c in cameras} if needs_pairs else {}
+    needs_motions = "proposed" in methods or "seqae" in methods
+    motions_data = _open_set(data_dir, "motions", mapping) if needs_motions else None
+    config = replace(config, joints=_joint_count({"motions": motions_data, **pairs}))
 
     report = TrainReport(out)
     checkpoints = out / "checkpoints"
@@ -576,20 +594,41 @@ def train(
         shutil.rmtree(checkpoints)
     record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_record()}
 
-    if "proposed" in methods:
+    if needs_motions:
         keep_motions = _episodes(motions_data, successful_only)
         motions = motions_data.motion(episodes=keep_motions)  # trains the SeqAE and/or sets the CNN's targets
+        unplaced = motions_data.episodes["position_index"][keep_motions] < 0
+        if "proposed" in methods and cnn_settings.targets != "pair" and np.any(unplaced):
+            # before the long SeqAE training: another robot's dataset has no block positions
+            raise ValueError(
+                f"{motions_data.path}: {int(unplaced.sum())} demonstration(s) have no block position (not recorded "
+                f"by seqmotion), which the CNN's targets {cnn_settings.targets!r} need: pass --cnn-targets pair, or "
+                "--methods seqae to train the SeqAE alone"
+            )
         if seqae_from is not None:
             donor = PushingPolicy.from_pretrained(seqae_from)
             seqae = donor.seqae()
             if donor.config.preset and donor.config.preset != preset_name:
                 raise ValueError(f"{seqae_from} holds a {donor.config.preset!r} SeqAE, not {preset_name!r}")
+            if seqae.config.joints != config.joints:
+                raise ValueError(f"{seqae_from} holds a SeqAE of {seqae.config.joints} joints; {data_dir}'s motions "
+                                 f"have {config.joints}")
             seqae_record = {"reused_from": str(seqae_from), **donor.config.training.get("seqae", {})}
         else:
             seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae")
             seqae_record = _record(
                 report, "seqae", seqae_settings, history, motions=int(len(keep_motions)), of=len(motions_data)
             )
+
+    if "seqae" in methods:
+        alone = PushingPolicy(
+            PolicyConfig("seqae", preset_name, asdict(config), asdict(CNNConfig(latent=config.latent)),
+                         training={**record, "seqae": seqae_record}),
+            seqae,
+        )
+        report.policies["seqae"] = alone.save_pretrained(out / "seqae")
+
+    if "proposed" in methods:
         if cnn_settings.targets != "pair":
             position_z = mean_latent_per_position(
                 encode_motions(seqae, motions),
@@ -661,39 +700,51 @@ def train(
     return report
 
 
-def _open_set(data_dir: Path, name: str) -> Any:
+def _open_set(data_dir: Path, name: str, mapping: Mapping[str, str] | None = None) -> Any:
     """The set ``name`` (``motions``, ``pairs_<camera>``) of ``data_dir`` as a ``PushingDataset``.
 
     Looked for as ``data_dir/<name>.h5`` (``seqmotion lfd collect``), then as a LeRobot v3.0
     folder ``data_dir/<name>/`` (``seqmotion lfd export-lerobot``), then ``data_dir`` itself
     when it is one LeRobot dataset: it then serves as every set (its motions train the SeqAE,
-    its camera images the CNN). ``ValueError`` when none is there, when a pairs set has no
-    images, or when the motions are not of the 3-joint arm the networks are built for.
+    its camera images the CNN). A LeRobot folder's features are read through ``mapping``
+    (``--map``). ``ValueError`` when none is there, when a pairs set has no images, or when
+    ``mapping`` is given for a seqmotion ``.h5`` set (it has no feature keys to map).
     """
     from .dataset import load_dataset
     from .lerobot import from_lerobot, is_lerobot_dataset
-    from .models import MOTION_DIM
     from .timing import COMMAND_INTERVAL
 
     if (data_dir / f"{name}.h5").is_file():
+        if mapping:
+            raise ValueError(f"--map renames a LeRobot dataset's features; {data_dir / name}.h5 is a seqmotion "
+                             "dataset (its fields need no map)")
         return load_dataset(data_dir / f"{name}.h5")
     folder = data_dir / name if is_lerobot_dataset(data_dir / name) else data_dir
     if not is_lerobot_dataset(folder):
         raise ValueError(f"{data_dir / name}.h5 is missing: run 'seqmotion lfd collect --out {data_dir}' first "
                          "(or pass a LeRobot dataset folder)")
-    data = from_lerobot(folder, name=name)
+    data = from_lerobot(folder, mapping, name=name)
     fps = round(1 / data.dt, 6)
     if round(fps * COMMAND_INTERVAL, 6) != round(fps * COMMAND_INTERVAL):  # the decoder reads every 20 ms
         raise ValueError(f"{folder} is recorded at {fps:g} fps; the decoder runs every {COMMAND_INTERVAL * 1000:g} ms, "
                          f"so training needs a rate that is a multiple of {1 / COMMAND_INTERVAL:g} Hz")
-    columns = data.motion(every=1).shape[-1]
-    if columns != MOTION_DIM:
-        raise ValueError(f"{folder} has {columns // 6}-joint motions; the SeqAE and its decoder are built for the "
-                         f"3-joint arm ({MOTION_DIM} columns: master and slave theta, dtheta, tau)")
     if name.startswith("pairs_") and data.images is None:
-        raise ValueError(f"{folder} has no camera images: it cannot train the CNN of {name!r} "
-                         "(map its camera with 'seqmotion lfd import-lerobot --map image=KEY')")
+        raise ValueError(f"{folder} has no camera images: it cannot train the CNN of {name!r} (map its camera "
+                         "with --map image=KEY, or train the SeqAE alone with --methods seqae)")
     return data
+
+
+def _joint_count(sets: dict[str, Any]) -> int:
+    """J of the datasets ``{name: PushingDataset or None}``: every motion field of every set has J joints,
+    else ``ValueError`` naming them."""
+    from .dataset import MOTION_KEYS
+
+    counts = {f"{name}.{key}": int(data.motions[key].shape[-1])
+              for name, data in sets.items() if data is not None for key in MOTION_KEYS}
+    if len(set(counts.values())) != 1:
+        raise ValueError(f"the training data's motion fields have different joint counts {counts}; a SeqAE takes "
+                         "one robot's motions")
+    return next(iter(counts.values()))
 
 
 def _record(report: TrainReport, part: str, settings: Any, history: dict, **counts: Any) -> dict[str, Any]:
