@@ -81,6 +81,8 @@ def test_every_writer_goes_through_the_atomic_helper():
                     continue
                 if rel == "training/pretrained.py" and "(tmp / CARD).write_bytes" in line:
                     continue  # inside a temporary directory that is renamed whole
+                if rel == "lfd/lerobot.py" and ("(tmp / " in line or "path.write_text(json.dumps" in line):
+                    continue  # a LeRobot folder is written inside a temporary directory renamed whole
                 offenders.append(f"{rel}:{number}: {line.strip()}")
     assert not offenders, "\n".join(offenders)
 

@@ -71,6 +71,13 @@ def test_every_env_passes_the_checker(env_id, kwargs):
     env.close()
 
 
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_an_unknown_keyword_is_refused_by_name_with_the_valid_ones(env_id):
+    """Issue 32, item 12: ``action_mode="accel"`` (for ``action=``) got Python's bare TypeError."""
+    with pytest.raises(ValueError, match=r"no keyword 'action_mode' \(did you mean action=\?\).*frame_skip, action,"):
+        gym.make(env_id, action_mode="accel")
+
+
 def test_observation_fields_are_named_contiguous_and_cover_the_vector():
     for fields, cls in ((PANCAKE_FIELDS, PancakeArmEnv), (SLIDING_FIELDS, SlidingArmEnv)):
         stops = [0] + [f.slice.stop for f in fields.values()]

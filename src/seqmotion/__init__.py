@@ -4,6 +4,7 @@
 >>> d = sm.load_pretrained("pancake")        # a Deformer
 >>> r = d.deform(states)                     # (K, 6) → feasible (K, 6), accelerations, F_c, latent
 >>> res = sm.optimize_latent(d, states, sm.objectives.EndPose((0.1, 0.0, 3.14)))
+>>> res.save("res.npz"); sm.load_result("res.npz")   # any result: named arrays, no pickle; res.plot() draws it
 
 ``sm.sim`` (MuJoCo) and ``sm.lfd`` (learning from demonstration) are imported on first use.
 """
@@ -16,12 +17,13 @@ from .api import load, load_pretrained, pretrained_models
 from .errors import CheckpointError
 from .latent import objectives, optimize_latent, optimize_trajectory, refine_plan
 from .sim.registration import register_envs
+from .tasks.base import load_result
 
 register_envs()  # gymnasium.make("seqmotion/PancakeArm-v0") (string entry points: MuJoCo is not imported)
 
 __version__ = "0.1.0"
 __all__ = [
-    "CheckpointError", "data", "lfd", "load", "load_pretrained", "objectives", "optimize_latent",
+    "CheckpointError", "data", "lfd", "load", "load_pretrained", "load_result", "objectives", "optimize_latent",
     "optimize_trajectory", "physics", "pretrained_models", "refine_plan", "sim", "tasks",
 ]
 

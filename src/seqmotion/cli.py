@@ -39,7 +39,7 @@ def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[s
     """
     from dataclasses import fields
 
-    trust_fields = ("uncertainty", "errors", "out_of_distribution", "ood_reasons")  # named below, or printed
+    trust_fields = ("uncertainty", "errors", "out_of_distribution", "ood_reasons", "task")  # named below, or printed
     columns = {f.name: getattr(result, f.name) for f in fields(result)
                if getattr(result, f.name) is not None and f.name not in trust_fields}
     names: dict[str, list[str]] = {}
@@ -139,6 +139,11 @@ def cmd_deform(args: argparse.Namespace) -> int:
 
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--input": args.input})
+    if args.plot is not None:  # refused before the work, like --output
+        from seqmotion.training.checkpoint import check_writable
+
+        check_writable(args.plot, (".png", ".pdf", ".svg"), "--plot")
+        check_not_an_input(args.plot, "--plot", {"--input": args.input, "--output": args.output})
     model = _trained_model(args.model)
     inputs = read_trajectory(args.input, columns=model.input_layout.names)
     result = model.generate(inputs, keep_end=args.keep_end)
@@ -174,7 +179,69 @@ def cmd_deform(args: argparse.Namespace) -> int:
                   f"arm's acceleration limits {model.exact_form().accel_limits} needs that time")
     for line in model.trust_lines(result):
         print(line)
+    if not args.keep_end:
+        print_not_executable(model, result)
+    if args.plot:
+        plot_deform(model, inputs, result, Path(args.plot))
+        print(f"figure → {args.plot}")
     return 0
+
+
+def print_not_executable(model, result: object) -> None:  # noqa: ANN001 - a task's TrainedModel
+    """Say when the learned motion misses the task's end tolerances (ends elsewhere, or still moving), so an arm
+    cannot execute it as it is, and point to ``--keep-end`` where the task has an exact polish."""
+    from seqmotion.tasks import trust
+
+    tolerances = model.task_def.tolerances(model.options)
+    ends = {k: v for k, v in tolerances.items() if k.startswith("end_")}
+    missed = [m.split(" ", 1)[0] for m in trust.missed(getattr(result, "errors", None) or {}, ends)]
+    if not missed:
+        return
+    fix = ("; --keep-end polishes it to end exactly at the input's end pose, at rest (about a second)"
+           if model.task_def.exact_form(model.options) is not None else "")
+    print(f"warning: not executable as is: the learned motion does not end where the input ends, at rest "
+          f"({' and '.join(missed)} beyond tolerance, above){fix}")
+
+
+def plot_deform(model, inputs: np.ndarray, result: object, path: Path) -> None:  # noqa: ANN001
+    """``--plot``: the input and the deformed motion, each state field over time, and the violation with its
+    limit (the task's tolerance), written atomically (:func:`~seqmotion.training.checkpoint.save_figure`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from seqmotion.training.checkpoint import save_figure
+
+    states = np.asarray(result.states)
+    positions = [i for i, unit in enumerate(model.state_layout.units) if not unit.endswith("/s")]
+    violation = getattr(result, "violation", None)
+    rows = len(positions) + (violation is not None)
+    fig, axes = plt.subplots(rows, 1, figsize=(6.5, 1.8 * rows), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    same = model.input_layout.names == model.state_layout.names
+    for ax, i in zip(axes, positions, strict=False):
+        name, unit = model.state_layout.names[i], model.state_layout.units[i]
+        if same:
+            ax.plot(np.arange(len(inputs)), inputs[:, i], "--", color="0.4", label="input")
+        ax.plot(np.arange(len(states)), states[:, i], "-", color="tab:blue", label="deformed")
+        ax.set_ylabel(f"{name} [{unit}]")
+    axes[0].legend(fontsize=8, loc="best")
+    if violation is not None:
+        tolerances = model.task_def.tolerances(model.options)
+        key, limit = next(((k, v) for k, v in tolerances.items() if k.startswith("max_violation")), ("", None))
+        unit = key.removeprefix("max_violation").removeprefix("_")  # "max_violation_rad" → rad
+        ax = axes[-1]
+        ax.plot(np.arange(len(violation)), np.asarray(violation), "-", color="tab:red", label="violation")
+        if limit is not None:
+            ax.axhline(limit, color="k", ls=":", lw=1, label=f"limit {limit:g}")
+        ax.set_ylabel(f"violation [{unit}]" if unit else "violation")
+        ax.legend(fontsize=8, loc="best")
+    axes[-1].set_xlabel("sample (1 ms)")
+    fig.suptitle(f"{model.task_def.name}: input and deformed motion")
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -243,8 +310,11 @@ def cmd_calibrate_trust(args: argparse.Namespace) -> int:
 def cmd_reproduce(args: argparse.Namespace) -> int:
     out = Path(args.out if args.out is not None else f"reproduce/{args.chapter}")
     check_writable_dir(out, "--out")
+    if args.retrain and args.chapter != "ch5":
+        raise ValueError(f"--retrain is for ch5 (its policies); {args.chapter} uses the shipped model or --model")
     module = importlib.import_module(f"seqmotion.reproduce.{args.chapter}")
-    module.run(out, model=args.model, quick=args.quick, seed=args.seed)
+    extra = {"retrain": args.retrain} if args.chapter == "ch5" else {}
+    module.run(out, model=args.model, quick=args.quick, seed=args.seed, **extra)
     print(f"figures and tables written to {out}/")
     return 0
 
@@ -288,6 +358,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="seqmotion", description=__doc__.splitlines()[0])
+    from importlib.metadata import version  # the installed distribution's version, as pip reports it
+
+    parser.add_argument("--version", action="version", version=f"seqmotion {version('seqmotion')}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     from seqmotion.tasks.registry import declared_names
@@ -333,6 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="end exactly where the input ends, at rest, with the constraint held and within the arm's "
                         "acceleration limits (an IPOPT polish of the learned motion; tasks with an exact form, e.g. "
                         "pancake); an input too short for that gets the time it needs (the output is longer)")
+    p.add_argument("--plot", metavar="PNG",
+                   help="also write a figure: the input and the deformed motion over time, and the violation with "
+                        "its limit")
     p.set_defaults(func=cmd_deform)
 
     p = sub.add_parser("plan", help="plan pan shaking that slides an object along a command (ch. 3)")
@@ -365,7 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default reproduce/<chapter>)")
     p.add_argument("--model", help="model/run directory to use instead of the shipped one")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--quick", action="store_true", help="fewer samples (a smoke test of the pipeline)")
+    p.add_argument("--quick", action="store_true",
+                   help="fewer samples (a smoke test of the pipeline: its tables say so, the numbers mean nothing)")
+    p.add_argument("--retrain", action="store_true",
+                   help="ch5: train the policies that are not shipped (the estimated time is printed first: about "
+                        "an hour for the 7 x 64 SeqAE on a 2-core CPU); without it, the shipped policy is evaluated "
+                        "and the rest are marked not evaluated")
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("export", help="ship a finished run with its task's package, with a model card")

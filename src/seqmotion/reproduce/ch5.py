@@ -6,10 +6,13 @@
   pairs), collected if missing; ``data_unseen/pairs_default.h5`` — 18 more pairs from another
   seed, whose images no model saw (Fig. 5.11).
 * ``models/<preset>/<method>_<camera>/`` — the policies (or ``MODELS/<preset>/...`` when
-  ``--model MODELS`` is given); any that is missing is trained with the defaults of
-  ``seqmotion lfd train`` for its preset (:func:`seqmotion.lfd.train.default_settings`: the
-  dissertation's 2000 SeqAE epochs (1200 for ``larger``), so ``original`` takes about an hour
-  and ``larger`` about two on a 2-core CPU; ``--model`` reuses models trained elsewhere).
+  ``--model MODELS`` is given); where one is missing, the shipped ``pushing`` policy stands in for
+  its slot (``smaller``, proposed, default camera) and the others are left out of the tables
+  ("not evaluated") — nothing is trained unless ``--retrain`` is given. With ``--retrain`` the
+  missing ones are trained with the defaults of ``seqmotion lfd train`` for their preset
+  (:func:`seqmotion.lfd.train.default_settings`: the dissertation's 2000 SeqAE epochs (1200 for
+  ``larger``), so ``original`` takes about an hour and ``larger`` about two on a 2-core CPU); the
+  estimated time (:func:`training_eta`) is printed before training starts.
 
 and writes
 
@@ -25,7 +28,8 @@ and writes
   images, coloured by block position, for both methods (main preset).
 
 ``--quick`` is a smoke test of the whole pipeline: 1 demonstration per position and set, a
-few epochs, 1 trial per position (the numbers mean nothing).
+few epochs (with ``--retrain``), 1 trial per position — the numbers mean nothing, and every table and
+figure says "SMOKE TEST" (:data:`SMOKE_TEST`).
 """
 
 from __future__ import annotations
@@ -52,6 +56,34 @@ SNAPSHOT_TIMES = (0.0, 0.6, 1.2, 1.8, 2.4, 3.0, 3.9)
 """Times [s] of the Fig. 5.10-style frames."""
 
 
+SMOKE_TEST = "SMOKE TEST (--quick): tiny data, 1 trial per position; these numbers mean nothing"
+"""The label of every ``--quick`` table and figure."""
+SHIPPED_SLOT = ("smaller", "proposed", "default")
+"""The slot the shipped ``pushing`` policy fills (its config: preset ``smaller``, kind ``proposed``, camera
+``default``)."""
+SEQAE_SECONDS_PER_EPOCH = {"tiny": 0.02, "smaller": 0.27, "original": 1.43, "larger": 4.5}
+"""[s] One SeqAE epoch on the 87 motions, one core (``seqmotion.lfd.train.SEQAE_EPOCHS``'s measurements; the
+shipped 3 × 32 took 534 s for 2000). An end-to-end epoch sees 17 pairs instead of 87 motions: ~1/5 of that
+(the shipped size's 2000 took 108 s); a CNN's 100 epochs take seconds."""
+
+
+def training_eta(missing: list[tuple[str, str, str]], quick: bool = False) -> float:
+    """Estimated seconds to train the ``(preset, method, camera)`` policies in ``missing`` (one SeqAE per preset,
+    shared by its cameras; one end-to-end model per camera) on a 2-core CPU."""
+    from ..lfd import train as training
+
+    seconds = 0.0
+    for preset_name in {p for p, _, _ in missing}:
+        seqae, e2e, _ = training.default_settings(preset_name)
+        epochs = (3, 3) if quick else (seqae.epochs, e2e.epochs)
+        per_epoch = SEQAE_SECONDS_PER_EPOCH.get(preset_name, SEQAE_SECONDS_PER_EPOCH["larger"])
+        slots = [(m, c) for p, m, c in missing if p == preset_name]
+        if any(m == "proposed" for m, _ in slots):
+            seconds += epochs[0] * per_epoch + 5.0 * sum(m == "proposed" for m, _ in slots)  # + a CNN each
+        seconds += sum(m == "end_to_end" for m, _ in slots) * epochs[1] * per_epoch * 17 / 87
+    return seconds
+
+
 def main_preset() -> str:
     """The preset of Table 5.3, Fig. 5.10 and Fig. 5.11: ``seqmotion lfd train``'s default (the shipped policy's)."""
     from ..lfd.train import DEFAULT_PRESET
@@ -66,14 +98,15 @@ def _needed() -> list[tuple[str, str, str]]:
     return needed
 
 
-def ensure_data(out: Path, seed: int, quick: bool) -> tuple[Path, Path]:
-    """Collect the training sets into ``out/data`` and the unseen images into ``out/data_unseen`` if missing."""
+def ensure_data(out: Path, seed: int, quick: bool, training: bool = True) -> tuple[Path, Path]:
+    """Collect the training sets into ``out/data`` (only for ``training``) and the unseen images into
+    ``out/data_unseen`` if missing."""
     from ..lfd.dataset import SETS, collect
 
     data, unseen = out / "data", out / "data_unseen"
     per = {name: 1 for name in SETS} if quick else None
     missing = [name for name in SETS if not (data / f"{name}.h5").is_file()]
-    if missing:
+    if missing and training:
         collect(data, missing, seed=seed, per_position={k: v for k, v in (per or {}).items() if k in missing} or None)
     if not (unseen / "pairs_default.h5").is_file():
         collect(
@@ -137,19 +170,40 @@ def ensure_models(models: Path, data: Path, seed: int, quick: bool) -> dict[tupl
     return paths
 
 
-def _cell(result: dict) -> str:
+def _cell(result: dict | None) -> str:
+    if result is None:
+        return NOT_EVALUATED
     return f"{result['success_rate']:.1%} ({result['successes']}/{result['n_trials']})"
 
 
-def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0) -> dict:
+def available_models(models: Path) -> tuple[dict[tuple[str, str, str], Path], list[tuple[str, str, str]]]:
+    """The policies of :func:`_needed` found under ``models/<preset>/`` — the shipped ``pushing`` policy standing
+    in for :data:`SHIPPED_SLOT` where that one is not there — and the slots still missing."""
+    from ..api import pretrained_dir
+
+    paths, missing = {}, []
+    for slot in _needed():
+        path = models / slot[0] / f"{slot[1]}_{slot[2]}"
+        if (path / "model.safetensors").is_file():
+            paths[slot] = path
+        elif slot == SHIPPED_SLOT:
+            paths[slot] = Path(pretrained_dir("pushing"))
+        else:
+            missing.append(slot)
+    return paths, missing
+
+
+def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0, retrain: bool = False) -> dict:
     """Reproduce the chapter's tables and figures into ``out`` (see the module docstring).
 
     Args:
         out: output directory.
         model: a directory holding ``<preset>/<method>_<camera>/`` policies to evaluate instead
-            of ``out/models`` (missing ones are trained there).
-        quick: smoke-test sizes.
+            of ``out/models`` (with ``retrain``, missing ones are trained there).
+        quick: smoke-test sizes (every output labelled :data:`SMOKE_TEST`).
         seed: seeds the data collection, the training and the evaluation trials.
+        retrain: train the policies that are neither in ``model``/``out/models`` nor shipped (hours on a
+            CPU for the full sizes; the estimate is printed first). Without it nothing is trained.
 
     Returns:
         The summary written to ``summary.json``.
@@ -165,9 +219,21 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    data, unseen = ensure_data(out, seed, quick)
     models = Path(model) if model is not None else out / "models"
-    paths = ensure_models(models, data, seed, quick)
+    paths, missing = available_models(models)
+    if missing and retrain:
+        print(f"training {len(missing)} policies ({', '.join('/'.join(m) for m in missing)}): "
+              f"estimated {training_eta(missing, quick) / 60:.0f} min on a 2-core CPU", flush=True)
+    elif missing:
+        print(f"evaluating {len(paths)} policies ({', '.join('/'.join(p) for p in paths)}); "
+              f"{len(missing)} are neither in {models} nor shipped and are left out of the tables — "
+              f"--retrain trains them (estimated {training_eta(missing, quick) / 60:.0f} min on a 2-core CPU)",
+              flush=True)
+    if quick:
+        print(SMOKE_TEST, flush=True)
+    data, unseen = ensure_data(out, seed, quick, training=bool(missing and retrain))
+    if missing and retrain:
+        paths = ensure_models(models, data, seed, quick)
     trials = 1 if quick else 5
 
     scene = pushing.PushingScene()
@@ -181,14 +247,16 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     finally:
         scene.close()
 
-    table52 = {m: {p: results[f"{p}/{m}_default"] for p in PRESET_NAMES} for m in ("proposed", "end_to_end")}
-    table53 = {c: results[f"{main_preset()}/proposed_{c}"] for c in CAMERA_NAMES}
-    _write_tables(out, table52, table53, trials)
-    _plot_fig5_9(out, table52)
-    pca = _fig5_11(out, paths, load_dataset(unseen / "pairs_default.h5"))
+    table52 = {m: {p: results.get(f"{p}/{m}_default") for p in PRESET_NAMES} for m in ("proposed", "end_to_end")}
+    table53 = {c: results.get(f"{main_preset()}/proposed_{c}") for c in CAMERA_NAMES}
+    _write_tables(out, table52, table53, trials, quick)
+    _plot_fig5_9(out, table52, quick)
+    pca = _fig5_11(out, paths, load_dataset(unseen / "pairs_default.h5"), quick)
     summary = {
         "seed": seed,
         "quick": quick,
+        "smoke_test": SMOKE_TEST if quick else None,
+        "not_evaluated": ["/".join(slot) for slot in missing if slot not in paths],
         "models": str(models),
         "trials_per_position": trials,
         "main_preset": main_preset(),
@@ -203,15 +271,21 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0)
     return summary
 
 
-def _brief(result: dict) -> dict:
-    return {k: result[k] for k in ("success_rate", "successes", "n_trials", "per_position")}
+def _brief(result: dict | None) -> dict | None:
+    """A result's numbers (None: the policy was not evaluated — not shipped, no ``--retrain``)."""
+    return None if result is None else {k: result[k] for k in ("success_rate", "successes", "n_trials", "per_position")}
 
 
-def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
+NOT_EVALUATED = "not evaluated (--retrain)"
+
+
+def _write_tables(out: Path, table52: dict, table53: dict, trials: int, quick: bool = False) -> None:
     n = 6 * trials
+    smoke = [f"**{SMOKE_TEST}**", ""] if quick else []
     lines = [
         f"# Table 5.2 — success rate over {n} trials ({trials} at each of 6 block positions)",
         "",
+        *smoke,
         "| training method | " + " | ".join(f"{p} ({_shape(p)})" for p in PRESET_NAMES) + " |",
         "|---|---|---|---|",
     ]
@@ -229,6 +303,8 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
     lines += ["Per position (successes/trials):", ""]
     for method, row in table52.items():
         for p in PRESET_NAMES:
+            if row[p] is None:
+                continue
             cells = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in row[p]["per_position"].items())
             lines.append(f"* {method} {p}: {cells}")
     atomic_write_text(out / "table5_2.md", "\n".join(lines) + "\n")
@@ -249,6 +325,7 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
         f"Model size: {main_preset()} ({_shape(main_preset())}; the shipped default). The dissertation's "
         "numbers are for its 7-layer model.",
         "",
+        *smoke,
         "| camera position | success rate | dissertation |",
         "|---|---|---|",
     ]
@@ -256,6 +333,8 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int) -> None:
         lines.append(f"| {camera} | {_cell(result)} | {DISSERTATION_TABLE_5_3[camera]:.1%} |")
     lines += ["", "Per position (successes/trials):", ""]
     for camera, result in table53.items():
+        if result is None:
+            continue
         lines.append(f"* {camera}: " + ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in result["per_position"].items()))
     atomic_write_text(out / "table5_3.md", "\n".join(lines) + "\n")
     atomic_write_text(out / "table5_3.json",
@@ -282,13 +361,14 @@ def _pyplot() -> Any:
     return plt
 
 
-def _plot_fig5_9(out: Path, table52: dict) -> None:
+def _plot_fig5_9(out: Path, table52: dict, quick: bool = False) -> None:
     """Bars: measured success per model size and method; markers: the dissertation's values."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     x = np.arange(len(PRESET_NAMES))
     for i, (method, color) in enumerate((("proposed", "tab:blue"), ("end_to_end", "tab:orange"))):
-        rates = [100 * table52[method][p]["success_rate"] for p in PRESET_NAMES]
+        rates = [np.nan if table52[method][p] is None else 100 * table52[method][p]["success_rate"]
+                 for p in PRESET_NAMES]  # NaN: not evaluated, no bar
         ax.bar(x + (i - 0.5) * 0.38, rates, 0.36, color=color, label=method.replace("_", "-") + " (ours)")
         ax.scatter(
             x + (i - 0.5) * 0.38,
@@ -302,15 +382,16 @@ def _plot_fig5_9(out: Path, table52: dict) -> None:
     ax.set_xticks(x, [f"{p}" for p in PRESET_NAMES])
     ax.set_ylabel("success rate [%]")
     ax.set_ylim(0, 100)
-    ax.set_title("Fig. 5.9 / Table 5.2: 18 image-motion pairs (30 trials each)")
+    ax.set_title("Fig. 5.9 / Table 5.2: 18 image-motion pairs (30 trials each)" + (f"\n{SMOKE_TEST}" if quick else ""),
+                 fontsize=8 if quick else None)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     save_figure(fig, out / "fig5_9_success.png", dpi=150)
     plt.close(fig)
 
 
-def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
-    """PCA (2 components) of ẑ of the unseen images, both methods of the main (default) size."""
+def _fig5_11(out: Path, paths: dict, unseen: Any, quick: bool = False) -> dict:
+    """PCA (2 components) of ẑ of the unseen images, both methods of the main (default) size (those evaluated)."""
     plt = _pyplot()
     from ..lfd.models import PushingPolicy
     from ..sim.pushing import POSITIONS
@@ -320,6 +401,10 @@ def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
     colors = plt.get_cmap("tab10")
     points = {}
     for ax, method in zip(axes, ("end_to_end", "proposed"), strict=True):
+        if (main_preset(), method, "default") not in paths:
+            ax.set_title(f"{method.replace('_', '-')}: {NOT_EVALUATED}")
+            ax.axis("off")
+            continue
         z = PushingPolicy.from_pretrained(paths[(main_preset(), method, "default")]).latent(unseen.images)
         centred = z - z.mean(0)
         _, s, vt = np.linalg.svd(centred, full_matrices=False)
@@ -332,8 +417,10 @@ def _fig5_11(out: Path, paths: dict, unseen: Any) -> dict:
         ax.set_title(f"{method.replace('_', '-')} (explained {sum(explained[method]):.0%})")
         ax.set_xlabel("PC 1")
         ax.set_ylabel("PC 2")
-    axes[1].legend(fontsize=7, loc="best")
-    fig.suptitle(f"Fig. 5.11: latents of {len(unseen)} unseen images by block position ({main_preset()} model)")
+    if points:
+        axes[1].legend(fontsize=7, loc="best")
+    fig.suptitle(f"Fig. 5.11: latents of {len(unseen)} unseen images by block position ({main_preset()} model)"
+                 + (f"\n{SMOKE_TEST}" if quick else ""))
     fig.tight_layout()
     save_figure(fig, out / "fig5_11_latent_pca.png", dpi=150)
     plt.close(fig)
@@ -362,14 +449,16 @@ def _snapshots(out: Path, paths: dict, results: dict, scene: Any, seed: int) -> 
     from ..sim import pushing
     from ..sim.render import write_strip
 
-    e2e = results[f"{main_preset()}/end_to_end_default"]["outcomes"]
-    failed = [o for o in e2e if not o["success"]]
-    pick = (failed or e2e)[0]
+    e2e = results.get(f"{main_preset()}/end_to_end_default") or results[f"{main_preset()}/proposed_default"]
+    failed = [o for o in e2e["outcomes"] if not o["success"]]
+    pick = (failed or e2e["outcomes"])[0]
     index, trial = pick["position_index"], pick["trial"]
     position = pushing.POSITIONS[index]
     variation = pushing.SceneVariation.sample(trial_rng(seed, index, trial))
     chosen = {}
     for method in ("end_to_end", "proposed"):
+        if (main_preset(), method, "default") not in paths:
+            continue
         policy = PushingPolicy.from_pretrained(paths[(main_preset(), method, "default")])
         run, _, _ = policy.run(scene, position, variation)
         frames = render_frames(scene, run, variation, SNAPSHOT_TIMES)

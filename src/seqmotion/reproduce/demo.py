@@ -89,27 +89,62 @@ def _sliding(out: Path) -> None:
           f"{1000 * np.abs(plan.pan_states[:, :2]).max():.0f} mm of its start; planned in {1000 * seconds:.1f} ms")
 
 
-def _robot(out: Path) -> None:
+def _robot(out: Path) -> dict[str, tuple[str, list[str]]]:
+    """Execute the sketch, the deformed and the keep_end motion on the arm; print what happened to each and
+    write ``robot_snapshots.png``: one row of snapshots per run, titled with the run's name and the line printed
+    for it, each frame labelled with its time and whether the pancake is still on.
+
+    Returns:
+        run name → (row title, frame labels) (empty where offscreen rendering is unavailable).
+    """
+    import tempfile
+
     import seqmotion as sm
     from seqmotion import sim
+    from seqmotion.sim.plots import plot_snapshot_rows, snapshot_labels, snapshot_steps
 
     deformer = sm.load_pretrained("pancake")
     x = inputs.straight((0.2, 0.1, 2.5), 500)
     mu = deformer.options.mu
-    original = sim.run_pancake(x, gains="ch2", mu=mu)
-    deformed = sim.run_pancake(deformer.deform(x).states, gains="ch2", mu=mu)
-    kept_end = deformer.deform(x, keep_end=True).states  # ends at (0.2, 0.1, 2.5), at rest: inside the workspace
-    snapshots = out / "robot_snapshots.png"
-    try:
-        polished = sim.run_pancake(kept_end, gains="ch2", snapshots=snapshots, mu=mu)
-    except Exception as exc:  # noqa: BLE001 - no offscreen OpenGL here: run the arm without pictures
-        print(f"  (no snapshots: offscreen rendering failed: {exc})")
-        polished, snapshots = sim.run_pancake(kept_end, gains="ch2", mu=mu), None
+    runs = {
+        "sketch": x,
+        "deformed": deformer.deform(x).states,  # the learned motion alone: ends away from the sketch, moving
+        "keep_end": deformer.deform(x, keep_end=True).states,  # ends at (0.2, 0.1, 2.5), at rest
+    }
+    results, strips = {}, {}
+    render = True
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, states in runs.items():
+            strip = Path(tmp) / f"{name}.png"
+            if render:
+                try:
+                    results[name] = sim.run_pancake(states, gains="ch2", snapshots=strip, mu=mu)
+                    strips[name] = _read_png(strip)
+                    continue
+                except Exception as exc:  # noqa: BLE001 - no offscreen OpenGL here: run the arm without pictures
+                    print(f"  (no snapshots: offscreen rendering failed: {exc})")
+                    render = False
+            results[name] = sim.run_pancake(states, gains="ch2", mu=mu)
     print("\nMuJoCo arm (PD + disturbance observer, 1 ms) turning the pancake to (y, z, θ) = (0.2 m, 0.1 m, 2.5 rad)")
-    for name, result in (("sketch", original), ("deformed", deformed), ("keep_end", polished)):
+    for name, result in results.items():
         print(f"  {name:8s}: {result.describe()}")
-    if snapshots is not None:
-        print(f"  snapshots: {snapshots}")
+    labelled = {}
+    if render:
+        rows = []
+        for name, result in results.items():
+            title, labels = snapshot_labels(name, result, snapshot_steps(result))
+            labelled[name] = (title, labels)
+            rows.append((title, labels, strips[name]))
+        snapshots = plot_snapshot_rows(rows, out / "robot_snapshots.png")
+        print(f"  snapshots: {snapshots} (a row per run: {', '.join(results)}; each frame says whether the "
+              "pancake is on)")
+    return labelled
+
+
+def _read_png(path: Path) -> np.ndarray:
+    import matplotlib.image
+
+    return matplotlib.image.imread(str(path))
 
 
 def run(out: Path, simulate: bool = True) -> None:

@@ -16,7 +16,8 @@ time of one step, ``frame_skip × 1 ms`` (default 10 ms), and ``metadata["render
 ``gymnasium.wrappers.RecordVideo``) plays in real time. An episode is truncated after
 ``time_limit`` seconds of simulated time (default 3 s, whatever the ``frame_skip``).
 
-**Actions** (physical units; ``env.action_layout`` names the components). With
+**Actions** (physical units; ``env.action_layout`` names the components). The mode is the ``action=``
+keyword (``gym.make("seqmotion/PancakeArm-v0", action="accel")``); an unknown keyword is refused by name. With
 ``normalize_actions=True`` the action space is ``Box(-1, 1)``, mapped linearly onto the bounds
 below (``env.to_physical(a)``, ``env.to_action(physical)`` convert). Actions are not clipped.
 
@@ -77,6 +78,8 @@ pan frame's x, y are the tool's z, y). World velocities are measured (``J(q) q̇
 
 from __future__ import annotations
 
+import difflib
+import inspect
 from dataclasses import dataclass
 from typing import Any
 
@@ -194,6 +197,20 @@ def _finite(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
     if arr.shape != shape or not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be {shape[0]} finite numbers, got {value!r}")
     return arr
+
+
+def _refuse_unknown(cls: type, given: dict[str, Any]) -> None:
+    """``ValueError`` naming each keyword ``cls`` does not take and listing those it does (a user writes
+    ``action_mode="accel"`` for ``action="accel"``: Python's own TypeError names none of the valid ones)."""
+    if not given:
+        return
+    valid = [name for name, p in inspect.signature(cls.__init__).parameters.items()
+             if p.kind == inspect.Parameter.KEYWORD_ONLY]
+    hints = []
+    for name in sorted(given):
+        close = difflib.get_close_matches(name, valid, n=1) or [v for v in valid if v in name]
+        hints.append(f"{name!r}" + (f" (did you mean {close[0]}=?)" if close else ""))
+    raise ValueError(f"{cls.__name__} takes no keyword {', '.join(hints)}; its keywords are {', '.join(valid)}")
 
 
 class _ArmEnv(gym.Env):
@@ -482,7 +499,8 @@ class PancakeArmEnv(_ArmEnv):
     Args:
         gains: controller gains preset (``"ch2"``, ``"ch3"``, ``"ch4"``).
         frame_skip: 1 ms control periods per step (``dt = frame_skip × 1 ms``).
-        action: ``"planar"``, ``"accel"`` or ``"pose"``.
+        action: the action mode, ``"planar"`` (default), ``"accel"`` or ``"pose"`` (the keyword is ``action=``;
+            an unknown keyword such as ``action_mode=`` is refused by name, listing the valid ones).
         normalize_actions: ``Box(-1, 1)`` actions mapped onto the physical bounds.
         jitter: [m]. time_limit: episode length [s] (``None``: none).
         render_mode: ``None`` or ``"rgb_array"``; camera, width, height: of the rendered frames.
@@ -498,7 +516,8 @@ class PancakeArmEnv(_ArmEnv):
     def __init__(self, *, gains: str = "ch2", frame_skip: int = 10, action: str = "planar",
                  normalize_actions: bool = False, jitter: float = 0.005, time_limit: float | None = TIME_LIMIT,
                  render_mode: str | None = None, camera: str = "oblique", width: int = 480,
-                 height: int = 360) -> None:
+                 height: int = 360, **unknown: Any) -> None:
+        _refuse_unknown(type(self), unknown)
         self.jitter = float(jitter)
         super().__init__(gains=gains, frame_skip=frame_skip, action=action, normalize_actions=normalize_actions,
                          time_limit=time_limit, render_mode=render_mode, camera=camera, width=width, height=height)
@@ -568,7 +587,8 @@ class SlidingArmEnv(_ArmEnv):
     def __init__(self, *, gains: str = "ch3", frame_skip: int = 10, action: str = "planar",
                  normalize_actions: bool = False, goal_radius: float = 0.06, time_limit: float | None = TIME_LIMIT,
                  render_mode: str | None = None, camera: str = "front", width: int = 480,
-                 height: int = 360) -> None:
+                 height: int = 360, **unknown: Any) -> None:
+        _refuse_unknown(type(self), unknown)
         self.goal_radius = float(goal_radius)
         self.goal = np.zeros(2)
         super().__init__(gains=gains, frame_skip=frame_skip, action=action, normalize_actions=normalize_actions,

@@ -117,3 +117,53 @@ def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Pa
     rmse = "" if result.rmse is None else f"object RMSE {result.rmse * 1e3:.1f} mm"
     fig.suptitle(f"{label} {rmse}".strip())
     return _save(plt, fig, path)
+
+
+def snapshot_steps(result: PancakeResult, n_snapshots: int = 6) -> list[int]:
+    """The control periods :func:`~seqmotion.sim.run_pancake` (``snapshots=``) renders for ``result``: ``n``
+    evenly over the motion and its 0.1 s deceleration (the rule of :meth:`seqmotion.sim.arm.Media.plan`)."""
+    dt = float(result.time[1] - result.time[0]) if len(result.time) > 1 else 1e-3
+    last = min(len(result.time), result.n_motion + round(0.1 / dt)) - 1
+    return sorted(set(np.linspace(0, last, n_snapshots).round().astype(int).tolist()))
+
+
+def snapshot_labels(name: str, result: PancakeResult, steps: list[int]) -> tuple[str, list[str]]:
+    """A snapshot row's title (the run's name and :meth:`PancakeResult.describe`, the line the demo prints) and
+    one label per frame: ``"t = 0.60 s: off"`` once the pancake has lost contact (slip > ``SLIP_LIMIT`` or gap
+    > ``GAP_LIMIT``, the test behind ``contact_lost``) at or before that frame, else ``"on"``; frames after the
+    input motion say so (``"(stopping)"``: the deceleration tail)."""
+    from .pancake import GAP_LIMIT, SLIP_LIMIT
+
+    lost = (result.slip > SLIP_LIMIT) | (result.gap > GAP_LIMIT)
+    labels = []
+    for k in steps:
+        k = min(k, len(lost) - 1)
+        state = "off" if lost[: k + 1].any() else "on"
+        tail = " (stopping)" if k >= result.n_motion else ""
+        labels.append(f"t = {result.time[k]:.2f} s: {state}{tail}")
+    return f"{name}: {result.describe()}", labels
+
+
+def plot_snapshot_rows(rows: list[tuple[str, list[str], np.ndarray]], path: str | Path) -> Path:
+    """Snapshot strips of several runs, one row each, titled and labelled per frame.
+
+    Args:
+        rows: ``(title, labels, strip)`` per run; ``strip`` ``(H, W, 3|4)`` the PNG
+            :func:`~seqmotion.sim.render.write_strip` wrote (frames side by side, 6 px apart, one per label).
+        path: the PNG to write.
+    """
+    plt = _pyplot()
+    width = max(strip.shape[1] for _, _, strip in rows) / 100
+    fig, axes = plt.subplots(len(rows), 1, figsize=(width, sum(s.shape[0] for _, _, s in rows) / 100 + 0.9 * len(rows)),
+                             squeeze=False)
+    for ax, (title, labels, strip) in zip(axes[:, 0], rows, strict=True):
+        ax.imshow(strip)
+        ax.axis("off")
+        ax.set_title(title, fontsize=14, loc="left")
+        n, w = len(labels), strip.shape[1]
+        frame = (w - 6 * (n - 1)) / n
+        for i, label in enumerate(labels):
+            colour = "tab:red" if ": off" in label else "tab:green"
+            ax.text((i * (frame + 6) + frame / 2) / w, 0.97, label, transform=ax.transAxes, ha="center",
+                    va="top", fontsize=13, color=colour, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+    return _save(plt, fig, path)

@@ -79,6 +79,20 @@ rest): 40 %, 50 % and 20 % of the limits. The cone takes the rest — a level sp
 sideways or drop it at only (9.8 − 4) m/s² — and turning over takes the most: the spatula's normal has to
 follow θ. Fitted on 300 sketches (seed 7), checked on 120 others (seed 2027): the first polish succeeds on
 ~80 % (at half the limits on all three axes: 64 %), with motions no longer than after the failed tries."""
+END_SPEED_TOLERANCE = 0.5
+"""[m/s] The fastest |(v_y, v_z)| a motion may end with and still be executed as it is. The arm does not stop
+a motion that ends moving: ``seqmotion simulate pancake`` (:mod:`seqmotion.sim.kinematics`, §4.4.3) appends
+0.1 s of constant deceleration, 10·v m/s² for 0.05·v m more travel. At 0.5 m/s that is 5 m/s², within the
+g − :data:`POLISH_NORMAL_FLOOR` = 5.8 m/s² a spatula can brake with while still pressing the pancake on, and
+25 mm of overshoot; at the 2.9 m/s a plain ``deform`` of the README's sketch ends with it is 29 m/s² (the
+arm's limit, :data:`POLISH_ACCEL_LIMITS`) and 145 mm, which took the spatula out of the arm's workspace."""
+END_POSITION_TOLERANCE = 0.05
+"""[m] The farthest the motion's end (y, z) may lie from the input's end. The arm's workspace leaves little
+room: :data:`POLISH_REACH` keeps polished motions within 0.40 m of the origin, and the arm cannot reach some
+attitude 0.409 m out (``sim.arm.workspace_problem``), so a sketch drawn to the edge of the reach has ~1 cm
+to spare; 50 mm plus the ≤ 25 mm stop of :data:`END_SPEED_TOLERANCE` is about the pancake's own radius
+(55 mm, ``sim.scene.PANCAKE_RADIUS``): a motion farther off puts the pancake down somewhere else than asked,
+and may leave the workspace (the README's sketch, plainly deformed, ends 348 mm off)."""
 POLISH_SMOOTHNESS = 1000.0
 """λ of the polish's jerk term (starting and ending at zero acceleration): the correction spreads over
 ≈ 30 ms instead of steps an arm cannot follow."""
@@ -328,9 +342,12 @@ class PancakeTask(Task):
         return out
 
     def tolerances(self, options: TaskOptions) -> dict[str, float]:
-        """Warn when F_c exceeds 0.01 rad. (No shape tolerance: keeping the pancake on moves a typical
-        position-type sketch's end by centimetres — a median 8 cm over fresh ones — by design.)"""
-        return {"max_violation_rad": FEASIBLE_TOLERANCE}
+        """Warn when F_c exceeds 0.01 rad, or the motion ends farther than :data:`END_POSITION_TOLERANCE` from
+        the input's end or faster than :data:`END_SPEED_TOLERANCE` (not executable on the arm as it is; the
+        plain learned motion usually is not — a median 9 cm off at 1.2 m/s — which ``keep_end=True`` fixes).
+        (No shape tolerance: keeping the pancake on moves the path by centimetres, by design.)"""
+        return {"max_violation_rad": FEASIBLE_TOLERANCE, "end_position_error_m": END_POSITION_TOLERANCE,
+                "end_speed_m_s": END_SPEED_TOLERANCE}
 
 
 TASK = PancakeTask()
