@@ -187,3 +187,12 @@ def test_bad_arguments(deformer):
         Ranges(v_lim=(float("nan"), 1, 1))
     with pytest.raises(ValueError, match="columns"):
         sm.optimize_latent(deformer, np.zeros((60, 4)), EndPose((0, 0, 0)))
+
+
+def test_generate_is_every_models_verb_and_deform_the_pancakes_name_for_it(deformer):
+    """Issue 32 item 7: ``generate`` works on the pancake's model too, with the same result as ``deform``."""
+    sketch = gen.straight((0.1, 0.0, 1.0), 120)
+    named, generic = deformer.deform(sketch), deformer.generate(sketch)
+    assert type(named) is type(generic)
+    np.testing.assert_array_equal(named.states, generic.states)
+    np.testing.assert_array_equal(named.violation, generic.violation)

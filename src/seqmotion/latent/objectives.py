@@ -7,22 +7,27 @@ An objective maps a batch of decoded motions to one value per trajectory::
 :class:`EndPose` (J1) works for any task that declares an end pose (``Task.end_pose``: the
 fields it reaches for and their weights) and penalises the task's own constraint
 (``Task.violation``) at the model's options — the pancake's friction cone at the μ the model
-was trained with. :class:`Ranges` (J2) is the pancake's. Any differentiable callable with the
-signature above is an objective too (returning ``(B,)`` or a scalar); :class:`Function` with
-``residuals=`` gives least-squares form, which Levenberg–Marquardt (``optimizer="lm"``) needs.
-Objectives compose with ``+`` and ``*``::
+was trained with. :class:`Ranges` (J2) puts bands on end values and limits on any fields of a
+task's state layout, by name (without names: the pancake's bands of eq. 4.10). Any
+differentiable callable with the signature above is an objective too (returning ``(B,)`` or a
+scalar); :class:`Function` with ``residuals=`` gives least-squares form, which
+Levenberg–Marquardt (``optimizer="lm"``) needs. Objectives compose with ``+`` and ``*``::
 
     objective = 2 * EndPose((0.1, 0.0, math.pi)) + my_callable
 
-:func:`seqmotion.optimize_latent` *binds* an objective to the model first
-(:meth:`Objective.bind`): an objective that declares a state layout refuses a model of another
-layout (``ValueError`` naming both), and μ and the end-pose fields come from the model.
+**Every objective keeps the task's constraint.** :func:`seqmotion.optimize_latent` *binds* an
+objective to the model first (:func:`for_model`): an objective that declares a state layout refuses
+a model of another layout (``ValueError`` naming both), μ and the end-pose fields come from the
+model, and an objective that does not penalise the task's constraint itself (``EndPose`` and
+``Ranges`` do; a plain callable, ``AtRest`` do not) gets :class:`TaskConstraint` added — ``J + Σ_k
+F[k]``, reported as the term ``"constraint"``. Add ``TaskConstraint(alpha=...)`` yourself to weigh it
+(``alpha=0``: only report it).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -103,6 +108,12 @@ class Objective:
         optimiser is Levenberg–Marquardt."""
         return False
 
+    @property
+    def keeps_constraint(self) -> bool:
+        """Whether the objective penalises the task's constraint itself (:class:`EndPose`, :class:`Ranges`,
+        :class:`TaskConstraint`); :func:`for_model` adds :class:`TaskConstraint` to one that does not."""
+        return False
+
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         """The objective as hard constraints for the exact polish: ``(constraint, parameters (B, n))`` pairs.
 
@@ -152,7 +163,13 @@ class Sum(Objective):
 
     @property
     def least_squares(self) -> bool:
-        return all(part.least_squares for part in self.parts)
+        # a penalty-only part (TaskConstraint) adds no residuals: least squares when another part has them
+        real = [part for part in self.parts if not _penalty_only(part)]
+        return bool(real) and all(part.least_squares for part in real)
+
+    @property
+    def keeps_constraint(self) -> bool:
+        return any(part.keeps_constraint for part in self.parts)
 
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         return [c for part in self.parts for c in part.exact_constraints()]
@@ -186,6 +203,10 @@ class Scaled(Objective):
     def least_squares(self) -> bool:
         return self.weight >= 0 and self.inner.least_squares
 
+    @property
+    def keeps_constraint(self) -> bool:
+        return self.weight > 0 and self.inner.keeps_constraint
+
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         if self.weight <= 0:
             raise ValueError(_NO_EXACT.format(self=self))
@@ -211,6 +232,9 @@ class Scaled(Objective):
 
 class Function(Objective):
     """A plain callable as an objective, optionally in least-squares form.
+
+    It knows nothing of the task's constraint: :func:`seqmotion.optimize_latent` optimises it together
+    with :class:`TaskConstraint` (``f + Σ_k F[k]``), which reports whether the constraint holds.
 
     Args:
         fn: ``f(states, accel) -> scalar or (B,)`` tensor, differentiable. Optional when
@@ -301,6 +325,113 @@ def dynamic_penalty(states: torch.Tensor, accel: torch.Tensor, mu: float = MU) -
     return violation_torch(states[:, : accel.shape[1], 2], accel, mu).sum(1)
 
 
+def for_model(objective: object, model: Any) -> Objective:
+    """``objective`` (an :class:`Objective` or a callable) bound to ``model`` (:meth:`Objective.bind`), keeping
+    the task's constraint: one that does not penalise it itself gets ``+ TaskConstraint()`` (a task without a
+    constraint gets nothing added)."""
+    bound = as_objective(objective).bind(model)
+    if bound.keeps_constraint:
+        return bound
+    constraint = TaskConstraint().bind(model)
+    return bound if constraint.empty(model) else bound + constraint
+
+
+ViolationFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor | None]
+
+
+def _task_violation(model: Any, mu: float | None, who: str) -> ViolationFn:
+    """The task's constraint violation ``(B, K-1)`` at the model's options (or at ``mu``, for a task with one)."""
+    task, options = model.task_def, model.options
+    if mu is not None:
+        if "mu" not in options.names():
+            raise ValueError(f"{who}(mu=...) needs a task with a friction option mu; {task.name!r} has none")
+        options = options.replace(mu=mu)
+    return lambda states, accel: task.violation(states, accel, options)
+
+
+def _constraint_term(violation: torch.Tensor) -> Term:
+    """The reported constraint term: the largest violation per trajectory (≤ 0.01, the feasibility tolerance)."""
+    return Term(_np(_max_per_trajectory(violation)), FEASIBLE_TOLERANCE, "(violation)")
+
+
+class TaskConstraint(Objective):
+    """The task's own constraint as a term: ``J = α Σ_k F[k]`` with ``F`` the task's violation
+    (``Task.violation`` at the model's options; pancake: the friction cone F_c [rad]).
+
+    :func:`seqmotion.optimize_latent` adds it, α = 1, to every objective that does not penalise the
+    constraint itself (a plain callable, :class:`AtRest`): J then weighs the constraint the way
+    :class:`EndPose` does. Add it yourself to choose α (``f + TaskConstraint(alpha=100)``); ``alpha=0``
+    leaves the constraint out of J, and it is still reported (``res.terms["constraint"]``, a warning
+    when missed). It has no residuals, only the penalty ``α Σ F``: added to a least-squares objective
+    the sum stays least-squares (Levenberg–Marquardt works on it); alone it is gradient descent's.
+    Unbound (called directly) it reads pancake states at μ = 1.
+
+    Args:
+        alpha: weight α ≥ 0 of the constraint's penalty.
+    """
+
+    def __init__(self, alpha: float = 1.0) -> None:
+        self.alpha = _check_weight("alpha", alpha)
+        self._violation: ViolationFn | None = None
+
+    def bind(self, model: Any) -> TaskConstraint:
+        bound = TaskConstraint(self.alpha)
+        bound._violation = _task_violation(model, None, "TaskConstraint")
+        return bound
+
+    def empty(self, model: Any) -> bool:
+        """Whether ``model``'s task has no constraint (its ``violation`` returns None)."""
+        s, d = model.state_layout.dim, model.accel_layout.dim
+        return model.violation_torch(torch.zeros(1, 2, s, dtype=torch.float64),
+                                     torch.zeros(1, 1, d, dtype=torch.float64)) is None
+
+    def violation(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor | None:
+        """``F`` per transition ``(B, K-1)``, or None for a task without a constraint."""
+        if self._violation is None:  # unbound: the pancake's cone at μ = 1
+            return violation_torch(states[:, : accel.shape[1], 2], accel, MU)
+        return self._violation(states, accel)
+
+    @property
+    def least_squares(self) -> bool:
+        return False  # no residuals: alone, Levenberg–Marquardt has nothing to fit (in a sum it adds its penalty)
+
+    @property
+    def keeps_constraint(self) -> bool:
+        return True
+
+    def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
+        """None of its own: the polish always holds the task's constraint."""
+        return []
+
+    def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return states.new_zeros(states.shape[0], 0)
+
+    def penalty(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        violation = self.violation(states, accel)
+        if violation is None or self.alpha == 0:
+            return states.new_zeros(states.shape[0])
+        return self.alpha * violation.sum(1)
+
+    def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        return self.penalty(states, accel)
+
+    def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
+        """``constraint``: the largest violation (≤ 0.01, the feasibility tolerance); none without a constraint."""
+        with torch.no_grad():
+            violation = self.violation(states, accel)
+            return {} if violation is None else {"constraint": _constraint_term(violation)}
+
+    def __repr__(self) -> str:
+        return f"TaskConstraint(alpha={self.alpha:g})"
+
+
+def _penalty_only(objective: Objective) -> bool:
+    """Whether ``objective`` is a penalty without residuals (a non-negatively weighted :class:`TaskConstraint`)."""
+    if isinstance(objective, Scaled):
+        return objective.weight >= 0 and _penalty_only(objective.inner)
+    return isinstance(objective, TaskConstraint)
+
+
 class EndPose(Objective):
     """J1 (eqs. 4.3–4.4): ``|D (p[K-1] − p_end)|² + α Σ_k F[k]`` for any task with an end pose.
 
@@ -342,7 +473,7 @@ class EndPose(Objective):
         self.fields = None if fields is None else tuple(fields)
         self.weights = None if weights is None else tuple(float(w) for w in weights)
         self._columns: list[int] | slice | None = None
-        self._violation: Callable[[torch.Tensor, torch.Tensor], torch.Tensor | None] | None = None
+        self._violation: ViolationFn | None = None
 
     def _bind_columns(self, layout: StateLayout, fields: Sequence[str], weights: Sequence[float], task: str) -> None:
         if self.target.shape[-1] != len(fields):
@@ -369,12 +500,7 @@ class EndPose(Objective):
         bound = EndPose(self.target, self.alpha, self.mu, fields, weights, self.tolerance)
         bound.layout = model.state_layout
         bound._bind_columns(model.state_layout, fields, weights, task.name)
-        options = model.options
-        if self.mu is not None:
-            if "mu" not in options.names():
-                raise ValueError(f"EndPose(mu=...) needs a task with a friction option mu; {task.name!r} has none")
-            options = options.replace(mu=self.mu)
-        bound._violation = lambda states, accel: task.violation(states, accel, options)
+        bound._violation = _task_violation(model, self.mu, "EndPose")
         return bound
 
     def end_error(self, states: torch.Tensor) -> torch.Tensor:
@@ -395,6 +521,10 @@ class EndPose(Objective):
     def least_squares(self) -> bool:
         return True
 
+    @property
+    def keeps_constraint(self) -> bool:
+        return True
+
     def _column_list(self) -> list[int]:
         if self._columns is None:
             self.end_error(torch.zeros(1, 2, STATE_LAYOUT.dim, dtype=torch.float64))  # binds the pancake default
@@ -413,7 +543,7 @@ class EndPose(Objective):
             violation = self._violation(states, accel) if self._violation is not None else \
                 violation_torch(states[:, : accel.shape[1], 2], accel, MU if self.mu is None else self.mu)
             if violation is not None:
-                terms["constraint"] = Term(_np(_max_per_trajectory(violation)), FEASIBLE_TOLERANCE, "(violation)")
+                terms["constraint"] = _constraint_term(violation)
         return terms
 
     def residuals(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
@@ -449,47 +579,132 @@ def _check_weight(name: str, value: Any, positive: bool = False) -> float:
 
 
 class Ranges(Objective):
-    """J2 (eq. 4.10): bands on the end pose, the cone penalty and velocity limits.
+    """J2 (eq. 4.10): bands on end values, the task's constraint penalty and limits along the motion.
 
-    ``max(|p_yz[K-1]| − p_lim, 0) + 0.1 max(|θ[K-1] − θ_end| − θ_lim, 0) + α f_dyn
-    + β/K Σ_k |max(0, D(|ṗ[k]| − v_lim))|²``
+    **By field name, for any task** (``end=`` and/or ``limits=``, names of the task's state layout)::
 
-    Defaults are the dissertation's: p_lim = 0.2 m, θ_end = −3π/4, θ_lim = 0.5 rad, α = 1,
-    β = 0.01, v_lim = (1.5 m/s, 1.5 m/s, 4.5 rad/s).
+        Ranges(end={"x": (0.025, 0.03)}, limits={"v_x": 0.4, "v_y": 0.4})   # the tray's [x, y, v_x, v_y]
+
+    ``J = Σ_f w_f max(|x_f[K-1] − c_f| − h_f, 0) + α Σ_k F[k] + β/K Σ_{k≥1} Σ_g max(0, w_g (|x_g[k]| − l_g))²``
+
+    with each end band ``[low, high] = [c − h, c + h]``, the limits ``l`` from sample 1 (the start
+    state is given), ``w = 0.1`` for a field in rad or rad/s (D's weighting) and 1 otherwise, and ``F``
+    the task's constraint at the model's options. Terms: ``"end <field> band"`` and ``"limits"`` (the
+    excess, met at 0) and ``"constraint"``.
+
+    **Without names: the pancake's** (the dissertation's eq. 4.10; refuses a model of another layout)::
+
+        max(|p_yz[K-1]| − p_lim, 0) + 0.1 max(|θ[K-1] − θ_end| − θ_lim, 0) + α f_dyn
+        + β/K Σ_k |max(0, D(|ṗ[k]| − v_lim))|²
+
+    with the dissertation's defaults p_lim = 0.2 m, θ_end = −3π/4, θ_lim = 0.5 rad, α = 1, β = 0.01,
+    v_lim = (1.5 m/s, 1.5 m/s, 4.5 rad/s). Terms: ``"end position band"``, ``"end attitude band"``,
+    ``"velocity limits"``, ``"friction cone"``.
+
+    Args:
+        p_lim, theta_end, theta_lim, v_lim: the pancake's bands [m, rad, rad, (m/s, m/s, rad/s)]; not
+            with ``end``/``limits``.
+        alpha: weight α ≥ 0 of the constraint's penalty; beta: weight β ≥ 0 of the limits.
+        mu: judge the cone at this μ instead of the model's own (tasks with a friction option ``mu``).
+        end: field name → ``(low, high)`` band on its last value [the field's unit].
+        limits: field name → the largest ``|value|`` along the motion (> 0) [the field's unit].
     """
-
-    layout = STATE_LAYOUT
 
     def __init__(
         self,
-        p_lim: float = 0.2,
-        theta_end: float = -3 * math.pi / 4,
-        theta_lim: float = 0.5,
+        p_lim: float | None = None,
+        theta_end: float | None = None,
+        theta_lim: float | None = None,
         alpha: float = 1.0,
         beta: float = 0.01,
-        v_lim: Sequence[float] = (1.5, 1.5, 4.5),
+        v_lim: Sequence[float] | None = None,
         mu: float | None = None,
+        *,
+        end: Mapping[str, Sequence[float]] | None = None,
+        limits: Mapping[str, float] | None = None,
     ) -> None:
-        for name, value in (("p_lim", p_lim), ("theta_lim", theta_lim), ("alpha", alpha), ("beta", beta)):
+        self.alpha, self.beta = _check_weight("alpha", alpha), _check_weight("beta", beta)
+        self.mu = None if mu is None else _check_weight("mu", mu, positive=True)
+        self.end, self.limits = _check_bands(end), _check_limits(limits)
+        self.named = self.end is not None or self.limits is not None
+        if self.named:
+            given = [n for n, v in (("p_lim", p_lim), ("theta_end", theta_end), ("theta_lim", theta_lim),
+                                    ("v_lim", v_lim)) if v is not None]
+            if given:
+                raise ValueError(f"{', '.join(given)}: the pancake's bands; with end=/limits= give every band by "
+                                 f"field name, e.g. Ranges(end={{'theta': (-2.9, -1.9)}})")
+            self.layout: StateLayout | None = None  # any task's: bound to the model's
+            self._end_columns: list[int] | None = None
+            self._limit_columns: list[int] | None = None
+            self._violation: ViolationFn | None = None
+            return
+        p_lim = 0.2 if p_lim is None else p_lim
+        theta_end = -3 * math.pi / 4 if theta_end is None else theta_end
+        theta_lim = 0.5 if theta_lim is None else theta_lim
+        v_lim = (1.5, 1.5, 4.5) if v_lim is None else v_lim
+        for name, value in (("p_lim", p_lim), ("theta_lim", theta_lim)):
             _check_weight(name, value)
         check_number("theta_end", theta_end)
-        if mu is not None:
-            _check_weight("mu", mu, positive=True)
         if isinstance(v_lim, str) or not hasattr(v_lim, "__len__") or len(v_lim) != 3:
             raise ValueError(f"Ranges needs three velocity limits (v_y, v_z, v_theta), got {v_lim!r}")
         for value in v_lim:
             _check_weight("v_lim", value)
+        self.layout = STATE_LAYOUT
         self.p_lim, self.theta_end, self.theta_lim = float(p_lim), float(theta_end), float(theta_lim)
-        self.alpha, self.beta, self.v_lim = float(alpha), float(beta), tuple(map(float, v_lim))
-        self.mu = None if mu is None else float(mu)
+        self.v_lim = tuple(map(float, v_lim))
+
+    @property
+    def keeps_constraint(self) -> bool:
+        return True
 
     def bind(self, model: Any) -> Ranges:
-        """Checks the model generates pancake states; μ defaults to the model's."""
-        check_layout(self, model)
-        mu = self.mu if self.mu is not None else model.options.mu
-        return Ranges(self.p_lim, self.theta_end, self.theta_lim, self.alpha, self.beta, self.v_lim, mu)
+        """The pancake's bands: checks the model generates pancake states (μ defaults to the model's). By
+        field name: the fields' columns in the model's layout (``ValueError`` naming its columns) and the
+        task's constraint at the model's options."""
+        if not self.named:
+            try:
+                check_layout(self, model)
+            except ValueError as exc:
+                raise ValueError(f"{exc}; for its layout give the bands by field name: "
+                                 f"Ranges(end={{field: (low, high)}}, limits={{field: limit}})") from None
+            mu = self.mu if self.mu is not None else model.options.mu
+            return Ranges(self.p_lim, self.theta_end, self.theta_lim, self.alpha, self.beta, self.v_lim, mu)
+        bound = Ranges(alpha=self.alpha, beta=self.beta, mu=self.mu, end=self.end, limits=self.limits)
+        layout = bound.layout = model.state_layout
+        bound._end_columns = [layout.index(f) for f in self.end or {}]
+        bound._limit_columns = [layout.index(f) for f in self.limits or {}]
+        bound._violation = _task_violation(model, self.mu, "Ranges")
+        return bound
+
+    def _named(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, torch.Tensor]:
+        """By field name: each end band's excess ``(B, n)`` (w-weighted with ``weighted``), the limits' excess
+        ``(B, K-1, m)`` and the constraint ``(B, K-1)`` (absent without one)."""
+        if self._end_columns is None or self._limit_columns is None or self.layout is None:
+            raise ValueError("Ranges(end=..., limits=...) must be bound to a model first (optimize_latent does)")
+        like = {"dtype": states.dtype, "device": states.device}
+        units = self.layout.units
+        bands = torch.tensor(list((self.end or {}).values()), **like).reshape(-1, 2)
+        limits = torch.tensor(list((self.limits or {}).values()), **like)
+        out = {
+            "end": torch.relu((states[:, -1, self._end_columns] - bands.mean(-1)).abs()
+                              - (bands[:, 1] - bands[:, 0]) / 2),
+            "limits": torch.relu(states[:, 1:, self._limit_columns].abs() - limits),
+            "w_end": torch.tensor([_d_weight(units[c]) for c in self._end_columns], **like),
+            "w_limits": torch.tensor([_d_weight(units[c]) for c in self._limit_columns], **like),
+        }
+        violation = self._violation(states, accel) if self._violation is not None else None
+        if violation is not None:
+            out["constraint"] = violation
+        return out
 
     def __call__(self, states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        if self.named:
+            parts = self._named(states, accel)
+            value = (parts["w_end"] * parts["end"]).sum(-1)
+            value = value + self.beta / states.shape[1] * ((parts["w_limits"] * parts["limits"]) ** 2).sum((1, 2))
+            if "constraint" in parts:
+                value = value + self.alpha * parts["constraint"].sum(1)
+            return value
         end = states[:, -1]
         position_band = torch.relu(torch.sqrt(end[:, 0] ** 2 + end[:, 1] ** 2 + 1e-30) - self.p_lim)
         attitude_band = 0.1 * torch.relu((end[:, 2] - self.theta_end).abs() - self.theta_lim)
@@ -501,7 +716,7 @@ class Ranges(Objective):
         return position_band + attitude_band + self.alpha * cone + velocity
 
     def _excess(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, torch.Tensor]:
-        """How far each band is overstepped, ``(B,)`` each (0 where it holds)."""
+        """How far each of the pancake's bands is overstepped, ``(B,)`` each (0 where it holds)."""
         end = states[:, -1]
         v_lim = torch.tensor(self.v_lim, dtype=states.dtype, device=states.device)
         return {
@@ -512,8 +727,19 @@ class Ranges(Objective):
         }
 
     def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
-        """Each band's excess [m, rad, SI velocity] (met at 0, to 1e-6) and the largest cone violation (≤ 0.01 rad)."""
+        """Each band's excess [the field's unit] and the limits' largest excess (met at 0, to 1e-6), and the
+        largest constraint violation (≤ 0.01; the pancake's: its friction cone [rad])."""
         with torch.no_grad():
+            if self.named:
+                parts = self._named(states, accel)
+                assert self.layout is not None and self._end_columns is not None
+                terms = {f"end {name} band": Term(_np(parts["end"][:, i]), 1e-6, self.layout.units[col])
+                         for i, (name, col) in enumerate(zip(self.end or {}, self._end_columns, strict=True))}
+                if self.limits:
+                    terms["limits"] = Term(_np(parts["limits"].flatten(1).amax(-1)), 1e-6, "(field units)")
+                if "constraint" in parts:
+                    terms["constraint"] = _constraint_term(parts["constraint"])
+                return terms
             units = {"end position band": "m", "end attitude band": "rad", "velocity limits": "(m/s, rad/s)"}
             terms = {name: Term(_np(v), 1e-6, units[name]) for name, v in self._excess(states, accel).items()}
             cone = violation_torch(states[:, : accel.shape[1], 2], accel, MU if self.mu is None else self.mu)
@@ -521,9 +747,23 @@ class Ranges(Objective):
         return terms
 
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
-        """The bands and velocity limits (from sample 1: the start state is given) as hard constraints (the
-        cone is the task's own)."""
+        """The bands and limits (from sample 1: the start state is given) as hard constraints (the task's
+        constraint is the polish's own)."""
         none = np.zeros((1, 0))
+        if self.named:
+            if self._end_columns is None or self._limit_columns is None:
+                raise ValueError("Ranges(end=..., limits=...) must be bound to a model first (optimize_latent does)")
+            out = []
+            if self.end:
+                cols, bands = tuple(self._end_columns), tuple(tuple(b) for b in self.end.values())
+                low, high = tuple(b[0] for b in bands), tuple(b[1] for b in bands)
+                out.append((Constraint("end bands", ("ranges_end", cols, bands),
+                                       lambda x, u, p: x[list(cols), -1], low, high), none))
+            if self.limits:
+                cols, lims = tuple(self._limit_columns), np.array(list(self.limits.values()))
+                out.append((Constraint("limits", ("ranges_limits", cols, *lims.tolist()),
+                                       lambda x, u, p: scale_rows(x[list(cols), 1:], 1 / lims), -1.0, 1.0), none))
+            return out
         p_lim, theta_end, theta_lim, v_lim = self.p_lim, self.theta_end, self.theta_lim, np.array(self.v_lim)
         return [
             (Constraint("end position band", ("ranges_position", p_lim),
@@ -536,7 +776,45 @@ class Ranges(Objective):
         ]
 
     def __repr__(self) -> str:
+        if self.named:
+            return f"Ranges(end={self.end}, limits={self.limits})"
         return f"Ranges(p_lim={self.p_lim}, theta_end={self.theta_end:.4f}, theta_lim={self.theta_lim})"
+
+
+def _d_weight(unit: str) -> float:
+    """D's weighting of a field: 0.1 for an angle or angular rate (rad against metres), 1 otherwise."""
+    return 0.1 if unit in ("rad", "rad/s") else 1.0
+
+
+def _check_bands(end: object) -> dict[str, tuple[float, float]] | None:
+    """``Ranges(end=...)``: field name → ``(low, high)``, finite, low ≤ high."""
+    if end is None:
+        return None
+    if not isinstance(end, Mapping) or not end:
+        raise ValueError(f"Ranges end= must be a non-empty mapping field name → (low, high), got {end!r}")
+    out = {}
+    for name, band in end.items():
+        values = np.asarray(band, dtype=object)
+        if not isinstance(name, str) or values.shape != (2,) or not all(
+            isinstance(v, int | float | np.floating) and not isinstance(v, bool) and math.isfinite(v) for v in values
+        ) or values[0] > values[1]:
+            raise ValueError(f"Ranges end band of {name!r} must be finite (low, high) with low ≤ high, got {band!r}")
+        out[name] = (float(values[0]), float(values[1]))
+    return out
+
+
+def _check_limits(limits: object) -> dict[str, float] | None:
+    """``Ranges(limits=...)``: field name → the largest |value|, finite and > 0."""
+    if limits is None:
+        return None
+    if not isinstance(limits, Mapping) or not limits:
+        raise ValueError(f"Ranges limits= must be a non-empty mapping field name → limit, got {limits!r}")
+    out = {}
+    for name, value in limits.items():
+        if not isinstance(name, str):
+            raise ValueError(f"Ranges limits= must map field names to limits, got key {name!r}")
+        out[name] = _check_weight(f"Ranges limits[{name!r}]", value, positive=True)
+    return out
 
 
 class AtRest(Objective):

@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from ..errors import as_float_array, as_trajectories, check_finite_result, check_number
-from ..tasks.base import POLISH_VIOLATION_TOLERANCE, TrainedModel, TrustSignals
-from .objectives import Objective, Term, as_objective
+from ..tasks.base import FEASIBLE_TOLERANCE, POLISH_VIOLATION_TOLERANCE, Motion, TrainedModel
+from .objectives import Objective, Term, for_model
 
 MAX_STEPS = 1_000_000
 """More updates than this in one call is a typo."""
@@ -64,21 +64,26 @@ class Stage:
 
 
 @dataclass
-class OptimizationResult(TrustSignals):
-    """The adjusted motion(s); a leading B axis when the input was batched.
+class OptimizationResult(Motion):
+    """The adjusted motion(s): a :class:`~seqmotion.tasks.base.Motion` with how it was reached; a leading B
+    axis when the input was batched.
 
     Attributes:
         states: ``(K, S)`` states after the last stage.
         accel: ``(K-1, d)`` their inputs.
         latent: ``(L·H,)`` the optimised z (None for case 3). After an exact polish the motion is
             the polished one, near (not equal to) what z decodes to.
+        violation: ``(K-1,)`` the task's constraint violation per transition at the model's options (0 where
+            it holds; None for a task without a constraint), as :class:`Motion`; ``feasible``: its largest
+            ≤ 0.01. A motion that breaks it is also warned about (``RuntimeWarning``).
         history: ``(updates + 1,)`` the objective before each update and after the last
             (``(updates + 1, B)`` for a batch; a scalar objective gives ``(updates + 1,)``).
         seconds_per_update: mean wall time of one update (backward, step, forward; with
             ``lr="auto"`` also the line search's extra forward passes).
         stages: where each stage ended (:class:`Stage`): the updates, then the polish with ``exact=True``.
         terms: each term of the objective on the final motion, name → :class:`~.objectives.Term`
-            (value, limit, ``met``); empty for a plain function.
+            (value, limit, ``met``); the task's constraint is always one (``"constraint"``; the pancake's
+            ``Ranges()``: ``"friction cone"``).
         exact: with ``exact=True``: whether the polish made the objective's constraints and the task's
             constraint hold exactly (IPOPT converged, violation ≤ 1e-6), per trajectory; None otherwise.
         errors, uncertainty, out_of_distribution, ood_reasons (:class:`~seqmotion.tasks.base.TrustSignals`):
@@ -87,13 +92,10 @@ class OptimizationResult(TrustSignals):
             what the optimised z decodes to).
     """
 
-    states: np.ndarray
-    accel: np.ndarray
-    latent: np.ndarray | None
-    history: np.ndarray
-    seconds_per_update: float
-    stages: list[Stage] = field(default_factory=list)
-    terms: dict[str, Term] = field(default_factory=dict)
+    history: np.ndarray = field(kw_only=True)
+    seconds_per_update: float = field(kw_only=True)
+    stages: list[Stage] = field(default_factory=list, kw_only=True)
+    terms: dict[str, Term] = field(default_factory=dict, kw_only=True)
 
     @property
     def met(self) -> bool:
@@ -129,7 +131,7 @@ def _prepare(
         check_number("lr", lr, minimum=0, strict_minimum=True)
     batch, single = as_trajectories(states, model.input_dim, "states")
     x = torch.from_numpy(batch)  # stays on the CPU (the trust signals read it); x0 goes to the model's device
-    return as_objective(objective).bind(model), x, model.start_state(x).to(model.device), x.shape[1], single
+    return for_model(objective, model), x, model.start_state(x).to(model.device), x.shape[1], single
 
 
 def _check_method(optimizer: object, lr: object, continuation: object) -> None:
@@ -319,6 +321,9 @@ def _resolve_method(
             raise ValueError(f"continuation must be 'auto', None or (w0, n), got {continuation!r}")
         continuation = DEFAULT_CONTINUATION if optimizer == "lm" else None
     _check_method(optimizer, lr, continuation)
+    if optimizer == "lm" and not objective.least_squares:
+        raise ValueError(f"optimizer='lm' needs residuals: {objective!r} is not of least-squares form; use "
+                         "optimizer='sgd' or 'adam', or give residuals: sm.objectives.Function(residuals=f)")
     if steps is None:  # exact: the latent stage only has to come near (≤ 7 updates on ch. 4's targets)
         steps = 10 if exact else 20 if optimizer == "lm" else 100
     if tol is None:
@@ -353,7 +358,10 @@ def optimize_latent(
         states: ``(K, input_dim)`` or ``(B, K, input_dim)`` input motions (for case 2 only
             their start state and length are used).
         objective: an :class:`~seqmotion.latent.objectives.Objective` or a callable
-            ``f(states, accel) -> tensor``.
+            ``f(states, accel) -> tensor``. It keeps the task's constraint: one that does not penalise
+            it itself (a callable, ``AtRest``) is optimised as ``objective + TaskConstraint()`` (J plus
+            ``Σ_k F[k]``, as ``EndPose`` does), and ``res.terms["constraint"]``, ``res.violation`` and a
+            ``RuntimeWarning`` say whether the result keeps it.
         steps: the most updates (default 20 with Levenberg–Marquardt, 100 with gradient descent; 10
             with ``exact=True``).
         lr: step size η, or ``"auto"`` (default): Armijo backtracking at every update. The
@@ -495,8 +503,12 @@ def _finish(
         states, accel, exact, polish_stage = _polish(model, objective, x0, states, accel, constraints)
         stages.append(polish_stage)
     terms = objective.report(states, accel)
-    res = _result(states, accel, latent, history, seconds, single)
-    res.stages, res.terms = stages, terms
+    with torch.no_grad():
+        violation = model.violation_torch(states, accel)
+    res = _result(states, accel, latent, None if violation is None else violation.double().numpy(), history,
+                  seconds, single)
+    res.stages, res.terms, res.task = stages, terms, model.task_def.name
+    _warn_if_infeasible(violation)
     res.exact = None if exact is None else (bool(exact[0]) if single else exact)
     trust = model.assess(inputs.numpy()[0] if single else inputs.numpy(), res.states, res.accel,
                          None if latent is None else res.latent, **physics)
@@ -539,9 +551,25 @@ def _polish(
     return out_states, out_accel, exact, Stage("polish", iterations, time.perf_counter() - start, value, status)
 
 
+def _warn_if_infeasible(violation: torch.Tensor | None) -> None:
+    """Say which trajectories break the task's constraint (largest violation > :data:`FEASIBLE_TOLERANCE`)."""
+    if violation is None or violation.shape[-1] == 0:
+        return
+    worst = violation.amax(-1)
+    broken = torch.nonzero(worst > FEASIBLE_TOLERANCE).flatten().tolist()
+    if broken:
+        which = "the motion" if len(worst) == 1 else f"trajectories {broken}"
+        warnings.warn(
+            f"the task's constraint is missed on {which}: largest violation {float(worst.max()):.3g} > "
+            f"{FEASIBLE_TOLERANCE} (res.violation, res.terms); weigh it up (objective + "
+            f"sm.objectives.TaskConstraint(alpha=...)), run more updates, or polish it with exact=True",
+            RuntimeWarning, stacklevel=4,
+        )
+
+
 def _result(
-    states: torch.Tensor, accel: torch.Tensor, latent: torch.Tensor | None, history: np.ndarray, seconds: float,
-    single: bool,
+    states: torch.Tensor, accel: torch.Tensor, latent: torch.Tensor | None, violation: np.ndarray | None,
+    history: np.ndarray, seconds: float, single: bool,
 ) -> OptimizationResult:
     states_np = check_finite_result(states.double().numpy(), "optimisation")
     accel_np = accel.double().numpy()
@@ -549,5 +577,7 @@ def _result(
     if single:
         states_np, accel_np = states_np[0], accel_np[0]
         latent_np = None if latent_np is None else latent_np[0]
+        violation = None if violation is None else violation[0]
         history = history[:, 0] if history.ndim == 2 else history
-    return OptimizationResult(states_np, accel_np, latent_np, history, seconds)
+    return OptimizationResult(states_np, accel_np, latent_np, violation, history=history,  # type: ignore[arg-type]
+                              seconds_per_update=seconds)

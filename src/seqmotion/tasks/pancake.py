@@ -389,12 +389,18 @@ class Deformer(TrainedModel):
 
     Obtain one with ``sm.load_pretrained("pancake")`` or ``sm.load(run_dir)``. Its μ is
     ``self.options.mu`` (the μ it was trained at); every result is judged at it.
+
+    One verb for every model: :meth:`~seqmotion.tasks.TrainedModel.generate` (encode a motion, decode it
+    through the task's physics) works on this model as on any task's, plug-ins included, and returns the
+    same :class:`DeformResult`. :meth:`deform` is the pancake's (chapter 2's) name for it, as ``plan`` is the
+    sliding planner's; code meant for any task calls ``generate``.
     """
 
     task = "pancake"
 
     def deform(self, states: object, keep_end: bool = False, extend: bool = True) -> DeformResult:
-        """Deform ``(K, 6)`` or ``(B, K, 6)`` states (any K ≥ 2) into feasible ones.
+        """Deform ``(K, 6)`` or ``(B, K, 6)`` states (any K ≥ 2) into feasible ones: :meth:`generate` under the
+        chapter's name (the same result; a bad shape is worded for pancake states).
 
         Args:
             states: the rough motion(s) [m, m, rad, m/s, m/s, rad/s] at 1 ms.
