@@ -1,0 +1,88 @@
+"""Every time the README states, measured as a newcomer meets it: each in a fresh process, first call and warm.
+
+    python benchmarks/bench_readme_times.py [--json out.json]
+
+Run it on a quiet machine (pause other jobs): torch threads beside a busy process run 5-40x slower.
+Each claim runs in its own interpreter (``python -c``), so imports, model loading, numba's and IPOPT's first
+calls are what a new user pays on the first call; the warm figure is the median of later calls.
+The demo is timed as ``seqmotion demo`` end to end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+SNIPPETS = {
+    "deform K=500": """
+import time, statistics
+import seqmotion as sm
+t0 = time.perf_counter(); deformer = sm.load_pretrained("pancake"); load = time.perf_counter() - t0
+sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 500)
+t0 = time.perf_counter(); deformer.deform(sketch); first = time.perf_counter() - t0
+warm = []
+for _ in range(30):
+    t0 = time.perf_counter(); deformer.deform(sketch); warm.append(time.perf_counter() - t0)
+print({"load_s": load, "first_s": first, "warm_median_s": statistics.median(warm)})
+""",
+    "deform keep_end": """
+import time, statistics
+import numpy as np
+import seqmotion as sm
+deformer = sm.load_pretrained("pancake")
+rng = np.random.default_rng(2027)
+times = []
+for i in range(21):
+    end = (rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.1), rng.uniform(-3.0, 3.0))
+    sketch = sm.data.pancake.straight(end, 500)
+    t0 = time.perf_counter(); deformer.deform(sketch, keep_end=True); times.append(time.perf_counter() - t0)
+print({"first_s": times[0], "warm_median_s": statistics.median(times[1:]), "warm_max_s": max(times[1:])})
+""",
+    "refine_plan circle 900": """
+import time
+import seqmotion as sm
+planner = sm.load_pretrained("sliding")
+circle = sm.data.sliding.circle(0.05, 900)
+t0 = time.perf_counter(); sm.refine_plan(planner, circle); first = time.perf_counter() - t0
+t0 = time.perf_counter(); sm.refine_plan(planner, circle); warm = time.perf_counter() - t0
+print({"first_s": first, "warm_s": warm})
+""",
+}
+
+
+def run_snippet(code: str) -> dict:
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
+    return eval(done.stdout.strip().splitlines()[-1])  # noqa: S307 - our own snippet's printed dict
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path)
+    parser.add_argument("--no-demo", action="store_true")
+    args = parser.parse_args()
+    from seqmotion.training.provenance import machine_description
+
+    results: dict = {"machine": machine_description()}
+    for name, code in SNIPPETS.items():
+        results[name] = run_snippet(code)
+        print(name, results[name], flush=True)
+    if not args.no_demo:
+        with tempfile.TemporaryDirectory() as folder:
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "seqmotion.cli", "demo", "--out", folder], check=True,
+                           capture_output=True, env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+            results["seqmotion demo"] = {"wall_s": time.perf_counter() - t0}
+        print("seqmotion demo", results["seqmotion demo"], flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()
