@@ -217,7 +217,8 @@ class ViewerApp:
         if sliding_model is not None and sliding_model.lower() == "none":
             sliding_model = None
         planner = resolve_model(sliding_model, "sliding") if task == "pancake" and sliding_model else None
-        self.server = guard.start_server(host, port, label="seqmotion view", verbose=False)
+        self.server = guard.start_server(host, port, self.controls, self.error, label="seqmotion view",
+                                         verbose=False)
         self.panels: dict[str, Any] = {}
         self.server.on_client_disconnect(self._client_left)
         self.server.gui.configure_theme(control_width="large", show_logo=False, dark_mode=False)

@@ -22,7 +22,7 @@ import ipaddress
 import logging
 import math
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,10 +82,12 @@ _SERVE_LOCK = threading.Lock()
 _log = logging.getLogger(__name__)
 
 
-def start_server(host: str, port: int, **kwargs: Any) -> Any:
+def start_server(host: str, port: int, controls: Controls | None = None,
+                 on_refused: Callable[[str], None] | None = None, **kwargs: Any) -> Any:
     """A ``viser.ViserServer`` at ``host:port`` (``kwargs``: its other arguments) that refuses foreign origins
-    (:func:`checking_origin`) and lets a page change values only (:func:`values_only`); RuntimeError, and no
-    server left running, where either cannot be installed (a viser version that works differently)."""
+    (:func:`checking_origin`) and lets a page change values only, each checked on arrival against ``controls``
+    (:func:`values_only`; ``on_refused`` gets the message of a value refused); RuntimeError, and no server left
+    running, where either cannot be installed (a viser version that works differently)."""
     import viser
 
     wrapped: list[int] = []
@@ -95,7 +97,7 @@ def start_server(host: str, port: int, **kwargs: Any) -> Any:
         if not wrapped:
             raise RuntimeError("viser did not start its server through websockets.asyncio.server.serve: the "
                                "viewer's Origin check could not be installed (an unsupported viser version?)")
-        values_only(server)
+        values_only(server, controls, on_refused)
     except BaseException:
         server.stop()
         raise
@@ -139,10 +141,17 @@ def checking_origin(host: str, wrapped: list[int]) -> Iterator[None]:
             ws_server.serve = original
 
 
-def values_only(server: Any) -> None:
+def values_only(server: Any, controls: Controls | None = None,
+                on_refused: Callable[[str], None] | None = None) -> None:
     """Let a page change a control's ``value`` only: viser applies every property a ``GuiUpdateMessage``
     names (``disabled``, ``options``, ``min``, the callback list …), while its own page only ever sends
-    ``value``. Wraps viser's one handler of that message (RuntimeError if it is not where expected)."""
+    ``value``. Wraps viser's one handler of that message (RuntimeError if it is not where expected).
+
+    A declared control's value (``controls``) is checked on arrival, on the server's message thread, before
+    viser stores it: a number out of range is stored clamped, a refused value is not stored at all
+    (``on_refused`` gets the message naming the control), and the page is sent back what the server holds.
+    Checking here, in message order, means no later value from the page can be overwritten by a correction
+    of an earlier one (a check when a panel's worker reads the control would race with new messages)."""
     from viser._messages import GuiUpdateMessage
 
     websock, handler = server._websock_server, server.gui._handle_gui_updates
@@ -151,16 +160,32 @@ def values_only(server: Any) -> None:
                            "page may change (an unsupported viser version?)")
     websock.unregister_handler(GuiUpdateMessage, handler)
 
+    def show(uuid: str, value: Any) -> None:  # to the pages, without calling the control's callbacks again
+        websock.queue_message(GuiUpdateMessage(uuid, {"value": value}))
+
     async def only_value(client_id: Any, message: Any) -> None:
         if not isinstance(message.updates, dict):
             return
         message.updates = {k: v for k, v in message.updates.items() if k == "value"}
         if not message.updates:
             return
+        handle = None if controls is None else controls.by_uuid(message.uuid)
+        sent = message.updates["value"]
+        if handle is not None:
+            try:
+                message.updates["value"] = controls.check(handle, sent)
+            except ValueError as exc:
+                if on_refused is not None:
+                    on_refused(str(exc))
+                show(message.uuid, handle.value)  # the page shows what the server still holds
+                return
         try:
             await handler(client_id, message)
         except (TypeError, ValueError, OverflowError) as exc:  # viser cannot even cast it to the control's type
             _log.warning("seqmotion view: dropped a value for control %s: %s", message.uuid, _short(str(exc)))
+            return
+        if handle is not None and message.updates["value"] != sent:
+            show(message.uuid, message.updates["value"])  # clamped: the page shows what the server uses
 
     websock.register_handler(GuiUpdateMessage, only_value)
 
@@ -227,6 +252,7 @@ class Controls:
 
     def __init__(self) -> None:
         self._declared: dict[int, tuple[Any, Declared]] = {}
+        self._uuids: dict[str, Any] = {}  # viser's id of each declared control → its handle
 
     def declare(self, handle: Any, lo: Sequence[float] | float | None = None, hi: Sequence[float] | float | None = None,
                 max_chars: int = MAX_TEXT) -> Any:
@@ -248,7 +274,14 @@ class Controls:
             integer = isinstance(initial, int) and float(getattr(handle, "step", 1) or 1).is_integer()
             spec = Declared(handle.label, initial, lo_t, hi_t, integer)
         self._declared[id(handle)] = (handle, spec)
+        uuid = getattr(getattr(handle, "_impl", None), "uuid", None)
+        if uuid is not None:
+            self._uuids[uuid] = handle
         return handle
+
+    def by_uuid(self, uuid: str) -> Any | None:
+        """The declared control viser knows as ``uuid`` (None: not declared, e.g. a button)."""
+        return self._uuids.get(uuid)
 
     def check(self, handle: Any, value: Any) -> Any:
         """``value`` made valid for ``handle`` (:meth:`Declared.check`), without touching the control."""
