@@ -35,6 +35,7 @@ import torch
 from seqmotion import tasks
 from seqmotion.physics import sliding
 from seqmotion.training.provenance import machine_description
+from seqmotion.training.trainer import step_loss
 
 CHUNKS_PER_BATCH = 15  # K_max = 1500 samples, C = 100
 
@@ -90,7 +91,7 @@ def bench_train(repeats: int, device: torch.device) -> None:
               "stage 3 (L through contact)": {"loss_prime_prob": 0.0, "bspline_prob": 0.0}}
     times: dict[tuple[str, str], list[float]] = {}
     for stage, params in stages.items():
-        batch = task.sample(cfg.batch_size, np.random.default_rng(0), params, cfg)
+        batch = task.sample(cfg.batch_size, np.random.default_rng(0), task.params(params), task.options(cfg))
         for _ in range(repeats):
             for backend in ("numba", "torch"):
                 torch.manual_seed(0)
@@ -100,7 +101,7 @@ def bench_train(repeats: int, device: torch.device) -> None:
                 try:
                     sync(device)
                     start = time.perf_counter()
-                    loss, _ = task.loss(model, batch, params, cfg, torch.Generator().manual_seed(0))
+                    loss, _ = step_loss(task, model, batch, params, cfg, torch.Generator().manual_seed(0))
                     optimizer.zero_grad()
                     loss.backward()
                     optimizer.step()

@@ -63,12 +63,20 @@ class Stepper:
                                              total_steps=10_000, grad_clip=self.cfg.grad_clip, run_dir=None)
         curriculum = self.task.curriculum(self.cfg)
         self.stage = curriculum.at(stage_epoch, 0.5)
-        self.batch = self.task.sample(self.cfg.batch_size, np.random.default_rng([seed, 1]), self.stage, self.cfg)
+        trainer = importlib.import_module(f"{pkg_name}.training.trainer")
+        self.step_loss = getattr(trainer, "step_loss", None)  # None: a version before the typed task contract
+        typed = self.step_loss is not None
+        self.batch = self.task.sample(self.cfg.batch_size, np.random.default_rng([seed, 1]),
+                                      self.task.params(self.stage) if typed else self.stage,
+                                      self.task.options(self.cfg) if typed else self.cfg)
         self.k_max = int(self.batch.states.shape[1])
 
     def step(self, s: int) -> float:
         coins = torch.Generator().manual_seed(1000 + s)
-        loss, _ = self.task.loss(self.model, self.batch, self.stage, self.cfg, coins)
+        if self.step_loss is not None:
+            loss, _ = self.step_loss(self.task, self.model, self.batch, self.stage, self.cfg, coins)
+        else:
+            loss, _ = self.task.loss(self.model, self.batch, self.stage, self.cfg, coins)
         self.loop.step(loss)
         return float(loss.detach())
 

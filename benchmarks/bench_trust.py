@@ -32,9 +32,10 @@ import numpy as np
 import torch
 
 import seqmotion as sm
+from seqmotion.core import trust
+from seqmotion.core.results import Motion
 from seqmotion.data import pancake as pancake_data
 from seqmotion.data import sliding as sliding_data
-from seqmotion.tasks import Motion, trust
 from seqmotion.training.provenance import machine_description
 
 

@@ -118,7 +118,7 @@ info = Path("badplug-0.1.dist-info"); info.mkdir()
 (info / "METADATA").write_text("Metadata-Version: 2.1\\nName: badplug\\nVersion: 0.1\\n")
 (info / "entry_points.txt").write_text("[seqmotion.tasks]\\nbad = badplug:TASK\\n")
 sys.path.insert(0, os.getcwd())
-from seqmotion.tasks import registry
+from seqmotion.core import registry
 registry.refresh()
 np.savez("in.npz", states=sketches.straight((0.1, 0.0, 2.0), 150))
 print("deform:", cli("deform", "--input", "in.npz", "--output", "o.npz")[0])

@@ -41,7 +41,7 @@ def small_model_and_batch():
     cfg = task.train_config("small")
     torch.manual_seed(0)
     model = task.build_model(cfg)
-    batch = task.sample(16, np.random.default_rng(3), task.curriculum(cfg).at(15, 0.5), cfg)
+    batch = task.sample(16, np.random.default_rng(3), task.params(task.curriculum(cfg).at(15, 0.5)), task.options(cfg))
     return model, torch.from_numpy(batch.states).float(), torch.from_numpy(batch.lengths)
 
 
@@ -200,7 +200,7 @@ def test_rollout_skips_ended_trajectories_with_the_same_numbers_within_their_len
     torch.manual_seed(4)
     model = task.build_model(cfg).double()
     stage = task.curriculum(cfg).at(cfg.epochs - 1, 0.5)
-    batch = task.sample(12, np.random.default_rng(5), stage, cfg)
+    batch = task.sample(12, np.random.default_rng(5), task.params(stage), task.options(cfg))
     shuffled = np.random.default_rng(6).permutation(len(batch))  # the rollout sorts and puts back
     batch = batch.select(shuffled)
     states = torch.from_numpy(batch.states).double()

@@ -12,6 +12,7 @@ from seqmotion import tasks
 from seqmotion.data import pancake as inputs
 from seqmotion.tasks.pancake import PancakeOptions, chapter2_curriculum
 from seqmotion.training import checkpoint as ckpt
+from seqmotion.training.trainer import step_loss
 
 
 def _tiny(**options):
@@ -63,7 +64,7 @@ def test_end_terms_are_off_by_default_and_leave_the_config_unchanged():
 
     def loss(**options):
         _, cfg = _tiny(**options)
-        return task.loss(model, batch, params, cfg, torch.Generator().manual_seed(0))
+        return step_loss(task, model, batch, params, cfg, torch.Generator().manual_seed(0))
 
     base, terms = loss()
     zero, _ = loss(alpha_end=0.0, alpha_rest=0.0)

@@ -137,7 +137,8 @@ def test_sliding_latent_optimisation_refuses_bad_friction(planner, physics, name
     """Item 5: optimize_latent(sliding, ..., mu=-1) ran while plan() refused the same value."""
     objective = sm.objectives.Function(lambda s, a: (s[:, -1, :2] ** 2).sum(-1))
     with pytest.raises(ValueError, match=name):
-        sm.optimize_latent(planner, commands.circle(0.05, 300), objective, steps=2, **physics)
+        sm.optimize_latent(planner, commands.circle(0.05, 300), objective, steps=2,
+                           physics=planner.physics.replace(**physics))
     with pytest.raises(ValueError, match=name):
         planner.plan(commands.circle(0.05, 300), **physics)
 

@@ -215,16 +215,16 @@ def test_there_is_one_length_cap():
     defined = sorted(p.relative_to(root).as_posix() for p in root.rglob("*.py")
                      if re.search(r"^MAX_LENGTH\s*=", p.read_text(), re.MULTILINE))
     assert defined == ["errors.py"]
-    from seqmotion.tasks import base, options
+    from seqmotion.core import options, trained
 
-    assert base.MAX_LENGTH is options.MAX_LENGTH is MAX_LENGTH
+    assert trained.MAX_LENGTH is options.MAX_LENGTH is MAX_LENGTH
 
 
 # --- 7. MemoryError ----------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("argv, target", [
-    (["deform", "--input", "{dir}/in.npz", "--output", "{dir}/o.npz"], "seqmotion.tasks.base.TrainedModel.generate"),
+    (["deform", "--input", "{dir}/in.npz", "--output", "{dir}/o.npz"], "seqmotion.core.trained.TrainedModel.generate"),
     (["lfd", "info", "{dir}/in.h5"], "seqmotion.lfd.dataset.load_dataset"),
 ])
 def test_an_allocation_failure_in_the_work_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch, argv, target):

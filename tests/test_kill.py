@@ -43,7 +43,7 @@ import numpy, torch  # imported once, before any fork
 import seqmotion, seqmotion.api, seqmotion.cli, seqmotion.tasks, seqmotion.training.files
 import seqmotion.physics.sliding, seqmotion.training.trainer
 
-seqmotion.tasks.registry.names()
+seqmotion.core.registry.names()
 import matplotlib  # warm up what the children would otherwise each import or compile
 matplotlib.use("Agg")
 import matplotlib.pyplot

@@ -1,5 +1,5 @@
-"""The package's layers import downward only, with no cycles (physics → models → training → tasks →
-latent / sim / lfd → cli / reproduce), and no module imports another module's private names."""
+"""The package's layers import downward only, with no cycles (physics → models → training → data → core →
+tasks → latent / sim / lfd / deploy → cli / reproduce / view), and no module imports another module's private names."""
 
 from __future__ import annotations
 
@@ -7,8 +7,10 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "src" / "seqmotion"
-RANK = {"errors": 0, "physics": 0, "data": 0, "models": 1, "training": 2, "tasks": 3, "api": 3, "latent": 4,
-        "sim": 4, "lfd": 4, "cli": 5, "reproduce": 5, "deploy": 5, "view": 5}
+RANK = {"errors": 0, "io": 0, "physics": 1, "models": 2, "training": 3, "data": 4, "core": 5, "tasks": 6, "api": 6,
+        "latent": 7, "sim": 7, "lfd": 7, "deploy": 7, "cli": 8, "reproduce": 8, "view": 8}
+"""physics → models → training → data → core (the task contract, results, trained model, stepper) → tasks
+(one module per task) → latent / sim / lfd / deploy → cli / reproduce / view (docs/architecture.md)."""
 
 
 def module_name(path: Path) -> str:

@@ -23,8 +23,8 @@ import torch
 
 import seqmotion as sm
 from seqmotion import tasks
+from seqmotion.core.results import Motion
 from seqmotion.latent.objectives import EndPose, Function, Ranges, TaskConstraint
-from seqmotion.tasks.base import Motion
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "tray"
 

@@ -66,8 +66,10 @@ def test_a_model_trained_at_mu_08_is_judged_at_08_everywhere(run08, tmp_path, ca
     assert float(bound.penalty(states, accel)) == pytest.approx(expected, rel=1e-9)
     assert sm.objectives.Ranges().bind(model).mu == 0.8
     assert sm.objectives.EndPose((0.1, 0.0, 2.0), mu=1.0).bind(model).penalty(states, accel) <= expected
-    with pytest.raises(ValueError, match="no parameter"):
-        sm.optimize_latent(model, sketch, sm.objectives.EndPose((0.1, 0.0, 2.0)), steps=1, mu=0.9)
+    assert model.physics.mu == 0.8  # the model's physics, resolved from its options
+    with pytest.raises(ValueError, match="trained at"):  # its cone is the one it learned to keep
+        sm.optimize_latent(model, sketch, sm.objectives.EndPose((0.1, 0.0, 2.0)), steps=1,
+                           physics=model.physics.replace(mu=0.9))
 
     # the CLI prints F_c at the model's μ, and the plot's cone band is ±atan 0.8
     np.savez(tmp_path / "in.npz", states=sketch)
@@ -100,7 +102,7 @@ def test_tasks_registry_lists_builtin_tasks():
 def test_help_names_only_real_tasks():
     """``--help`` lists tasks without importing them; every name it lists must be a task (the task layer's
     helper modules, ``stepper`` and ``trust``, are not)."""
-    from seqmotion.tasks.registry import declared_names
+    from seqmotion.core.registry import declared_names
 
     assert set(declared_names()) <= set(tasks.names())
     assert {"pancake", "sliding"} <= set(declared_names())

@@ -10,6 +10,7 @@ import pytest
 
 import seqmotion as sm
 from seqmotion.data import sliding as commands
+from seqmotion.physics.pancake import PancakePhysics
 
 
 @pytest.fixture(scope="module")
@@ -54,10 +55,10 @@ def test_a_batch_is_flagged_whole_and_assess_checks_physics_too(planner, line):
     plans = planner.plan(np.stack([line, line]), mu=3.0)
     assert plans.out_of_distribution.tolist() == [True, True]
     one = planner.plan(line)
-    judged = planner.assess(line, _states(one), one.pan_accel, mu=3.0)
+    judged = planner.assess(line, _states(one), one.pan_accel, physics=planner.physics.replace(mu=3.0))
     assert judged.out_of_distribution and any(r.startswith("mu ") for r in judged.ood_reasons)
-    with pytest.raises(ValueError, match="take no parameter"):
-        planner.assess(line, _states(one), one.pan_accel, friction=1.0)
+    with pytest.raises(ValueError, match="runs at SlidingPhysics"):
+        planner.assess(line, _states(one), one.pan_accel, physics=PancakePhysics(mu=1.0))
 
 
 def _states(plan):

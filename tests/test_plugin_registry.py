@@ -18,8 +18,8 @@ import pytest
 
 import seqmotion as sm
 from seqmotion.cli import main
+from seqmotion.core import registry
 from seqmotion.data import pancake as inputs
-from seqmotion.tasks import registry
 
 SOURCE = str(Path(sm.__file__).parents[1])  # the seqmotion under test, also in the subprocess
 BROKEN = {
@@ -97,7 +97,7 @@ def test_a_plugin_calling_sys_exit_does_not_end_a_command(tmp_path):
         import sys
         sys.path.insert(0, {str(tmp_path)!r})
         from seqmotion.cli import main
-        from seqmotion.tasks import registry
+        from seqmotion.core import registry
         print("tasks:", registry.names())
         sys.exit(main(["deform", "--input", {str(tmp_path / 'in.npz')!r},
                        "--output", {str(tmp_path / 'out.npz')!r}]))

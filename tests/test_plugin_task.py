@@ -21,6 +21,7 @@ import torch
 import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.physics.integrator import integrate_numpy
+from seqmotion.physics.sliding import SlidingPhysics
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "tray"
 
@@ -125,8 +126,8 @@ def test_lm_reaches_an_end_point_on_a_residual_objective(run):
         sm.optimize_latent(model, sketch, sm.objectives.Ranges(), steps=1)
     with pytest.raises(ValueError, match="end pose is \\['x', 'y'\\]"):
         sm.optimize_latent(model, sketch, sm.objectives.EndPose((0.1, 0.05, 0.0)), steps=1)
-    with pytest.raises(ValueError, match="no parameter"):
-        sm.optimize_latent(model, sketch, reach, steps=1, mu=0.5)
+    with pytest.raises(ValueError, match="runs at Physics"):
+        sm.optimize_latent(model, sketch, reach, steps=1, physics=SlidingPhysics(mu=0.5))
 
 
 def test_cli_deform_and_optimize_on_the_plug_in(installed, run, tmp_path):

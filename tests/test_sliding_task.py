@@ -10,8 +10,11 @@ from seqmotion.data import sliding as commands
 from seqmotion.physics import sliding as contact
 from seqmotion.tasks import train
 from seqmotion.tasks.sliding import SlidingPlanner, chapter3_curriculum
+from seqmotion.training.trainer import step_loss
 
 TASK = tasks.get("sliding")
+L_ONLY = TASK.params({"loss_prime_prob": 0.0, "bspline_prob": 0.0})
+PRIME_ONLY = TASK.params({"loss_prime_prob": 1.0, "bspline_prob": 0.0})
 
 
 def test_table_3_1_schedule_with_fading_reading():
@@ -39,7 +42,7 @@ def test_loss_prime_does_not_backpropagate_through_the_contact_model():
     torch.manual_seed(0)
     model = TASK.build_model(cfg)
     rng = np.random.default_rng(0)
-    batch = TASK.sample(4, rng, {"loss_prime_prob": 1.0, "bspline_prob": 0.0}, cfg)
+    batch = TASK.sample(4, rng, PRIME_ONLY, TASK.options(cfg))
     assert batch.extras["loss_prime"].all()
     calls = []
     original = contact.ContactChunk.backward
@@ -50,13 +53,13 @@ def test_loss_prime_does_not_backpropagate_through_the_contact_model():
 
     contact.ContactChunk.backward = staticmethod(spy)
     try:
-        loss, _ = TASK.loss(model, batch, {"loss_prime_prob": 1.0, "bspline_prob": 0.0}, cfg, torch.Generator())
+        loss, _ = step_loss(TASK, model, batch, {"loss_prime_prob": 1.0, "bspline_prob": 0.0}, cfg, torch.Generator())
         loss.backward()
         assert not calls  # L' only: no gradient through the contact model (and no graph built)
         grads = [p.grad.clone() for p in model.parameters()]
         batch.extras["loss_prime"][:] = False
         model.zero_grad()
-        loss, _ = TASK.loss(model, batch, {"loss_prime_prob": 0.0, "bspline_prob": 0.0}, cfg, torch.Generator())
+        loss, _ = step_loss(TASK, model, batch, {"loss_prime_prob": 0.0, "bspline_prob": 0.0}, cfg, torch.Generator())
         loss.backward()
         assert calls  # L: it does
         assert any(not torch.equal(g, p.grad) for g, p in zip(grads, model.parameters(), strict=True))
@@ -130,7 +133,7 @@ def test_generators_are_seeded_and_start_at_rest():
 def test_friction_randomisation_draws_valid_pairs_and_reaches_the_physics():
     cfg = TASK.train_config("tiny")
     cfg.options["friction_range"] = [[0.7, 1.3], [0.3, 0.7]]
-    batch = TASK.sample(64, np.random.default_rng(0), {"loss_prime_prob": 0.0, "bspline_prob": 0.0}, cfg)
+    batch = TASK.sample(64, np.random.default_rng(0), L_ONLY, TASK.options(cfg))
     mu, mud = batch.extras["mu"], batch.extras["mu_dyn"]
     assert np.all((mu >= 0.7) & (mu <= 1.3) & (mud >= 0.3) & (mud < mu)) and mu.std() > 0.1
     # physics-type commands were rolled out with each trajectory's own friction
@@ -139,8 +142,7 @@ def test_friction_randomisation_draws_valid_pairs_and_reaches_the_physics():
     pan_accel = np.diff(batch.extras["pan_states"][b, :k, 2:], axis=0) / 1e-3
     _, rel = contact.rollout(pan_accel, mu=mu[b], mu_dyn=mud[b])
     np.testing.assert_allclose(rel, batch.states[b, :k], atol=1e-9)
-    default = TASK.sample(8, np.random.default_rng(0), {"loss_prime_prob": 0.0, "bspline_prob": 0.0},
-                          TASK.train_config("tiny"))
+    default = TASK.sample(8, np.random.default_rng(0), L_ONLY, TASK.options(TASK.train_config("tiny")))
     assert np.all(default.extras["mu"] == 1.0) and np.all(default.extras["mu_dyn"] == 0.5)
 
 
@@ -148,12 +150,12 @@ def test_friction_pairs_draw_only_the_listed_pairs_and_bad_pairs_are_refused():
     cfg = TASK.train_config("tiny")
     cfg.options["friction_pairs"] = [[0.8, 0.35], [1.2, 0.65]]
     params = {"loss_prime_prob": 0.0, "bspline_prob": 0.0}
-    batch = TASK.sample(64, np.random.default_rng(0), params, cfg)
+    batch = TASK.sample(64, np.random.default_rng(0), TASK.params(params), TASK.options(cfg))
     drawn = set(zip(batch.extras["mu"].tolist(), batch.extras["mu_dyn"].tolist(), strict=True))
     assert drawn == {(0.8, 0.35), (1.2, 0.65)}
     cfg.options["friction_pairs"] = [[0.5, 0.7]]  # μ' > μ
     with pytest.raises(ValueError, match="friction_pairs"):
-        TASK.sample(4, np.random.default_rng(0), params, cfg)
+        TASK.sample(4, np.random.default_rng(0), TASK.params(params), TASK.options(cfg))
 
 
 def test_velocity_shaking_slides_as_often_but_lets_the_pan_drift():
@@ -180,4 +182,4 @@ def test_velocity_shaking_slides_as_often_but_lets_the_pan_drift():
     cfg = TASK.train_config("tiny")
     cfg.options["pan_shaking"] = "sideways"
     with pytest.raises(ValueError, match="pan_shaking"):
-        TASK.sample(4, np.random.default_rng(0), {"loss_prime_prob": 1.0, "bspline_prob": 0.0}, cfg)
+        TASK.sample(4, np.random.default_rng(0), PRIME_ONLY, TASK.options(cfg))

@@ -12,6 +12,7 @@ import torch
 
 from seqmotion import tasks
 from seqmotion.physics import sliding
+from seqmotion.training.trainer import step_loss
 
 G, MU, MU_DYN = sliding.GRAVITY, sliding.MU, sliding.MU_DYN
 TORCH_BACKENDS = ("torch", "torch_autograd")
@@ -259,13 +260,13 @@ def test_training_loss_and_gradients_alike_on_both_backends(monkeypatch):
     task = tasks.get("sliding")
     cfg = task.train_config("tiny")
     params = {"loss_prime_prob": 0.0, "bspline_prob": 0.5}
-    batch = task.sample(6, np.random.default_rng(0), params, cfg)
+    batch = task.sample(6, np.random.default_rng(0), task.params(params), task.options(cfg))
     results = []
     for backend in ("numba", "torch"):
         torch.manual_seed(0)
         model = task.build_model(cfg)
         monkeypatch.setattr(sliding, "CPU_BACKEND", backend)
-        loss, terms = task.loss(model, batch, params, cfg, torch.Generator().manual_seed(0))
+        loss, terms = step_loss(task, model, batch, params, cfg, torch.Generator().manual_seed(0))
         loss.backward()
         results.append((loss.detach(), terms, [p.grad for p in model.parameters()]))
     (la, ta, ga), (lb, tb, gb) = results
@@ -300,12 +301,12 @@ def test_on_cuda_a_training_loss_runs_on_the_gpu():
     task = tasks.get("sliding")
     cfg = task.train_config("tiny")
     params = {"loss_prime_prob": 0.5, "bspline_prob": 0.5}
-    batch = task.sample(6, np.random.default_rng(1), params, cfg)
+    batch = task.sample(6, np.random.default_rng(1), task.params(params), task.options(cfg))
     losses = []
     for device in ("cpu", "cuda"):
         torch.manual_seed(0)
         model = task.build_model(cfg).to(device)
-        loss, _ = task.loss(model, batch, params, cfg, torch.Generator().manual_seed(0))
+        loss, _ = step_loss(task, model, batch, params, cfg, torch.Generator().manual_seed(0))
         loss.backward()
         assert loss.device.type == device
         assert all(torch.isfinite(p.grad).all() for p in model.parameters())

@@ -1,5 +1,5 @@
 """The online stepper (``model.generator``): partial chunks, replanning, the end of the motion, latent swaps,
-reset and input checks, on the shipped models (contract: ``seqmotion.tasks.stepper``)."""
+reset and input checks, on the shipped models (contract: ``seqmotion.core.stepper``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import seqmotion as sm
-from seqmotion.tasks.stepper import stop_accel
+from seqmotion.core.stepper import stop_accel
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -193,7 +193,7 @@ def test_the_contract_is_data(pancake, sliding):
     assert c["velocity_columns"] == [3, 4, 5] and c["constraint"] and c["length"] == 100
     assert "c_l = z" in c["decoder_init"] and c["dynamics"]["kind"] == "double_integrator"
     json.dumps(c)
-    s = sliding.generator(latent=np.zeros(256), x0=np.zeros(8), mu=0.6).contract()
+    s = sliding.generator(latent=np.zeros(256), x0=np.zeros(8), physics=sliding.physics.replace(mu=0.6)).contract()
     assert s["dynamics"] == {**s["dynamics"], "kind": "sliding", "mu": 0.6} and not s["constraint"]
     assert s["length"] == 1500 and s["velocity_columns"] == [2, 3]  # the longest training motion, the pan
 

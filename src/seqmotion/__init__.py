@@ -14,10 +14,10 @@ from typing import Any
 
 from . import data, physics, tasks
 from .api import load, load_pretrained, pretrained_models
+from .core.results import load_result
 from .errors import CheckpointError
 from .latent import objectives, optimize_latent, optimize_trajectory, refine_plan
 from .sim.registration import register_envs
-from .tasks.base import load_result
 
 register_envs()  # gymnasium.make("seqmotion/PancakeArm-v0") (string entry points: MuJoCo is not imported)
 

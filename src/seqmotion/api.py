@@ -2,7 +2,7 @@
 
 Shipped models are discovered from what is installed: every folder of a task package's
 ``pretrained/`` (``seqmotion/pretrained/`` for the built-in tasks, the plug-in's own for a task
-from another package; see :func:`seqmotion.tasks.registry.pretrained_roots`) that holds a model
+from another package; see :func:`seqmotion.core.registry.pretrained_roots`) that holds a model
 directory is a pretrained model named after the folder.
 """
 

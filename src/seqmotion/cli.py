@@ -39,7 +39,8 @@ def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[s
     """
     from dataclasses import fields
 
-    trust_fields = ("uncertainty", "errors", "out_of_distribution", "ood_reasons", "task")  # named below, or printed
+    # named below, or printed
+    trust_fields = ("uncertainty", "errors", "out_of_distribution", "ood_reasons", "task", "physics")
     columns = {f.name: getattr(result, f.name) for f in fields(result)
                if getattr(result, f.name) is not None and f.name not in trust_fields}
     names: dict[str, list[str]] = {}
@@ -51,6 +52,9 @@ def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[s
         columns[f"errors.{key}"] = np.asarray(value)
     if getattr(result, "out_of_distribution", None) is not None:
         columns["out_of_distribution"] = np.asarray(result.out_of_distribution)
+    physics = getattr(result, "physics", None)
+    for key, value in (physics.to_dict() if physics is not None else {}).items():  # what it was computed at
+        columns[f"physics.{key}"] = np.asarray(value)
     layouts = (model.state_layout, model.accel_layout, model.input_layout)
     for field, value in columns.items():
         if field in names:
@@ -190,7 +194,7 @@ def cmd_deform(args: argparse.Namespace) -> int:
 def print_not_executable(model, result: object) -> None:  # noqa: ANN001 - a task's TrainedModel
     """Say when the learned motion misses the task's end tolerances (ends elsewhere, or still moving), so an arm
     cannot execute it as it is, and point to ``--keep-end`` where the task has an exact polish."""
-    from seqmotion.tasks import trust
+    from seqmotion.core import trust
 
     tolerances = model.task_def.tolerances(model.options)
     ends = {k: v for k, v in tolerances.items() if k.startswith("end_")}
@@ -271,11 +275,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
         plan = refine_plan(planner, command, mu=args.mu, mu_dyn=args.mu_dyn)
     else:
         plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
-    mu = planner.options.mu if args.mu is None else args.mu
-    mu_dyn = planner.options.mu_dyn if args.mu_dyn is None else args.mu_dyn
     columns, names = result_columns(plan, planner)
     # The friction it was planned at travels with the plan: `seqmotion simulate sliding` compares it with the arm's.
-    write_arrays(args.output, {**columns, "command": command, "friction": np.array([mu, mu_dyn])},
+    friction = np.array([plan.physics.mu, plan.physics.mu_dyn])
+    mu, mu_dyn = plan.physics.mu, plan.physics.mu_dyn
+    write_arrays(args.output, {**columns, "command": command, "friction": friction},
                  {**names, "command": [f"command.{n}" for n in planner.input_layout.names]})
     rmse = 1000 * np.sqrt(((plan.rel_states[:, :2] - command[:, :2]) ** 2).sum(1).mean())
     reach = 1000 * np.linalg.norm(plan.pan_states[:, :2], axis=1).max()
@@ -294,7 +298,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate_trust(args: argparse.Namespace) -> int:
-    from seqmotion.tasks import trust
+    from seqmotion.core import trust
     from seqmotion.training.checkpoint import check_writable_dir as check
 
     model = _trained_model(args.model)
@@ -336,7 +340,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     task = tasks.get(model.config_json()["task"])
     root = Path(args.to) if args.to is not None else tasks.registry.home_package(task) / "pretrained"
     target = export_pretrained(model, source, args.name, root, metrics, args.notes or "")
-    from seqmotion.tasks import TrainedModel, trust
+    from seqmotion.core import trust
+    from seqmotion.core.trained import TrainedModel
 
     if isinstance(model, TrainedModel):  # the out-of-distribution bounds ship beside the weights
         trust.write_calibration(model, target)
@@ -363,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"seqmotion {version('seqmotion')}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    from seqmotion.tasks.registry import declared_names
+    from seqmotion.core.registry import declared_names
 
     known = ", ".join(declared_names())
     p = sub.add_parser("train", help=f"train a task's model through its curriculum (tasks: {known})",

@@ -3,7 +3,7 @@
 A command is the object's state relative to the pan, ``x_d = [x, y, vx, vy]`` (K, 4), from
 rest at 0. Two families, seeded and vectorised:
 
-* **physics type** — random pan shaking rolled out through the contact model, so its
+* the *physics type* — random pan shaking rolled out through the contact model, so its
   acceleration often exceeds μg and the object slides; the pan trajectory that produced the
   command is kept (``extras["pan_states"]``) for the supervised loss L'. Two shakings:
 

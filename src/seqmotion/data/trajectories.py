@@ -11,8 +11,24 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import torch
 
 from ..physics.integrator import DT
+
+
+@dataclass(frozen=True)
+class TensorBatch:
+    """A :class:`TrajectoryBatch` on the model's device (:meth:`TrajectoryBatch.to`).
+
+    Attributes:
+        states: ``(B, K_max, state_dim)`` float32; ``lengths``: ``(B,)`` int64;
+        accel: ``(B, K_max - 1, accel_dim)`` float32 or None; extras: name → tensor in its NumPy dtype.
+    """
+
+    states: torch.Tensor
+    lengths: torch.Tensor
+    accel: torch.Tensor | None
+    extras: dict[str, torch.Tensor]
 
 
 @dataclass
@@ -40,6 +56,18 @@ class TrajectoryBatch:
         extras = None if self.extras is None else {k: v[index] for k, v in self.extras.items()}
         accel = None if self.accel is None else self.accel[index]
         return TrajectoryBatch(self.states[index], self.lengths[index], accel, extras)
+
+    def to(self, device: torch.device | str) -> TensorBatch:
+        """The batch as tensors on ``device`` (what the trainer hands a task's ``loss``): ``states`` and
+        ``accel`` in float32 (the model's precision), ``lengths`` int64, ``extras`` in their own dtypes."""
+        def tensor(array: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(array)).to(device)
+
+        return TensorBatch(
+            tensor(self.states).float(), tensor(self.lengths),
+            None if self.accel is None else tensor(self.accel).float(),
+            {k: tensor(v) for k, v in (self.extras or {}).items()},
+        )
 
     def longest_first(self) -> TrajectoryBatch:
         """The same trajectories sorted by length, longest first (stable). A batch's order is free; sorted, the

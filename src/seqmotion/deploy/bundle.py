@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 try:  # inside the seqmotion package
-    from ..tasks.stepper import CONTRACT_FORMAT
+    from ..core.stepper import CONTRACT_FORMAT
 except ImportError:  # the standalone copy beside the graphs
     from stepper import CONTRACT_FORMAT  # type: ignore[no-redef]
 

@@ -11,7 +11,7 @@
   inside); outputs ``h_out``, ``c_out`` and ``accel`` ``(B, C, d)`` (the Gaussian head's means).
 * ``violation.onnx`` (tasks with a constraint) — ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)``
   float32 → ``violation`` ``(B, N)``: the task's constraint at the model's options.
-* ``contract.json`` — :func:`seqmotion.tasks.stepper.stepper_contract` (layouts, units, chunk, dt,
+* ``contract.json`` — :func:`seqmotion.core.stepper.stepper_contract` (layouts, units, chunk, dt,
   how z initialises the decoder, the stop, the dynamics) plus the graphs' files and tensors, sealed:
   the SHA-256 of each graph and of the contract itself (:mod:`seqmotion.deploy.bundle`, which also
   holds the schema the runner checks it against; an export the runner would refuse is refused here).
@@ -41,8 +41,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..tasks.base import TrainedModel
-from ..tasks.stepper import stepper_contract
+from ..core.stepper import stepper_contract
+from ..core.trained import TrainedModel
 from ..training.checkpoint import check_writable_dir, replace_directory
 from .bundle import CONTRACT, check_contract, previous_path, seal
 
@@ -374,7 +374,7 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     here = Path(__file__).resolve().parent
     payload = {GRAPH_FILES[key]: data for key, data in blobs.items()}
     payload.update({name: (here / name).read_bytes() for name in RUNNER_FILES})
-    payload["stepper.py"] = (here.parent / "tasks" / "stepper.py").read_bytes()
+    payload["stepper.py"] = (here.parent / "core" / "stepper.py").read_bytes()
     payload[CONTRACT] = (json.dumps(contract, indent=2, sort_keys=True) + "\n").encode()
     write_bundle(out, payload)
     return contract

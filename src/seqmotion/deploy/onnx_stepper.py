@@ -13,7 +13,7 @@ has only NumPy and onnxruntime::
 
 Inside seqmotion the same classes are ``sm.deploy.OnnxModel`` / ``sm.deploy.OnnxStepper``. The
 semantics of ``step``, ``set_latent``, ``reset`` and the end of the motion are the module
-docstring of ``stepper.py`` (:mod:`seqmotion.tasks.stepper`), shared by both backends.
+docstring of ``stepper.py`` (:mod:`seqmotion.core.stepper`), shared by both backends.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 try:  # inside the seqmotion package
-    from ..tasks.stepper import StepperCore, check_vectors
+    from ..core.stepper import StepperCore, check_vectors
     from .bundle import locate, read_contract, read_graphs
     from .numpy_physics import NumpyDynamics
 except ImportError:  # the standalone copy that export-onnx writes beside the graphs

@@ -34,11 +34,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.results import FEASIBLE_TOLERANCE
 from ..errors import as_float_array, check_number
 from ..physics.layout import StateLayout
 from ..physics.pancake import MU, STATE_LAYOUT, violation_torch
 from ..physics.transcription import Constraint, end_values, scale_rows
-from ..tasks.base import FEASIBLE_TOLERANCE
 
 D_WEIGHTS = (1.0, 1.0, 0.1)
 """D = diag(1, 1, 0.1): metres against radians (eqs. 2.25, 4.3)."""

@@ -25,8 +25,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.polish import POLISH_VIOLATION_TOLERANCE
+from ..core.results import FEASIBLE_TOLERANCE, Motion
+from ..core.trained import TrainedModel
 from ..errors import as_float_array, as_trajectories, check_finite_result, check_number
-from ..tasks.base import FEASIBLE_TOLERANCE, POLISH_VIOLATION_TOLERANCE, Motion, TrainedModel
+from ..physics.parameters import Physics
 from .objectives import Objective, Term, for_model
 
 MAX_STEPS = 1_000_000
@@ -65,7 +68,7 @@ class Stage:
 
 @dataclass
 class OptimizationResult(Motion):
-    """The adjusted motion(s): a :class:`~seqmotion.tasks.base.Motion` with how it was reached; a leading B
+    """The adjusted motion(s): a :class:`~seqmotion.core.trained.Motion` with how it was reached; a leading B
     axis when the input was batched.
 
     Attributes:
@@ -86,7 +89,7 @@ class OptimizationResult(Motion):
             ``Ranges()``: ``"friction cone"``).
         exact: with ``exact=True``: whether the polish made the objective's constraints and the task's
             constraint hold exactly (IPOPT converged, violation ≤ 1e-6), per trajectory; None otherwise.
-        errors, uncertainty, out_of_distribution, ood_reasons (:class:`~seqmotion.tasks.base.TrustSignals`):
+        errors, uncertainty, out_of_distribution, ood_reasons (:class:`~seqmotion.core.trained.TrustSignals`):
             the trust signals of the final motion against the input
             (:meth:`~seqmotion.tasks.TrainedModel.assess`; uncertainty for cases 1–2: the predicted std of
             what the optimised z decodes to).
@@ -118,20 +121,20 @@ def _make_optimizer(name: str, params: list[torch.Tensor], lr: float) -> torch.o
 
 
 def _prepare(
-    model: object, states: object, objective: object, steps: int | None, lr: float | str, physics: dict[str, Any]
-) -> tuple[Any, torch.Tensor, torch.Tensor, int, bool]:
+    model: object, states: object, objective: object, steps: int | None, lr: float | str, physics: Physics | None
+) -> tuple[Any, torch.Tensor, torch.Tensor, int, bool, Physics]:
     """Validate the arguments; return ``(objective bound to the model, inputs (B, K, S), x0 (B, S'), K,
     was_single)``."""
     if not isinstance(model, TrainedModel):
         raise ValueError(f"model must be a trained seqmotion model (e.g. sm.load_pretrained(...)), got {type(model)}")
-    model.check_physics(physics)
+    physics = model.resolve_physics(physics)
     if steps is not None:
         _check_steps(steps)
     if not (isinstance(lr, str) and lr == "auto"):
         check_number("lr", lr, minimum=0, strict_minimum=True)
     batch, single = as_trajectories(states, model.input_dim, "states")
     x = torch.from_numpy(batch)  # stays on the CPU (the trust signals read it); x0 goes to the model's device
-    return for_model(objective, model), x, model.start_state(x).to(model.device), x.shape[1], single
+    return for_model(objective, model), x, model.start_state(x).to(model.device), x.shape[1], single, physics
 
 
 def _check_method(optimizer: object, lr: object, continuation: object) -> None:
@@ -345,7 +348,7 @@ def optimize_latent(
     exact: bool = False,
     tol: float | None = None,
     device: str | torch.device | None = None,
-    **physics: Any,
+    physics: Physics | None = None,
 ) -> OptimizationResult:
     """Cases 1 and 2: optimise the latent z of ``states`` for ``objective``; with ``exact=True``, then polish.
 
@@ -386,16 +389,15 @@ def optimize_latent(
             ``res.exact`` is False for it and a warning names it.
         tol: stop updating once every objective is ≤ ``tol`` (default 0, run all updates;
             ``exact=True``: 1e-3, the polish does the rest).
-        physics: passed to the task's dynamics (e.g. ``mu``, ``mu_dyn`` for sliding); a name the
-            task's dynamics do not take is refused (``ValueError``). The pancake's μ is an option
-            of the model (``model.options.mu``), used by its objectives; ``EndPose(..., mu=...)``
-            judges at another μ.
+        physics: the task's physics to decode at (default ``model.physics``; sliding:
+            ``planner.physics.replace(mu=0.8)``); another task's kind is refused (``ValueError``). The
+            pancake's μ is the model's (``model.options.mu``); ``EndPose(..., mu=...)`` judges at another μ.
         device: run the decoder and the updates there (``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``; default
             None: where ``model`` runs). ``model`` itself is not moved (a copy on ``device`` is used). The
             polish and the trust signals run on the CPU; results are NumPy arrays either way.
     """
     model = _on_device(model, device)
-    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
+    objective, x, x0, length, single, physics = _prepare(model, states, objective, steps, lr, physics)
     check_number("seed", seed, minimum=0, maximum=2**63 - 1, integer=True)
     optimizer, relax, steps, tol = _resolve_method(objective, optimizer, lr, continuation, steps, exact, tol)
     _check_steps(steps)
@@ -416,7 +418,7 @@ def optimize_latent(
             raise ValueError(f"init must be 'encoder', 'random' or a latent array, got {init!r}")
     start = time.perf_counter()
     z, out_states, out_accel, history, seconds = _descend(
-        z0, lambda z: model.decode_torch(z, x0, length, **physics), objective, steps, lr, optimizer,
+        z0, lambda z: model.decode_torch(z, x0, length, physics), objective, steps, lr, optimizer,
         _continuation(relax, optimizer), tol,
     )
     stages = [_stage("latent", history, time.perf_counter() - start, steps, tol)]
@@ -435,7 +437,7 @@ def optimize_trajectory(
     exact: bool = False,
     tol: float | None = None,
     device: str | torch.device | None = None,
-    **physics: Any,
+    physics: Physics | None = None,
 ) -> OptimizationResult:
     """Case 3: optimise the decoder's output accelerations directly (states by integration).
 
@@ -443,15 +445,15 @@ def optimize_trajectory(
     dissertation) or ``"auto"``. Arguments (``device`` too) and defaults as :func:`optimize_latent`.
     """
     model = _on_device(model, device)
-    objective, x, x0, length, single = _prepare(model, states, objective, steps, lr, physics)
+    objective, x, x0, length, single, physics = _prepare(model, states, objective, steps, lr, physics)
     optimizer, relax, steps, tol = _resolve_method(objective, optimizer, lr, continuation, steps, exact, tol)
     _check_steps(steps)
     constraints = _exact_constraints(model, objective, physics) if exact else None
     with torch.no_grad():
-        _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, **physics)
+        _, accel0 = model.decode_torch(model.encode_torch(x), x0, length, physics)
     start = time.perf_counter()
     accel, out_states, out_accel, history, seconds = _descend(
-        accel0, lambda u: (model.integrate_torch(x0, u, **physics), u), objective, steps, lr, optimizer,
+        accel0, lambda u: (model.integrate_torch(x0, u, physics), u), objective, steps, lr, optimizer,
         _continuation(relax, optimizer), tol,
     )
     stages = [_stage("trajectory", history, time.perf_counter() - start, steps, tol)]
@@ -473,11 +475,12 @@ def _check_steps(steps: object) -> None:
         raise ValueError(f"steps must be an integer in [0, {MAX_STEPS}], got {steps!r}")
 
 
-def _exact_constraints(model: TrainedModel, objective: Objective, physics: dict[str, Any]) -> list:
+def _exact_constraints(model: TrainedModel, objective: Objective, physics: Physics) -> list:
     """The objective's constraints for the polish; refuse, before any work, what cannot be made exact."""
     model.exact_form()  # ValueError naming the task when it has no exact polish
-    if physics:
-        raise ValueError(f"exact=True polishes at the model's own physics; drop {sorted(physics)}")
+    if physics != model.physics:
+        raise ValueError(f"exact=True polishes at the model's own physics ({model.physics.describe()}); "
+                         f"got {physics.describe()}")
     return objective.exact_constraints()
 
 
@@ -492,7 +495,7 @@ def _stage(name: str, history: np.ndarray, seconds: float, steps: int, tol: floa
 def _finish(
     model: TrainedModel, objective: Objective, inputs: torch.Tensor, x0: torch.Tensor, states: torch.Tensor,
     accel: torch.Tensor, latent: torch.Tensor | None, history: np.ndarray, seconds: float, stages: list[Stage],
-    constraints: list | None, single: bool, physics: dict[str, Any],
+    constraints: list | None, single: bool, physics: Physics,
 ) -> OptimizationResult:
     """Polish (with ``exact=True``), judge each term and the trust signals, and shape the result."""
     # back on the CPU (a no-op there): the polish, the terms and the result are host-side
@@ -507,11 +510,11 @@ def _finish(
         violation = model.violation_torch(states, accel)
     res = _result(states, accel, latent, None if violation is None else violation.double().numpy(), history,
                   seconds, single)
-    res.stages, res.terms, res.task = stages, terms, model.task_def.name
+    res.stages, res.terms, res.task, res.physics = stages, terms, model.task_def.name, physics
     _warn_if_infeasible(violation)
     res.exact = None if exact is None else (bool(exact[0]) if single else exact)
     trust = model.assess(inputs.numpy()[0] if single else inputs.numpy(), res.states, res.accel,
-                         None if latent is None else res.latent, **physics)
+                         None if latent is None else res.latent, physics)
     res.errors, res.out_of_distribution, res.ood_reasons, res.uncertainty = trust
     if single:
         res.terms = {name: Term(np.asarray(t.value).reshape(-1)[0], t.limit, t.unit) for name, t in terms.items()}

@@ -14,7 +14,8 @@ tracking objective)::
     plan = refine_plan(planner, command, mu=1.0, mu_dyn=0.5)      # a SlidingPlan, tracked
     # or, by hand (one round, no restarts):
     objective = Tracking(command, alpha_end=0.3, alpha_jerk=10, pan_limit=0.2)
-    res = sm.optimize_latent(planner, command, objective, steps=300, optimizer="adam", lr=0.05, mu=1.0, mu_dyn=0.5)
+    res = sm.optimize_latent(planner, command, objective, steps=300, optimizer="adam", lr=0.05,
+                              physics=planner.physics.replace(mu=1.0, mu_dyn=0.5))
 
 States of the sliding planner (``PLAN_LAYOUT``): columns 0..3 the pan ``x, y, vx, vy``, 4..7 the
 object relative to the pan ``x, y, vx, vy`` [m, m/s].
@@ -28,10 +29,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.results import first_of
 from ..errors import as_trajectories
 from ..physics.integrator import DT
+from ..physics.parameters import Physics
 from ..physics.sliding import GRAVITY, PLAN_LAYOUT
-from ..tasks.base import first_of
 from ..tasks.sliding import SlidingPlan
 from .objectives import Objective, _check_weight
 from .optimize import optimize_latent
@@ -185,7 +187,7 @@ def refine_plan(
         the :class:`~seqmotion.tasks.sliding.SlidingPlan` (``(K, ...)`` or ``(B, K, ...)`` like
         ``command``), rolled out at ``mu``, ``mu_dyn``.
     """
-    physics = {k: v for k, v in (("mu", mu), ("mu_dyn", mu_dyn)) if v is not None}
+    physics = planner.physics.replace(mu=mu, mu_dyn=mu_dyn)  # checked once; the plan records it
     batch, single = as_trajectories(command, 4, "command")
     for name, value in (("steps", steps), ("accel_steps", accel_steps)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
@@ -209,7 +211,7 @@ def refine_plan(
     for gain in gains:  # 1. the start
         with torch.no_grad():
             z = planner.encode_torch(torch.from_numpy(batch * gain)).numpy()
-        result = optimize_latent(planner, batch, bound, steps=0, optimizer="adam", lr=lr, init=z, **physics)
+        result = optimize_latent(planner, batch, bound, steps=0, optimizer="adam", lr=lr, init=z, physics=physics)
         value = np.atleast_1d(result.history[-1]).astype(float)
         if best_z is None or best_j is None:
             best_z, best_j = z, value
@@ -222,13 +224,13 @@ def refine_plan(
         if n <= 0:
             continue
         result = optimize_latent(planner, batch, bound, steps=int(n), optimizer="adam", lr=rate, init=best_z,
-                                 **physics)
+                                 physics=physics)
         final = result.history.reshape(len(result.history), -1)[-1].astype(float)  # (B,)
         better = final < best_j
         best_z = np.where(better[:, None], np.atleast_2d(result.latent), best_z)
         best_j = np.where(better, final, best_j)
     x0 = np.concatenate([np.zeros((len(batch), 4)), batch[:, 0]], axis=1)
-    plan = planner.decode(best_z, x0, batch.shape[1], **physics)
+    plan = planner.decode(best_z, x0, batch.shape[1], physics)
     if accel_steps > 0:  # 3. the accelerations
         vibration = None
         if dither > 0:
@@ -238,7 +240,7 @@ def refine_plan(
             vibration = dither * mu_value * GRAVITY * np.stack([np.cos(phase), np.sin(phase)], axis=1)
         plan = _polish(planner, plan, torch.from_numpy(x0), bound, accel_steps, accel_lr, physics, vibration)
     states = np.concatenate([plan.pan_states, plan.rel_states], axis=-1)  # the trust signals of the refined plan
-    trust = planner.assess(batch, states, plan.pan_accel, best_z, **physics)
+    trust = planner.assess(batch, states, plan.pan_accel, best_z, physics=physics)
     plan.errors, plan.out_of_distribution, plan.ood_reasons, plan.uncertainty = trust
     if single:
         return first_of(plan)
@@ -247,7 +249,7 @@ def refine_plan(
 
 def _polish(
     planner: Any, plan: SlidingPlan, x0: torch.Tensor, objective: Tracking, steps: int, lr: float,
-    physics: dict[str, Any], vibration: np.ndarray | None = None,
+    physics: Physics, vibration: np.ndarray | None = None,
 ) -> SlidingPlan:
     """Adam on a batched plan's pan accelerations ``(B, K-1, 2)``; the best per trajectory is kept.
 
@@ -257,7 +259,7 @@ def _polish(
     """
     original = torch.from_numpy(np.asarray(plan.pan_accel, dtype=np.float64))
     with torch.no_grad():
-        best_j = objective(planner.integrate_torch(x0, original, **physics), original)
+        best_j = objective(planner.integrate_torch(x0, original, physics), original)
     best_u = original.clone()  # the pan's total acceleration
     offsets = [torch.zeros(original.shape[1:], dtype=torch.float64)]
     if vibration is not None:
@@ -267,7 +269,7 @@ def _polish(
         opt = torch.optim.Adam([base], lr=lr)
         for _ in range(steps + 1):
             total = base + offset
-            value = objective(planner.integrate_torch(x0, total, **physics), base)
+            value = objective(planner.integrate_torch(x0, total, physics), base)
             with torch.no_grad():
                 better = value < best_j
                 best_j = torch.where(better, value, best_j)
@@ -278,5 +280,5 @@ def _polish(
             base.grad = grad
             opt.step()
     with torch.no_grad():
-        states = planner.integrate_torch(x0, best_u, **physics).numpy()
+        states = planner.integrate_torch(x0, best_u, physics).numpy()
     return SlidingPlan(best_u.numpy(), states[..., :4], states[..., 4:], plan.latent)

@@ -17,7 +17,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..tasks.registry import home_package
+from ..core.registry import home_package
 from ..training.checkpoint import atomic_write_bytes
 from ..training.pretrained import check_pretrained_name, export_pretrained
 from .models import PushingPolicy

@@ -12,21 +12,35 @@ still spatula tilted by θ has ``ψ = -θ`` and holds iff ``|θ| < atan μ`` (45
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
 import numpy as np
 import torch
 
-from ..errors import as_trajectories
+from ..errors import as_trajectories, check_number
 from .integrator import DT, implied_accel
 from .layout import StateLayout
+from .parameters import Physics
 from .transcription import Constraint, casadi
 
 GRAVITY = 9.8
 """Magnitude of gravity [m/s²]; the vector is ``(0, -GRAVITY)`` in (y, z)."""
 MU = 1.0
 """Static friction coefficient between pancake and spatula (the dissertation's value)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PancakePhysics(Physics):
+    """The spatula–pancake friction the cone is judged at: static μ > 0 (half-angle ``atan μ``; 45° at μ = 1)."""
+
+    mu: float = MU
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mu", check_number("mu", self.mu, minimum=0.0, strict_minimum=True))
+
+
 STATE_LAYOUT = StateLayout(("y", "z", "theta", "v_y", "v_z", "v_theta"), ("m", "m", "rad", "m/s", "m/s", "rad/s"),
                            "pancake state")
 ACCEL_LAYOUT = StateLayout(("a_y", "a_z", "a_theta"), ("m/s²", "m/s²", "rad/s²"), "spatula acceleration")

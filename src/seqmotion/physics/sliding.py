@@ -35,19 +35,23 @@ Jacobians of all samples built at once and only a 2 × 2 product per sample left
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numba
 import numpy as np
 import torch
 
-from ..errors import as_trajectories
+from ..errors import as_trajectories, check_number
 from .integrator import DT, CovarianceCarry, integrate, propagate_covariance
 from .layout import StateLayout
+from .parameters import Physics
 
 GRAVITY = 9.8
 MU = 1.0
 MU_DYN = 0.5
+MAX_FRICTION = 1e3
+"""Friction coefficients above this are no physics (rubber on rubber is ~1-2): refused by name, not planned."""
 STATE_DIM = 4  # [x, y, vx, vy]
 ACCEL_DIM = 2
 REL_LAYOUT = StateLayout(("x", "y", "v_x", "v_y"), ("m", "m", "m/s", "m/s"), "object state relative to the pan")
@@ -56,6 +60,31 @@ PLAN_LAYOUT = StateLayout(
     "pan and object state",
 )
 ACCEL_LAYOUT = StateLayout(("pan_a_x", "pan_a_y"), ("m/s²", "m/s²"), "pan acceleration")
+
+
+@dataclasses.dataclass(frozen=True)
+class SlidingPhysics(Physics):
+    """The pan–object friction the contact model runs at: static μ and dynamic μ' (``0 < μ ≤ 1e3``, ``0 ≤ μ' ≤ μ``).
+
+    A sliding model's default is the nominal friction of its training (``options.mu``, ``options.mu_dyn``);
+    ``planner.plan(command, mu=0.8)`` plans at another and the plan records it (``plan.physics``).
+    """
+
+    mu: float = MU
+    mu_dyn: float = MU_DYN
+
+    def __post_init__(self) -> None:
+        mu = check_number("mu", self.mu, minimum=0.0, strict_minimum=True)
+        mu_dyn = check_number("mu_dyn", self.mu_dyn, minimum=0.0)
+        if mu > MAX_FRICTION:
+            raise ValueError(f"mu = {mu:g} is no friction coefficient a pan and object can have (at most "
+                             f"{MAX_FRICTION:g}; the shipped planners were trained at 0.8-1.2)")
+        if mu_dyn > mu:
+            raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu = {mu:g}, "
+                             f"mu_dyn = {mu_dyn:g}")
+        object.__setattr__(self, "mu", mu)
+        object.__setattr__(self, "mu_dyn", mu_dyn)
+
 
 # Which case of eq. 3.9 a step took.
 STICK, BREAKAWAY, SLIDE, STOP = 0, 1, 2, 3
@@ -467,6 +496,17 @@ class SlidingDynamics:
             resolve_backend(backend, torch.device("cpu"))  # a bad name fails here, not mid-rollout
         self.mu, self.mu_dyn, self.dt, self.detach_contact = mu, mu_dyn, dt, detach_contact
         self.backend = backend
+
+    @classmethod
+    def at(cls, physics: SlidingPhysics, dt: float = DT) -> SlidingDynamics:
+        """The dynamics at the (checked) friction ``physics``."""
+        return cls(physics.mu, physics.mu_dyn, dt)
+
+    def per_trajectory(
+        self, mu: torch.Tensor, mu_dyn: torch.Tensor, detach_contact: torch.Tensor | None = None
+    ) -> SlidingDynamics:
+        """The same dynamics with one friction per trajectory (``(B,)`` each; training's randomised friction)."""
+        return SlidingDynamics(mu, mu_dyn, self.dt, detach_contact, self.backend)
 
     def start(self, x0: torch.Tensor) -> tuple:
         b = x0.shape[0]

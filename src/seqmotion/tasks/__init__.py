@@ -11,10 +11,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from ..core import registry
+from ..core.options import TaskOptions
+from ..core.registry import ENTRY_POINT_GROUP, get, names, pretrained_roots, refresh, register
+from ..core.results import Motion
+from ..core.stepper import OnlineGenerator
+from ..core.task import Task
+from ..core.trained import TrainedModel
 from ..training.config import TrainConfig
-from .base import Motion, OnlineGenerator, Task, TrainedModel
-from .options import TaskOptions
-from .registry import ENTRY_POINT_GROUP, get, names, pretrained_roots, refresh, register
 
 
 def train(config: TrainConfig, run_dir: str | Path, **kwargs: Any) -> Path:
@@ -32,5 +36,5 @@ def train(config: TrainConfig, run_dir: str | Path, **kwargs: Any) -> Path:
 
 __all__ = [
     "ENTRY_POINT_GROUP", "Motion", "OnlineGenerator", "Task", "TaskOptions", "TrainConfig", "TrainedModel", "get",
-    "names", "pretrained_roots", "refresh", "register", "train",
+    "names", "pretrained_roots", "refresh", "register", "registry", "train",
 ]

@@ -24,8 +24,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.options import TaskOptions, check_count, check_length_range, check_positive
+from ..core.polish import ExactForm
+from ..core.results import FEASIBLE_TOLERANCE, Motion, TrustSignals, feasible_of
+from ..core.task import Task
+from ..core.trained import TrainedModel
 from ..data import pancake as inputs
-from ..data.trajectories import TrajectoryBatch
+from ..data.trajectories import TensorBatch, TrajectoryBatch
 from ..errors import as_trajectories
 from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from ..physics.integrator import DT, DoubleIntegratorDynamics
@@ -35,13 +40,14 @@ from ..physics.pancake import (
     MU,
     STATE_DIM,
     STATE_LAYOUT,
+    PancakePhysics,
     cone_constraint,
     violation_angle,
     violation_torch,
 )
 from ..physics.transcription import within_reach
 from ..training.config import TrainConfig
-from ..training.curriculum import Curriculum, Stage
+from ..training.curriculum import Curriculum, CurriculumParams, Stage
 from ..training.losses import (
     DEFAULT_VARIANCE_FLOOR,
     encode_and_rollout,
@@ -51,8 +57,6 @@ from ..training.losses import (
     per_trajectory,
     sample_mask,
 )
-from .base import FEASIBLE_TOLERANCE, ExactForm, Motion, Task, TrainedModel, TrustSignals, feasible_of
-from .options import TaskOptions, check_count, check_length_range, check_positive
 
 THETA_WEIGHT = 0.1
 """D's scaling of the attitude against positions (eq. 2.25): 1 rad counts like 0.1 m."""
@@ -194,6 +198,15 @@ class PancakeOptions(TaskOptions):
         return math.atan(self.mu)
 
 
+@dataclass(frozen=True)
+class PancakeParams(CurriculumParams):
+    """The chapter-2 curriculum's parameters at one step (:func:`chapter2_curriculum`)."""
+
+    teacher_forcing_prob: float
+    phi_max: float
+    accel_type_prob: float
+
+
 class PancakeTask(Task):
     """Learning to deform motions under the friction-cone constraint."""
 
@@ -203,6 +216,8 @@ class PancakeTask(Task):
     input_layout = STATE_LAYOUT
     state_layout = STATE_LAYOUT
     accel_layout = ACCEL_LAYOUT
+    physics_class = PancakePhysics
+    params_class = PancakeParams
     end_pose = (("y", "z", "theta"), (1.0, 1.0, THETA_WEIGHT))
 
     def train_config(self, preset: str) -> TrainConfig:
@@ -226,32 +241,23 @@ class PancakeTask(Task):
         )
 
     def sample(
-        self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
+        self, n: int, rng: np.random.Generator, params: PancakeParams, options: PancakeOptions
     ) -> TrajectoryBatch:
         return inputs.mixture(
-            n,
-            rng,
-            accel_type_prob=params["accel_type_prob"],
-            phi_max=params["phi_max"],
-            length=self.options(config).length,
+            n, rng, accel_type_prob=params.accel_type_prob, phi_max=params.phi_max, length=options.length,
         ).longest_first()
 
     def loss(
-        self,
-        model: ChunkedSeq2Seq,
-        batch: TrajectoryBatch,
-        params: dict[str, float],
-        config: TrainConfig,
-        generator: torch.Generator,
+        self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: DoubleIntegratorDynamics, params: PancakeParams,
+        options: PancakeOptions, generator: torch.Generator,
     ) -> tuple[torch.Tensor, dict[str, float]]:
-        opt = self.options(config)
-        device = next(model.parameters()).device  # the batch goes where the model is (no-op on the CPU)
-        states = torch.from_numpy(batch.states).float().to(device)  # longest first, as sample() draws them
-        lengths = torch.from_numpy(batch.lengths).to(device)
+        opt = options
+        states, lengths = batch.states, batch.lengths  # longest first, as sample() draws them
+        device = states.device
         k_max = states.shape[1]
         out = encode_and_rollout(
-            model, states, lengths, states[:, 0], DoubleIntegratorDynamics(3), teacher=states,
-            teacher_forcing_prob=params["teacher_forcing_prob"], generator=generator, expand_cov=False,
+            model, states, lengths, states[:, 0], dynamics, teacher=states,
+            teacher_forcing_prob=params.teacher_forcing_prob, generator=generator, expand_cov=False,
         )
         gen_states = out.states[:, :k_max]
 
@@ -302,7 +308,13 @@ class PancakeTask(Task):
 
     # --- physics at inference -------------------------------------------------------------------
 
-    def dynamics(self, options: TaskOptions) -> DoubleIntegratorDynamics:
+    def dynamics(self, options: PancakeOptions, physics: PancakePhysics) -> DoubleIntegratorDynamics:
+        """The spatula's double integrator. μ acts through the friction cone, which the model was trained to
+        keep at ``options.mu``: another μ is refused (train at it: ``--set mu=...``)."""
+        if physics.mu != options.mu:
+            raise ValueError(f"the pancake model keeps the friction cone at the mu it was trained at "
+                             f"(options.mu = {options.mu:g}), got mu = {physics.mu:g}; train at that mu with "
+                             "`seqmotion train pancake --set mu=...`")
         return DoubleIntegratorDynamics(3, DT)
 
     def violation(self, states: torch.Tensor, accel: torch.Tensor, options: PancakeOptions) -> torch.Tensor:
@@ -367,7 +379,7 @@ class DeformResult(TrustSignals):
         violation: ``(K-1,)`` F_c per sample [rad] at the model's μ (0 where the pancake holds).
         psi: ``(K-1,)`` the cone angle ψ per sample [rad] (Figs. 2.6, 4.3c).
         latent: ``(L·H,)`` the latent z the motion was decoded from.
-        (and :class:`~seqmotion.tasks.base.TrustSignals`: ``uncertainty`` ``(K, 3)`` std of y, z, θ; ``errors``
+        (and :class:`~seqmotion.core.trained.TrustSignals`: ``uncertainty`` ``(K, 3)`` std of y, z, θ; ``errors``
         ``shape_rmse_m``, ``end_position_error_m``, ``end_attitude_error_rad``, ``end_speed_m_s``,
         ``max_violation_rad``; ``out_of_distribution``, ``ood_reasons``; ``exact`` with ``keep_end``)
     """

@@ -25,26 +25,25 @@ for 50 epochs), **C** stage 1 only (L' for 50 epochs).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import torch
 
+from ..core.options import TaskOptions, check_choice, check_length_range, check_positive
+from ..core.results import Motion, TrustSignals
+from ..core.task import Task
+from ..core.trained import TrainedModel
 from ..data import sliding as commands
-from ..data.trajectories import TrajectoryBatch
+from ..data.trajectories import TensorBatch, TrajectoryBatch
 from ..errors import as_trajectories
 from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from ..physics import sliding as contact
 from ..physics.integrator import DT
 from ..training.config import TrainConfig
-from ..training.curriculum import Curriculum, Stage
+from ..training.curriculum import Curriculum, CurriculumParams, Stage
 from ..training.losses import encode_and_rollout, gaussian_nll_2d, masked_mean, per_trajectory, sample_mask
-from .base import Motion, Task, TrainedModel, TrustSignals
-from .options import TaskOptions, check_choice, check_length_range, check_positive
 
 PAN_LIMIT = 0.2  # p_lim [m]
-MAX_FRICTION = 1e3
-"""Friction coefficients above this are no physics (rubber on rubber is ~1-2): refused by name, not planned."""
 TRACKING_TOLERANCE = 0.005
 """A plan whose object strays more than this RMS from its command [m] gets a warning."""
 VARIANTS = {
@@ -79,17 +78,6 @@ def model_config(layers: int, hidden: int, head_hidden: int, chunk: int = 100) -
         decoder_input_scale=pan_scale + rel_scale,
         output_scale=[10.0, 10.0],  # m/s²: μ g ≈ 9.8
     )
-
-
-def check_friction(mu: Any, mu_dyn: Any, what: str = "friction") -> None:
-    """``ValueError`` unless ``0 < mu <= MAX_FRICTION`` and ``0 <= mu_dyn <= mu`` (finite numbers)."""
-    check_positive("mu", mu)
-    check_positive("mu_dyn", mu_dyn, allow_zero=True)
-    if mu > MAX_FRICTION:
-        raise ValueError(f"mu = {mu:g} is no friction coefficient a pan and object can have (at most {MAX_FRICTION:g}; "
-                         "the shipped planners were trained at 0.8-1.2)")
-    if mu_dyn > mu:
-        raise ValueError(f"{what} must satisfy mu > 0 and 0 <= mu_dyn <= mu, got {mu}, {mu_dyn}")
 
 
 @dataclass(frozen=True)
@@ -136,7 +124,7 @@ class SlidingOptions(TaskOptions):
             check_positive(name, getattr(self, name), allow_zero=True)
         check_positive("pan_limit", self.pan_limit)
         check_positive("variance_floor", self.variance_floor)
-        check_friction(self.mu, self.mu_dyn)
+        contact.SlidingPhysics(self.mu, self.mu_dyn)  # the one friction check
         if self.friction_pairs is not None and self.friction_range is not None:
             raise ValueError("set at most one of the options friction_range and friction_pairs")
         if self.friction_pairs is not None:
@@ -184,6 +172,14 @@ def training_friction(n: int, rng: np.random.Generator, opt: SlidingOptions) -> 
     return np.full(n, opt.mu), np.full(n, opt.mu_dyn)
 
 
+@dataclass(frozen=True)
+class SlidingParams(CurriculumParams):
+    """The chapter-3 curriculum's parameters at one step (:func:`chapter3_curriculum`)."""
+
+    loss_prime_prob: float
+    bspline_prob: float
+
+
 class SlidingTask(Task):
     """Learning to plan pan motions that slide an object along a commanded path."""
 
@@ -193,7 +189,8 @@ class SlidingTask(Task):
     input_layout = contact.REL_LAYOUT
     state_layout = contact.PLAN_LAYOUT
     accel_layout = contact.ACCEL_LAYOUT
-    physics_parameters = ("mu", "mu_dyn")
+    physics_class = contact.SlidingPhysics
+    params_class = SlidingParams
     end_pose = (("x", "y"), (1.0, 1.0))
     uncertainty_fields = ("x", "y")  # the object's position relative to the pan
 
@@ -232,39 +229,29 @@ class SlidingTask(Task):
         return config
 
     def sample(
-        self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
+        self, n: int, rng: np.random.Generator, params: SlidingParams, options: SlidingOptions
     ) -> TrajectoryBatch:
-        opt = self.options(config)
+        opt = options
         mu, mu_dyn = training_friction(n, rng, opt)
-        batch = commands.mixture(n, rng, bspline_prob=params["bspline_prob"], length=opt.length,
+        batch = commands.mixture(n, rng, bspline_prob=params.bspline_prob, length=opt.length,
                                  mu=mu, mu_dyn=mu_dyn, shaking=opt.pan_shaking)
         # which trajectories are scored with L' (only those with a pan trajectory behind them)
-        use_prime = (rng.random(n) < params["loss_prime_prob"]) & batch.extras["has_pan"]
+        use_prime = (rng.random(n) < params.loss_prime_prob) & batch.extras["has_pan"]
         batch.extras.update(loss_prime=use_prime, mu=mu, mu_dyn=mu_dyn)
         return batch.longest_first()  # the rollout then skips commands that have ended without reordering
 
     def loss(
-        self,
-        model: ChunkedSeq2Seq,
-        batch: TrajectoryBatch,
-        params: dict[str, float],
-        config: TrainConfig,
-        generator: torch.Generator,
+        self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: contact.SlidingDynamics, params: SlidingParams,
+        options: SlidingOptions, generator: torch.Generator,
     ) -> tuple[torch.Tensor, dict[str, float]]:
-        opt = self.options(config)
-        device = next(model.parameters()).device  # the batch goes where the model is; so does the physics
-
-        def tensor(array: np.ndarray) -> torch.Tensor:
-            return torch.from_numpy(array).to(device)
-
-        command = tensor(batch.states).float()
-        pan_true = tensor(batch.extras["pan_states"]).float()
-        prime = tensor(batch.extras["loss_prime"])
-        lengths = tensor(batch.lengths)
+        opt = options
+        command, lengths, prime = batch.states, batch.lengths, batch.extras["loss_prime"]
+        pan_true = batch.extras["pan_states"].float()
+        device = command.device
         b, k_max, _ = command.shape
 
-        friction = (tensor(batch.extras["mu"]), tensor(batch.extras["mu_dyn"]))
-        dynamics = contact.SlidingDynamics(*friction, DT, detach_contact=prime)
+        # each training trajectory has its own friction (options.friction_range / friction_pairs)
+        dynamics = dynamics.per_trajectory(batch.extras["mu"], batch.extras["mu_dyn"], detach_contact=prime)
         out = encode_and_rollout(model, command, lengths, torch.zeros(b, 8, device=device), dynamics)
         pan = out.states[:, 1:k_max, :4]  # states 1..K_max-1
         rel = out.states[:, 1:k_max, 4:]
@@ -300,14 +287,9 @@ class SlidingTask(Task):
 
     # --- physics at inference -------------------------------------------------------------------
 
-    def dynamics(
-        self, options: SlidingOptions, mu: float | None = None, mu_dyn: float | None = None
-    ) -> contact.SlidingDynamics:
-        """The pan + contact physics at the model's nominal friction unless ``mu``/``mu_dyn`` are given."""
-        mu = options.mu if mu is None else mu
-        mu_dyn = options.mu_dyn if mu_dyn is None else mu_dyn
-        check_friction(mu, mu_dyn)
-        return contact.SlidingDynamics(mu, mu_dyn, DT)
+    def dynamics(self, options: SlidingOptions, physics: contact.SlidingPhysics) -> contact.SlidingDynamics:
+        """The pan + contact physics at the friction ``physics``."""
+        return contact.SlidingDynamics.at(physics, DT)
 
     def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
         """The pan at rest at 0; the object where the command starts."""
@@ -345,7 +327,7 @@ class SlidingTask(Task):
         model's ``J = ∂u_d/∂u_p`` per sample (−I sliding, 0 stuck or stopping, ``−I + μg (I − m mᵀ)/|u_p|``
         at breakaway; rebuilt from each sample's ``branch``), integrated in closed form — what
         :class:`~seqmotion.physics.sliding.SlidingDynamics` propagates chunk by chunk as ``pos_cov``."""
-        from .trust import integrate_covariance
+        from ..core.trust import integrate_covariance
 
         branch = outputs["branch"]
         mu = torch.as_tensor(dynamics.mu, dtype=accel.dtype, device=accel.device).reshape(-1, 1, 1, 1)
@@ -383,9 +365,9 @@ class SlidingPlan(TrustSignals):
         errors: ``tracking_rmse_m``, ``end_error_m``, ``end_speed_m_s``, ``travel_share``, ``pan_max_m``
             (:meth:`SlidingTask.errors`; ``(B,)`` each for a batch).
         out_of_distribution: whether the command lies outside what the model was trained on
-            (:mod:`seqmotion.tasks.trust`; ``(B,)`` for a batch).
+            (:mod:`seqmotion.core.trust`; ``(B,)`` for a batch).
         ood_reasons: which command features were out, e.g. ``["peak_speed_m_s 1.9 > 0.62"]``.
-        (the last four, and ``exact``, are :class:`~seqmotion.tasks.base.TrustSignals`)
+        (the last four, and ``exact``, are :class:`~seqmotion.core.trained.TrustSignals`)
     """
 
     pan_accel: np.ndarray
@@ -406,12 +388,11 @@ class SlidingPlanner(TrainedModel):
             command: ``(K, 4)`` or ``(B, K, 4)`` object states relative to the pan, any K ≥ 2.
             mu, mu_dyn: the friction of the 2-D physics the plan is rolled out in (default: the
                 model's nominal ``options.mu``, ``options.mu_dyn``; the model is never told them,
-                it reacts to the object's simulated motion).
+                it reacts to the object's simulated motion). The plan records them: ``plan.physics``.
         """
-        physics = {k: v for k, v in (("mu", mu), ("mu_dyn", mu_dyn)) if v is not None}
-        check_friction(physics.get("mu", self.options.mu), physics.get("mu_dyn", self.options.mu_dyn))
+        physics = self.physics.replace(mu=mu, mu_dyn=mu_dyn)  # checked once, recorded on the plan
         as_trajectories(command, 4, "command")  # the planner's own wording for a bad input
-        return self.generate(command, **physics)
+        return self.generate(command, physics=physics)
 
 
 SlidingTask.model_class = SlidingPlanner

@@ -17,9 +17,33 @@ switches and command mixtures the same way).
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
 Value = float | list[float]
+P = TypeVar("P", bound="CurriculumParams")
+
+
+@dataclass(frozen=True)
+class CurriculumParams:
+    """A task's curriculum parameters at one training step, typed: subclass with one float field per name
+    the task's curriculum sets (``teacher_forcing_prob``, ``phi_max``, ...). The trainer builds one per
+    step from :meth:`Curriculum.at` and hands it to the task's ``sample`` and ``loss``."""
+
+    @classmethod
+    def from_values(cls: type[P], values: Mapping[str, float]) -> P:
+        """The parameters named in ``values``; a name the class lacks, or a field no stage sets, is refused."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown, missing = sorted(set(values) - set(names)), sorted(set(names) - set(values))
+        if unknown or missing:
+            detail = (f" (unknown: {unknown})" if unknown else "") + (f" (never set: {missing})" if missing else "")
+            raise ValueError(f"the curriculum sets {sorted(values)}, but {cls.__name__} has fields {names}{detail}")
+        return cls(**{k: float(v) for k, v in values.items()})
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
 
 
 @dataclass

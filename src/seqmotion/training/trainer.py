@@ -211,6 +211,24 @@ def _load_initial_weights(model: torch.nn.Module, config: TrainConfig, source: s
     return {"path": str(source), "weights_sha256": saved.get("weights_sha256")}
 
 
+def step_loss(
+    task: Any, model: torch.nn.Module, batch: Any, params: Any, options: Any, generator: torch.Generator,
+    dynamics: Any = None,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """One training step's loss, as the loop computes it: ``task.loss`` with the NumPy ``batch`` moved to the
+    model's device, typed curriculum ``params`` (a dict of the curriculum's values is typed here), typed
+    ``options`` (a ``TrainConfig``'s are read here) and the task's ``dynamics`` at its physics (built here
+    unless given; the loop builds them once)."""
+    if isinstance(options, TrainConfig):
+        options = task.options(options)
+    if isinstance(params, dict):
+        params = task.params(params)
+    if dynamics is None:
+        dynamics = task.dynamics(options, task.physics(options))
+    device = next(model.parameters()).device
+    return task.loss(model, batch.to(device), dynamics, params, options, generator)
+
+
 def _run(
     task: Any, config: TrainConfig, model: torch.nn.Module, curriculum: Any, loop: TrainingLoop, run_dir: Path,
     rank: int, world: int, resume: bool, progress: bool, stop_at_step: int | None, start: dict | None = None,
@@ -239,26 +257,31 @@ def _run(
     bar = tqdm(total=total, initial=step, disable=not progress or rank != 0, desc=f"train {config.task}", unit="batch")
     end = total if stop_at_step is None else min(total, stop_at_step)
 
-    def draw(s: int) -> tuple[dict, object]:
-        """The curriculum parameters and this process's share of the data of step ``s``."""
+    # the task's plumbing, once: typed options, its dynamics at its physics
+    options = task.options(config)
+    dynamics = task.dynamics(options, task.physics(options))
+
+    def draw(s: int) -> tuple[dict, Any, Any]:
+        """The curriculum's values, the task's typed parameters and this process's share of the data of step ``s``."""
         stage = curriculum.at(s // bpe + 1, (s % bpe) / bpe)
-        batch = task.sample(config.batch_size, np.random.default_rng([config.seed, s]), stage, config)
-        return stage, (batch.select(slice(rank, None, world)) if world > 1 else batch)
+        params = task.params(stage)
+        batch = task.sample(config.batch_size, np.random.default_rng([config.seed, s]), params, options)
+        return stage, params, (batch.select(slice(rank, None, world)) if world > 1 else batch)
 
     # Data are drawn in the loop, not on a prefetch thread: on a 2-core CPU a second thread
     # fights PyTorch's own threads and made steps ~60 % slower (measured).
     wrote_at = None
     while step < end:
         epoch = step // bpe + 1
-        stage, batch = draw(step)
+        stage, params, batch = draw(step)
         # the single-process coins of step `step`; on a data-parallel rank, _RankSlice hands out this rank's share
         coins = torch.Generator(device).manual_seed(int(np.random.default_rng([config.seed, step, 1]).integers(2**62)))
 
         if world > 1:
             with _RankSlice(coins, rank, world):
-                loss, terms = task.loss(model, batch, stage, config, coins)
+                loss, terms = step_loss(task, model, batch, params, options, coins, dynamics)
         else:
-            loss, terms = task.loss(model, batch, stage, config, coins)
+            loss, terms = step_loss(task, model, batch, params, options, coins, dynamics)
         if not torch.isfinite(loss):
             raise FloatingPointError(f"non-finite loss at step {step} (epoch {epoch}): {terms}")
         loop.step(loss)

@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.trust import training_inputs
 from ..physics.pancake import violation_angle
-from ..tasks.trust import training_inputs
 from . import commands
 
 TARGET_TOLERANCE = 1e-3
@@ -235,7 +235,7 @@ class PancakeSession:
             psi = violation_angle(torch.from_numpy(states[:-1, 2]), torch.from_numpy(accel)).numpy()
         if len(sketch) < len(states):  # keep_end extended a sketch too short to stop in time: hold its end
             sketch = np.concatenate([sketch, np.repeat(sketch[-1:], len(states) - len(sketch), axis=0)])
-        u_sketch = np.diff(sketch[:, 3:6], axis=0) / self.model.task_def.dynamics(self.model.options).dt
+        u_sketch = np.diff(sketch[:, 3:6], axis=0) / self.model.dynamics().dt
         sketch_psi = violation_angle(torch.from_numpy(sketch[:-1, 2]), torch.from_numpy(u_sketch)).numpy()
         return PancakeFrame(
             controls=c, time=np.arange(len(states)) * 1e-3, sketch=sketch, states=states, accel=accel, psi=psi,

@@ -15,7 +15,7 @@ Everything seqmotion needs is in this one module, written against seqmotion's pu
 * **data** — random quadratic paths with S-curve timing (``seqmotion.data.trajectories``);
 * **loss** — the shape likelihood through the propagated covariance plus the weighted
   violation, from ``seqmotion.training.losses``;
-* **curriculum** — teacher forcing fading out, as data.
+* **curriculum** — teacher forcing fading out, as data, its parameter typed (``TrayParams``).
 
 The package's ``pyproject.toml`` registers ``TASK`` under the entry-point group
 ``seqmotion.tasks``; nothing in seqmotion is edited.
@@ -29,14 +29,15 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from seqmotion.data.trajectories import TrajectoryBatch, draw_lengths, path_states
+from seqmotion.core.options import check_length_range, check_positive
+from seqmotion.data.trajectories import TensorBatch, TrajectoryBatch, draw_lengths, path_states
 from seqmotion.models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from seqmotion.physics.integrator import DT, DoubleIntegratorDynamics
 from seqmotion.physics.layout import StateLayout
+from seqmotion.physics.parameters import Physics
 from seqmotion.tasks import Task, TaskOptions
-from seqmotion.tasks.options import check_length_range, check_positive
 from seqmotion.training.config import TrainConfig
-from seqmotion.training.curriculum import Curriculum, Stage
+from seqmotion.training.curriculum import Curriculum, CurriculumParams, Stage
 from seqmotion.training.losses import (
     encode_and_rollout,
     masked_mean,
@@ -93,6 +94,13 @@ class TrayOptions(TaskOptions):
         return math.radians(self.max_tilt_deg)
 
 
+@dataclass(frozen=True)
+class TrayParams(CurriculumParams):
+    """The curriculum's one parameter: the share of teacher-forced chunks."""
+
+    teacher_forcing_prob: float
+
+
 def model_config(layers: int, hidden: int, chunk: int) -> Seq2SeqConfig:
     scale = [0.1, 0.1, 1.0, 1.0]  # m, m, m/s, m/s
     return Seq2SeqConfig(
@@ -107,6 +115,7 @@ class TrayTask(Task):
     name = "tray"
     presets = ("tiny", "small")
     options_class = TrayOptions
+    params_class = TrayParams
     input_layout = STATE
     state_layout = STATE
     accel_layout = ACCEL
@@ -125,23 +134,19 @@ class TrayTask(Task):
         return TrainConfig(task=self.name, preset=preset, model=model.to_dict(), curriculum=curriculum.to_dict(),
                            batches_per_epoch=bpe, batch_size=batch, options=options.to_dict())
 
-    def sample(
-        self, n: int, rng: np.random.Generator, params: dict[str, float], config: TrainConfig
-    ) -> TrajectoryBatch:
-        opt = self.options(config)
+    def sample(self, n: int, rng: np.random.Generator, params: TrayParams, options: TrayOptions) -> TrajectoryBatch:
+        opt = options
         lengths = draw_lengths(rng, n, opt.length)
         waypoints = rng.uniform(-opt.reach, opt.reach, size=(n, 3, 2))
         waypoints[:, 0] = 0.0  # every path starts at the origin, at rest
         return TrajectoryBatch(path_states(waypoints, lengths, DT), lengths)
 
-    def loss(self, model: ChunkedSeq2Seq, batch: TrajectoryBatch, params: dict[str, float], config: TrainConfig,
-             generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
-        opt = self.options(config)
-        states = torch.from_numpy(batch.states).float()
-        lengths = torch.from_numpy(batch.lengths)
+    def loss(self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: DoubleIntegratorDynamics, params: TrayParams,
+             options: TrayOptions, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
+        opt, states, lengths = options, batch.states, batch.lengths  # on the model's device
         k_max = states.shape[1]
-        out = encode_and_rollout(model, states, lengths, states[:, 0], DoubleIntegratorDynamics(2), teacher=states,
-                                 teacher_forcing_prob=params["teacher_forcing_prob"], generator=generator)
+        out = encode_and_rollout(model, states, lengths, states[:, 0], dynamics, teacher=states,
+                                 teacher_forcing_prob=params.teacher_forcing_prob, generator=generator)
         valid = sample_mask(lengths, k_max)
         diff = (states - out.states[:, :k_max])[:, 1:, :2]
         nll = weighted_gaussian_nll(diff, out.outputs["pos_cov"][:, : k_max - 1], floor=opt.variance_floor)
@@ -150,7 +155,7 @@ class TrayTask(Task):
         feasible = (violation.detach().amax(1) <= 0.01).float().mean()
         return loss, {"L1": masked_mean(nll, valid), "L2": masked_mean(violation, valid), "feasible": float(feasible)}
 
-    def dynamics(self, options: TrayOptions) -> DoubleIntegratorDynamics:
+    def dynamics(self, options: TrayOptions, physics: Physics) -> DoubleIntegratorDynamics:
         return DoubleIntegratorDynamics(2, DT)
 
     def violation(self, states: torch.Tensor, accel: torch.Tensor, options: TrayOptions) -> torch.Tensor:

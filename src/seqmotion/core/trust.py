@@ -8,14 +8,14 @@ that strays centimetres from the sketch — so every result carries three signal
   the Gaussian head's covariance propagated through the task's physics (eq. 2.14; the ``pos_cov``
   its dynamics output). Row 0 (the known start) is 0.
 * **errors** — the numbers a user judges a result by (:meth:`Task.errors
-  <seqmotion.tasks.base.Task.errors>`): pancake shape RMSE, end-pose error, end speed, largest
+  <seqmotion.core.task.Task.errors>`): pancake shape RMSE, end-pose error, end speed, largest
   friction-cone violation; sliding tracking RMSE, end error, travel share, pan excursion.
 * **out_of_distribution** + **ood_reasons** — whether a cheap feature of the input (length K,
   extent, peak speed, peak implied acceleration per unit group; :func:`input_features`) or the
   predicted end-position uncertainty lies beyond what the model met in training, and which.
 
 The bounds come from a :class:`TrustCalibration`: :func:`calibrate` draws ``n`` inputs from the task's own
-training generator (:meth:`Task.sample <seqmotion.tasks.base.Task.sample>`, at curriculum points spread
+training generator (:meth:`Task.sample <seqmotion.core.task.Task.sample>`, at curriculum points spread
 over the whole schedule, at the model's options), runs the model on them and keeps, per feature, the
 ``lower_percentile``/``upper_percentile`` quantiles (length: the smallest and largest K seen). A shipped
 model carries it as ``trust.json`` beside its weights (tied to them by the weights' hash);
@@ -242,8 +242,8 @@ def training_inputs(model: Any, n: int, seed: int = 0, per_draw: int = 8) -> tup
     done = 0
     while done < n:
         m = min(per_draw, n - done)
-        params = curriculum.at(int(rng.integers(1, curriculum.epochs + 1)), float(rng.random()))
-        batch = model.task_def.sample(m, rng, params, config)
+        params = model.task_def.params(curriculum.at(int(rng.integers(1, curriculum.epochs + 1)), float(rng.random())))
+        batch = model.task_def.sample(m, rng, params, model.task_def.options(config))
         parts.append(batch.states)
         lengths.append(batch.lengths)
         done += m

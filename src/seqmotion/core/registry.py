@@ -11,7 +11,7 @@ A task is found by name from two sources:
 
 So ``sm.load``, ``sm.load_pretrained``, the trainer and the CLI find a task of the user's own
 package without edits to seqmotion. Task modules are imported by name only (nothing here
-imports :mod:`.base`), which keeps the task layer free of import cycles.
+imports :mod:`.task`), which keeps the task layer free of import cycles.
 
 Plug-ins are untrusted neighbours: an entry point is imported only when a name is asked for that
 no built-in task has (or when every task is listed), each at most once per process, and one that
@@ -39,8 +39,6 @@ from typing import Any
 ENTRY_POINT_GROUP = "seqmotion.tasks"
 PRETRAINED_PATH_ENV = "SEQMOTION_PRETRAINED_PATH"
 _BUILTIN_PACKAGE = "seqmotion.tasks"
-_SKIP = {"base", "options", "registry", "stepper", "trust"}
-"""Modules of ``seqmotion.tasks`` that are the task layer's machinery, not tasks (``--help`` lists the rest)."""
 
 _REGISTRY: dict[str, Any] | None = None
 """Tasks known so far: the built-in ones, those registered by hand and the plug-ins loaded yet."""
@@ -57,7 +55,7 @@ def _builtin() -> dict[str, Any]:
     found: dict[str, Any] = {}
     package = importlib.import_module(_BUILTIN_PACKAGE)
     for info in pkgutil.iter_modules(package.__path__):
-        if info.name.startswith("_") or info.name in _SKIP:
+        if info.name.startswith("_"):
             continue
         task = getattr(importlib.import_module(f"{_BUILTIN_PACKAGE}.{info.name}"), "TASK", None)
         if _is_task(task):
@@ -161,7 +159,7 @@ def declared_names() -> list[str]:
     task: cheap enough for ``--help``. :func:`names` is authoritative."""
     spec = importlib.util.find_spec(_BUILTIN_PACKAGE)
     locations = list(spec.submodule_search_locations or []) if spec else []
-    builtin = [i.name for i in pkgutil.iter_modules(locations) if not i.name.startswith("_") and i.name not in _SKIP]
+    builtin = [i.name for i in pkgutil.iter_modules(locations) if not i.name.startswith("_")]
     return sorted(set(builtin) | {e.name for e in metadata.entry_points(group=ENTRY_POINT_GROUP)})
 
 

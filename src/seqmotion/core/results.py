@@ -1,0 +1,415 @@
+"""What a trained model returns: a :class:`Motion` with its trust signals, saved and loaded without pickle.
+
+Every result (``Motion``, ``DeformResult``, ``SlidingPlan``, ``OptimizationResult``) is a dataclass
+deriving from :class:`TrustSignals`: the arrays of the motion plus ``errors``, ``uncertainty``,
+``out_of_distribution``/``ood_reasons``, ``exact``, ``task`` and ``physics``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+from dataclasses import dataclass, field, fields, is_dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..physics.parameters import Physics
+from ..training import checkpoint as ckpt
+from ..training.files import read_npz, write_arrays
+from . import registry
+
+FEASIBLE_TOLERANCE = 0.01
+"""A motion counts as feasible when its largest constraint violation is at most this."""
+
+
+def first_of(result: Any) -> Any:
+    """The same result dataclass with every array field indexed by ``[0]`` (drop a batch axis of 1)."""
+    values = {f.name: getattr(result, f.name) for f in fields(result)}
+    return type(result)(**{k: first_value(v) for k, v in values.items()})
+
+
+def first_value(value: Any) -> Any:
+    """``value[0]`` for a batched field (arrays, lists, the arrays of a dict); scalars and None as they are."""
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        return {k: first_value(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return value[0]
+    if np.ndim(value) == 0:
+        return value
+    first = value[0]
+    return first.item() if isinstance(first, np.bool_) else first
+
+
+RESULT_FORMAT = 1
+"""Version of the layout :meth:`TrustSignals.save` writes (``result.layout``'s ``"format"``)."""
+_CLASS_KEY, _LAYOUT_KEY = "result.class", "result.layout"
+_RESULT_CLASSES: dict[str, type] = {}
+"""Every result class defined (``module.QualName`` → class): all that :func:`load_result` rebuilds."""
+
+
+def _class_key(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+@dataclass
+class TrustSignals:
+    """How far to trust a result: the fields every task's result shares (keyword-only, after the task's own).
+
+    Attributes:
+        uncertainty: ``(K, p)`` the predicted std of the generated positions per sample (the Gaussian
+            head's covariance propagated through the physics; columns: the task's ``uncertainty_fields``,
+            row 0 = 0), or None.
+        errors: error name → value (``(B,)`` for a batch), :meth:`Task.errors`; None without an input.
+        out_of_distribution: whether the input lies outside what the model was trained on (per motion
+            for a batch; :mod:`.trust`); None when not judged (decoded from a latent).
+        ood_reasons: which features were out, e.g. ``["length 2000 > 500"]`` (a list per motion for a batch).
+        exact: with ``keep_end=True``: whether the polish made the motion end exactly at the input's end
+            pose, at rest, with the task's constraint held (≤ 1e-6); None otherwise.
+        length: with ``keep_end=True``: the motion's length in samples (``(B,)`` for a batch) — the input's K,
+            or more where ending at rest within the arm's acceleration limits took longer than the input
+            (a batch holds a shorter motion's end state, with zero input, up to its longest); None otherwise.
+        task: the name of the task that made the result (it names the state fields in :meth:`plot`, and
+            :func:`load_result` finds a plug-in's result class through it), or None.
+        physics: the task's physics the result was computed at (:mod:`seqmotion.physics.parameters`, e.g.
+            ``SlidingPhysics(mu=0.8, mu_dyn=0.4)``), or None.
+
+    Every result saves itself (:meth:`save`, read back with :func:`load_result`) and plots itself (:meth:`plot`).
+    """
+
+    uncertainty: np.ndarray | None = field(default=None, kw_only=True)
+    errors: dict[str, Any] | None = field(default=None, kw_only=True)
+    out_of_distribution: Any = field(default=None, kw_only=True)
+    ood_reasons: list | None = field(default=None, kw_only=True)
+    exact: Any = field(default=None, kw_only=True)
+    length: Any = field(default=None, kw_only=True)
+    task: str | None = field(default=None, kw_only=True)
+    physics: Physics | None = field(default=None, kw_only=True)
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        _RESULT_CLASSES[_class_key(cls)] = cls  # what :func:`load_result` may rebuild (never a name from a file)
+
+    def trust(self) -> dict[str, Any]:
+        """These fields by name, to pass on to another result (``Result(..., **motion.trust())``)."""
+        return {f.name: getattr(self, f.name) for f in fields(TrustSignals)}
+
+    def save(self, path: str | Path) -> Path:
+        """Write this result to an ``.npz`` atomically, every field under its own name, no pickled objects.
+
+        Arrays keep their name, dtype and shape (``states``, ``accel``, …); a dict's entries are
+        ``<field>.<key>`` (``errors.end_position_error_m``), a list of dataclasses ``<field>.<i>.<attr>``
+        (an optimisation's ``stages.0.seconds``), lists of strings one JSON string (``ood_reasons``),
+        strings a text array (``task``). ``result.class`` names the class and ``result.layout`` (JSON) how
+        to rebuild each field: :func:`load_result` returns an equal result. ``np.load(path)`` reads it
+        as plain named arrays.
+
+        Raises:
+            ValueError: ``path`` is not a writable ``.npz`` path, or a field holds a value that cannot be
+                stored without pickling (naming the field).
+        """
+        path = ckpt.check_writable(path, (".npz",), "result file")
+        arrays: dict[str, np.ndarray] = {}
+        layout = {f.name: _pack(getattr(self, f.name), f.name, arrays) for f in fields(self) if f.init}
+        layout_json = json.dumps({"format": RESULT_FORMAT, "fields": layout})
+        for key, value in ((_CLASS_KEY, _class_key(type(self))), (_LAYOUT_KEY, layout_json)):
+            arrays[key] = np.array(value)
+        return write_arrays(path, arrays)
+
+    def plot(self, path: str | Path | None = None) -> Any:
+        """A matplotlib figure (Agg) of the result over time: its state fields by name, one panel per unit
+        (``m``, ``rad``, ``m/s``, …; one per field when the task is not known), and its constraint
+        ``violation`` if it has one. Every motion of a batch is drawn (thin lines).
+
+        Args:
+            path: where to save the figure too (atomically; the format from the suffix, e.g. ``.png``).
+
+        Returns:
+            The ``matplotlib.figure.Figure`` (close it with ``matplotlib.pyplot.close(fig)`` when done).
+        """
+        return _plot(self, path)
+
+
+def _put(arrays: dict[str, np.ndarray], key: str, array: np.ndarray) -> None:
+    if key in arrays or key in (_CLASS_KEY, _LAYOUT_KEY):
+        raise ValueError(f"cannot save the result: two of its values would both be stored as {key!r}")
+    arrays[key] = array
+
+
+def _strings(value: Any) -> bool:
+    """Whether ``value`` is a (nested) list or tuple of strings only (stored as one JSON string)."""
+    return isinstance(value, (list, tuple)) and all(isinstance(v, str) or _strings(v) for v in value)
+
+
+def _pack(value: Any, key: str, arrays: dict[str, np.ndarray]) -> Any:
+    """Store ``value`` under ``key`` (and ``key.<part>`` for its parts) in ``arrays``; return the JSON
+    node that says how to rebuild it (:func:`_unpack`)."""
+    if value is None:
+        return None
+    if isinstance(value, str):
+        _put(arrays, key, np.array(value))
+        return {"str": key}
+    if isinstance(value, Physics):  # the physics a result was computed at: rebuilt as its own class, checked
+        parts = {k: _pack(v, f"{key}.{k}", arrays) for k, v in value.to_dict().items()}
+        return {"physics": value.key(), "fields": parts}
+    if is_dataclass(value) and not isinstance(value, type):  # e.g. an optimisation's stages and terms
+        return {"dataclass": type(value).__name__,
+                "fields": {f.name: _pack(getattr(value, f.name), f"{key}.{f.name}", arrays)
+                           for f in fields(value) if f.init}}
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise ValueError(f"cannot save field {key!r}: a dict whose keys are not all strings")
+        return {"dict": {k: _pack(v, f"{key}.{k}", arrays) for k, v in value.items()}}
+    if isinstance(value, (list, tuple)):
+        if _strings(value):  # ood_reasons, a stage's statuses: one JSON string array
+            _put(arrays, key, np.array(json.dumps(value)))
+            return {"json": key, "tuple": isinstance(value, tuple)}
+        return {"list": [_pack(v, f"{key}.{i}", arrays) for i, v in enumerate(value)],
+                "tuple": isinstance(value, tuple)}
+    if isinstance(value, (np.ndarray, np.generic, bool, int, float)):
+        array = np.asarray(value)
+        if array.dtype.kind in "biuf":  # never objects (pickled), nor text or bytes posing as numbers
+            _put(arrays, key, array)
+            numpy = "numpy" if isinstance(value, np.generic) else "python"  # how it comes back: the same type
+            return {"array": key, "as": "ndarray" if isinstance(value, np.ndarray) else numpy}
+    raise ValueError(f"cannot save field {key!r}: a {type(value).__name__} is neither an array of numbers, a string, "
+                     "a list, a dict nor a dataclass of them")
+
+
+def _node_keys(node: Any) -> list[str]:
+    """The array names a layout node refers to."""
+    if node is None:
+        return []
+    if not isinstance(node, dict):
+        raise ValueError(f"a layout entry is a {type(node).__name__}, not an object")
+    for kind in ("array", "str", "json"):
+        if kind in node:
+            if not isinstance(node[kind], str):
+                raise ValueError(f"a layout entry's {kind!r} is not an array name")
+            return [node[kind]]
+    parts = node.get("dict") or node.get("fields") or {}
+    children = node.get("list", list(parts.values()) if isinstance(parts, dict) else None)
+    if not isinstance(children, list):
+        raise ValueError(f"a layout entry holds neither arrays nor parts: {json.dumps(node)[:80]}")
+    return [key for child in children for key in _node_keys(child)]
+
+
+def _text(array: np.ndarray, key: str) -> str:
+    if array.ndim != 0 or array.dtype.kind != "U":
+        raise ValueError(f"array {key!r} should be one string, got {array.dtype} {array.shape}")
+    return str(array[()])
+
+
+def _unpack(node: Any, arrays: dict[str, np.ndarray], home: Any) -> Any:
+    """The value a layout node (:func:`_pack`) describes; nested dataclasses are found by name in the
+    result class's module ``home`` (and must be dataclasses: nothing else is built)."""
+    if node is None:
+        return None
+    if "array" in node:
+        array = arrays[node["array"]]
+        if array.dtype.kind not in "biuf":
+            raise ValueError(f"array {node['array']!r} holds {array.dtype}, not numbers")
+        kind = node.get("as")
+        return array if kind == "ndarray" else array[()] if kind == "numpy" else array.item()
+    if "str" in node:
+        return _text(arrays[node["str"]], node["str"])
+    if "json" in node:
+        value = json.loads(_text(arrays[node["json"]], node["json"]))
+        if not _strings(value):
+            raise ValueError(f"array {node['json']!r} is not a JSON array of strings")
+        return tuple(value) if node.get("tuple") else value
+    if "list" in node:
+        value = [_unpack(child, arrays, home) for child in node["list"]]
+        return tuple(value) if node.get("tuple") else value
+    if "dict" in node:
+        return {str(k): _unpack(child, arrays, home) for k, child in node["dict"].items()}
+    if "physics" in node:
+        return Physics.class_named(str(node["physics"])).from_dict(
+            {str(k): _unpack(child, arrays, home) for k, child in node["fields"].items()})
+    cls = getattr(home, str(node.get("dataclass")), None)
+    if not (isinstance(cls, type) and is_dataclass(cls)):
+        raise ValueError(f"{node.get('dataclass')!r} is not a dataclass of {home.__name__}")
+    return cls(**{str(k): _unpack(child, arrays, home) for k, child in node["fields"].items()})
+
+
+def _result_class(name: str, task: str | None, source: Path) -> type:
+    """The result class saved as ``name`` (``module.QualName``): one already defined, or defined once its
+    module (seqmotion's own only) or its ``task`` (a plug-in, through the task registry) is imported."""
+    if name not in _RESULT_CLASSES and name.startswith("seqmotion."):
+        module = name.rpartition(".")[0]
+        if all(part.isidentifier() for part in module.split(".")):
+            try:
+                importlib.import_module(module)
+            except ImportError:
+                pass
+    if name not in _RESULT_CLASSES and task:
+        registry.get(task)
+    if name not in _RESULT_CLASSES:
+        raise ValueError(f"{source} holds a {name}, which is no result class of this installation "
+                         f"(known: {', '.join(sorted(_RESULT_CLASSES))})")
+    return _RESULT_CLASSES[name]
+
+
+def load_result(path: str | Path) -> TrustSignals:
+    """Read a result written by ``result.save(path)``: the same class (``Motion``, ``DeformResult``,
+    ``SlidingPlan``, ``OptimizationResult``, a plug-in's) with equal fields.
+
+    Read without pickle (:func:`seqmotion.training.files.read_npz`: sizes checked before anything is
+    decompressed), and nothing but the result classes and their dataclasses is ever built.
+
+    Raises:
+        ValueError: a missing file, not an ``.npz``, a file that ``result.save`` did not write (e.g.
+            ``np.savez`` of ``vars(result)``, whose object arrays need pickle), an array that holds objects
+            (naming it), an unknown result class, or a malformed layout.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+    head = read_npz(path, (_CLASS_KEY, _LAYOUT_KEY), required=0)
+    if len(head) < 2:
+        raise ValueError(f"{path} is not a result saved by result.save(path): it has no {_CLASS_KEY!r} and "
+                         f"{_LAYOUT_KEY!r} (a file that np.savez wrote from vars(result) holds pickled objects, which "
+                         "are never loaded)")
+    name = _text(head[_CLASS_KEY], _CLASS_KEY)
+    try:
+        layout = json.loads(_text(head[_LAYOUT_KEY], _LAYOUT_KEY))
+        if not isinstance(layout, dict) or layout.get("format") != RESULT_FORMAT or not isinstance(
+                layout.get("fields"), dict):
+            raise ValueError(f"not a format-{RESULT_FORMAT} layout")
+        nodes = layout["fields"]
+        keys = [key for node in nodes.values() for key in _node_keys(node)]
+    except (ValueError, RecursionError) as exc:
+        raise ValueError(f"{path}: malformed {_LAYOUT_KEY!r}: {exc}") from None
+    task, task_name = nodes.get("task"), None
+    if isinstance(task, dict) and isinstance(task.get("str"), str):  # a plug-in's class is found through its task
+        task_name = _text(read_npz(path, (task["str"],))[task["str"]], "task")
+    cls = _result_class(name, task_name, path)
+    unknown = sorted(set(nodes) - {f.name for f in fields(cls) if f.init})
+    if unknown:
+        raise ValueError(f"{path}: a {cls.__name__} has no field(s) {unknown}")
+    try:
+        arrays = read_npz(path, keys, required=len(keys))
+    except ValueError:
+        for key in keys:  # read_npz names the file; name the array at fault too
+            try:
+                read_npz(path, (key,))
+            except ValueError as exc:
+                raise ValueError(f"{path}: array {key!r}: {str(exc).removeprefix(f'cannot read {path}: ')}") from None
+        raise
+    try:
+        values = {name: _unpack(node, arrays, sys.modules[cls.__module__]) for name, node in nodes.items()}
+        return cls(**values)
+    except (ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
+        raise ValueError(f"{path}: cannot rebuild the {cls.__name__}: {exc}") from None
+
+
+def _plot(result: TrustSignals, path: str | Path | None) -> Any:
+    """:meth:`TrustSignals.plot`: the figure, saved atomically to ``path`` when given."""
+    from matplotlib.figure import Figure  # no pyplot: no global backend switch, nothing kept alive
+
+    if path is not None:
+        path = ckpt.check_writable(path, None, "figure")
+    own = [f.name for f in fields(result) if f.name not in {g.name for g in fields(TrustSignals)}]
+    arrays = {n: getattr(result, n) for n in own if isinstance(getattr(result, n), np.ndarray)}
+    top = max((a.ndim for a in arrays.values()), default=0)
+    per_sample = {n: a for n, a in arrays.items() if a.ndim == top and top >= 2}
+    k = max((a.shape[-2] for a in per_sample.values()), default=0)
+    states = {n: a for n, a in per_sample.items() if a.shape[-2] == k}  # (K, n): states; (K-1, d) inputs are not
+    if not states:
+        raise ValueError(f"a {type(result).__name__} holds no per-sample states to plot")
+    layout = None
+    if result.task:  # the fields' names and units; a task not installed here: plotted by field and column
+        try:
+            layout = getattr(registry.get(result.task), "state_layout", None)
+        except ValueError:
+            layout = None
+    width = sum(a.shape[-1] for a in states.values())
+    columns = []  # (name, unit or the field's name, values (B, K)) per state column
+    start = 0
+    for field_name, array in states.items():
+        batch = array.reshape(-1, *array.shape[-2:])
+        for j in range(array.shape[-1]):
+            if layout is not None and layout.dim == width:
+                name, group = layout.names[start + j], layout.units[start + j]
+            else:
+                name, group = f"{field_name}[{j}]", field_name
+            columns.append((name, group, batch[:, :, j]))
+        start += array.shape[-1]
+    groups = list(dict.fromkeys(group for _, group, _ in columns))
+    violation = getattr(result, "violation", None)
+    panels = len(groups) + (violation is not None)
+    figure = Figure(figsize=(8, 1.9 * panels + 0.6), layout="constrained")
+    axes = figure.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
+    thin = 0.6 if len(columns[0][2]) > 1 else 1.2
+    for ax, group in zip(axes, groups, strict=False):
+        for c, (name, g, values) in enumerate(columns):
+            if g == group:
+                lines = ax.plot(np.arange(values.shape[1]), values.T, color=f"C{c % 10}", lw=thin)
+                lines[0].set_label(name)
+        ax.set_ylabel(group if layout is not None else "value")
+        ax.legend(loc="best", fontsize="small")
+    if violation is not None:
+        values = np.asarray(violation, dtype=np.float64).reshape(-1, np.shape(violation)[-1])
+        axes[-1].plot(np.arange(values.shape[1]), values.T, color="C3", lw=thin)
+        axes[-1].axhline(FEASIBLE_TOLERANCE, color="0.5", ls="--", lw=0.8, label=f"feasible ≤ {FEASIBLE_TOLERANCE}")
+        axes[-1].set_ylabel("violation")
+        axes[-1].legend(loc="best", fontsize="small")
+    axes[-1].set_xlabel("sample k")
+    figure.suptitle(f"{type(result).__name__}" + (f" ({result.task})" if result.task else ""))
+    if path is not None:
+        ckpt.save_figure(figure, path)
+    return figure
+
+
+def feasible_of(violation: np.ndarray | None) -> np.ndarray | bool | None:
+    """Whether the largest violation ``(..., K-1)`` is ≤ :data:`FEASIBLE_TOLERANCE` (per trajectory for a
+    batch); None without a constraint."""
+    if violation is None:
+        return None
+    ok = violation.max(axis=-1) <= FEASIBLE_TOLERANCE
+    return bool(ok) if np.ndim(ok) == 0 else ok
+
+
+@dataclass
+class Motion(TrustSignals):
+    """A generated motion (a leading B axis on every array for a batch), with its trust signals.
+
+    Attributes:
+        states: ``(K, S)`` states in the task's ``state_layout``; ``states[0]`` is the start state.
+        accel: ``(K-1, d)`` the decoder's outputs ``u[0..K-2]`` in the task's ``accel_layout``.
+        latent: ``(L·H,)`` the latent z the motion was decoded from.
+        violation: ``(K-1,)`` the task's constraint violation per transition (0 where it holds),
+            or None for a task without a constraint.
+    """
+
+    states: np.ndarray
+    accel: np.ndarray
+    latent: np.ndarray
+    violation: np.ndarray | None = None
+
+    @property
+    def feasible(self) -> np.ndarray | bool | None:
+        """Whether the largest violation is ≤ 0.01 (per trajectory for a batch); None without a constraint."""
+        return feasible_of(self.violation)
+
+
+class Assessment(NamedTuple):
+    """Trust signals of a motion (:meth:`TrainedModel.assess`; a leading B axis / a list per motion for a batch).
+
+    Attributes:
+        errors: error name → value (:meth:`Task.errors`).
+        out_of_distribution: whether the input lies outside the training distribution (None: not calibrated).
+        ood_reasons: which features were out (e.g. ``"length 2000 > 500"``).
+        uncertainty: ``(K, p)`` predicted position std, or None (no latent given).
+    """
+
+    errors: dict[str, Any]
+    out_of_distribution: Any
+    ood_reasons: list
+    uncertainty: np.ndarray | None
+
+
