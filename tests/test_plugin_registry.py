@@ -126,3 +126,22 @@ def test_shipped_models_of_a_plugin_are_found_without_importing_it(tmp_path, mon
         assert "sm_lazy_pkg" not in sys.modules
     finally:
         registry.refresh()
+
+
+def test_register_decorates_a_class_and_entries_satisfy_the_protocol():
+    try:
+        @registry.register
+        class Toy:
+            name = "toy-entry"
+
+            def load(self, directory: str) -> str:
+                return f"loaded {directory}"
+
+        assert isinstance(Toy, type) and registry.get("toy-entry").load("d") == "loaded d"
+        assert all(isinstance(registry.get(n), registry.TaskEntry) for n in ("pancake", "sliding", "toy-entry"))
+        with pytest.raises(ValueError, match="TaskEntry"):
+            registry.register(object())
+        with pytest.raises(ValueError, match="already registered"):
+            registry.register(Toy())
+    finally:
+        registry.refresh()

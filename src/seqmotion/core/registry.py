@@ -34,7 +34,7 @@ import sys
 import warnings
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 ENTRY_POINT_GROUP = "seqmotion.tasks"
 PRETRAINED_PATH_ENV = "SEQMOTION_PRETRAINED_PATH"
@@ -46,9 +46,21 @@ _TRIED: set[tuple[str, str]] = set()
 """Entry points ``(name, value)`` already imported (or tried): each is imported, and warned about, once."""
 
 
+@runtime_checkable
+class TaskEntry(Protocol):
+    """What the registry holds: a task's ``name`` and how its trained models load. Every
+    :class:`~seqmotion.core.task.Task` is one; so is a task trained some other way (the chapter-5
+    pushing task, trained from demonstrations)."""
+
+    name: str
+
+    def load(self, directory: Any) -> Any:
+        """The trained model stored in ``directory``."""
+        ...
+
+
 def _is_task(obj: object) -> bool:
-    """A registry entry: has a ``name`` and either builds seq2seq models or loads its own."""
-    return isinstance(getattr(obj, "name", None), str) and (hasattr(obj, "train_config") or hasattr(obj, "load"))
+    return isinstance(obj, TaskEntry) and not isinstance(obj, type) and isinstance(obj.name, str)
 
 
 def _builtin() -> dict[str, Any]:
@@ -79,7 +91,7 @@ def _load_entry(entry: metadata.EntryPoint) -> Any | None:
         _skip(entry, f"it fails to import ({what})")
         return None
     if not _is_task(task):
-        _skip(entry, f"it is a {type(task).__name__}, not a seqmotion task (needs a name and train_config or load)")
+        _skip(entry, f"it is a {type(task).__name__}, not a seqmotion task (a TaskEntry: needs a name and load)")
         return None
     return task
 
@@ -114,12 +126,15 @@ def _discover() -> dict[str, Any]:
 
 
 def register(task: Any) -> Any:
-    """Register a task object by hand (a script or notebook; installed packages use the entry point).
-
-    Returns the task, so it can be used as ``TASK = register(MyTask())``.
+    """Register a task by hand (a script or notebook; installed packages use the entry point): an instance
+    (``TASK = register(MyTask())`` returns it) or, as a class decorator, a class (``@register`` above
+    ``class MyTask(Task)`` registers one instance and returns the class).
     """
+    if isinstance(task, type):
+        register(task())
+        return task
     if not _is_task(task):
-        raise ValueError(f"{task!r} is not a seqmotion task (needs a name and train_config or load)")
+        raise ValueError(f"{task!r} is not a seqmotion task (a TaskEntry: needs a name and load)")
     tasks = _known()
     if task.name in tasks and tasks[task.name] is not task:
         raise ValueError(f"a task called {task.name!r} is already registered")
