@@ -29,9 +29,9 @@ import torch
 
 import seqmotion as sm
 from seqmotion.data import pancake as sketches
+from seqmotion.io import atomic_write_json
 from seqmotion.physics import pancake as physics
 from seqmotion.physics.integrator import integrate_numpy, reach_end
-from seqmotion.training.checkpoint import atomic_write_json
 from seqmotion.training.provenance import machine_description
 
 

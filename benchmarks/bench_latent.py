@@ -21,8 +21,8 @@ import numpy as np
 import torch
 
 import seqmotion as sm
+from seqmotion.io import atomic_write_json
 from seqmotion.reproduce import ch4
-from seqmotion.training.checkpoint import atomic_write_json
 from seqmotion.training.provenance import machine_description
 
 

@@ -12,7 +12,7 @@ All at μ = 1, μ' = 0.5 unless the friction grid says otherwise; K samples at d
   (path length / duration) [m/s], the object's RMSE [mm], travel share (object path length /
   command path length), reach share (farthest distance from the start, object / command), the
   pan's farthest excursion [m]; and per shape the fastest speed tracked within 5 mm.
-  ``--refine`` adds :func:`seqmotion.latent.tracking.refine_plan` (Adam on the latent, through
+  ``--refine`` adds :func:`seqmotion.latent.sliding.refine_plan` (Adam on the latent, through
   the contact physics; ``refined+accel``: then Adam on the pan accelerations; ``refined+dither``:
   the same from the plan plus a 1.2 μg, 50 Hz rotating vibration) and its wall time.
 * ``training``: mean speed, peak speed, reach, path length, turning (∫|dθ| along the path) of
@@ -37,7 +37,7 @@ import torch
 
 import seqmotion as sm
 from seqmotion.data import sliding as commands
-from seqmotion.latent.tracking import Tracking, refine_plan
+from seqmotion.latent.sliding import Tracking, refine_plan
 from seqmotion.reproduce.ch3 import FRICTION_GRID, eval_commands, farthest_m, rmse_mm
 from seqmotion.training.provenance import machine_description
 

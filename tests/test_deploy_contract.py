@@ -26,8 +26,8 @@ import numpy as np
 import pytest
 
 import seqmotion as sm
+from seqmotion import io as sm_io
 from seqmotion.cli import main as cli_main
-from seqmotion.training import checkpoint as ckpt
 
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
@@ -76,7 +76,7 @@ def files_of(folder: Path) -> dict[str, bytes]:
 
 def leftovers(parent: Path) -> list[str]:
     """Temporaries and set-aside bundles an export left beside its output."""
-    return sorted(p.name for p in parent.iterdir() if ckpt.TEMP_MARK in p.name or p.name.endswith(".previous"))
+    return sorted(p.name for p in parent.iterdir() if sm_io.TEMP_MARK in p.name or p.name.endswith(".previous"))
 
 
 # --- 9. the seal -------------------------------------------------------------------------------------------
@@ -113,6 +113,24 @@ def test_a_bundle_without_hashes_is_refused_with_advice_to_re_export(pancake):
     write(pancake, contract, reseal=False)
     with pytest.raises(ValueError, match=r"not sealed.*re-export.*export-onnx"):
         OnnxModel(pancake)
+
+
+def test_a_bundle_of_the_former_format_is_refused_and_an_export_replaces_it(pancake):
+    """A bundle exported before the dynamics were a graph (format 1: the dynamics named by kind for a NumPy copy of
+    them, numpy_physics.py beside the runner) is refused with the advice to re-export; re-exporting replaces it."""
+    contract = read(pancake)
+    contract["format"] = "seqmotion-stepper/1"
+    contract["dynamics"] = {"kind": "double_integrator", "dim": 3, "dt": 0.001}
+    contract["files"].pop("dynamics")
+    contract["sha256"].pop("dynamics")
+    (pancake / "dynamics.onnx").unlink()
+    (pancake / "numpy_physics.py").write_text("# the former runner's NumPy dynamics\n")
+    write(pancake, contract)
+    with pytest.raises(ValueError, match=r"format 'seqmotion-stepper/1'; this runner reads 'seqmotion-stepper/2'.*"
+                                         r"re-export the model: seqmotion export-onnx MODEL"):
+        OnnxModel(pancake)
+    export_onnx(sm.load_pretrained("pancake"), pancake)
+    assert OnnxModel(pancake).contract["format"] == "seqmotion-stepper/2" and "dynamics.onnx" in files_of(pancake)
 
 
 def test_the_exported_contract_carries_the_hashes(pristine):
@@ -195,9 +213,27 @@ BAD = {  # what a sealed but wrong contract holds → what the error names
     "rest velocity inf": (_set("stop.rest_velocity", float("inf")), r"'stop\.rest_velocity'"),
     "stop missing": (_pop("stop"), r"lacks the field 'stop'"),
     "default length 1": (_set("default_length", 1), r"'default_length' must be null or an integer >= 2"),
-    "unknown dynamics": (_set("dynamics.kind", "custom"), r"'dynamics\.kind' must be one of"),
-    "dynamics dim 0": (_set("dynamics.dim", 0), r"'dynamics\.dim' must be an integer >= 1"),
-    "dynamics dim vs layouts": (_set("dynamics.dim", 2), r"'dynamics\.dim'.*3 outputs and 6 states"),
+    "dynamics without a graph": (_pop("dynamics.graph"), r"lacks the field 'dynamics\.graph'"),
+    "dynamics graph not the bundle's": (_set("dynamics.graph", "decoder_step.onnx"),
+                                        r"'dynamics\.graph' \('decoder_step\.onnx'\) differs from 'files\.dynamics'"),
+    "dynamics graph outside": (_set("dynamics.graph", "../dynamics.onnx"), r"'dynamics\.graph' must be a plain"),
+    "dynamics chunk": (_set("dynamics.chunk", 25), r"'dynamics\.chunk' \(25\) differs from 'chunk' \(50\)"),
+    "dynamics chunk 0": (_set("dynamics.chunk", 0), r"'dynamics\.chunk' must be an integer >= 1"),
+    "no physics": (_pop("dynamics.physics"), r"lacks the field 'dynamics\.physics'"),
+    "physics names as text": (_set("dynamics.physics.names", "mu"), r"'dynamics\.physics\.names' must be a list of"),
+    "physics names twice": (_set("dynamics.physics.names", ["mu", "mu"]), r"'dynamics\.physics\.names'.*distinct"),
+    "physics input not a field": (_set("dynamics.physics.inputs", ["gravity"]),
+                                  r"'dynamics\.physics\.inputs' \(\['gravity'\]\) must be fields of"),
+    "physics value missing": (_set("dynamics.physics.values", {}), r"'dynamics\.physics\.values' must hold one value "
+                                                                   r"for each of \['mu'\]"),
+    "physics value NaN": (_set("dynamics.physics.values.mu", NAN),
+                          r"'dynamics\.physics\.values\.mu' must be a finite number, got nan"),
+    "physics value text": (_set("dynamics.physics.values.mu", "1"), r"'dynamics\.physics\.values\.mu' must be"),
+    "unknown closed form": (_set("dynamics.closed_form", "runge_kutta"),
+                            r"'dynamics\.closed_form' must be null or one of \['double_integrator'\]"),
+    "closed form missing": (_pop("dynamics.closed_form"), r"lacks the field 'dynamics\.closed_form'"),
+    "no dynamics graph file": (_both(_pop("files.dynamics"), _pop("sha256.dynamics")),
+                               r"lacks the field 'files\.dynamics'"),
     "latent size": (_set("latent_dim", 100), r"'latent_dim' \(100\) must be layers \* hidden = 128"),
     "empty layout": (_set("state_layout.names", []), r"'state_layout\.names' must be a non-empty list"),
     "units per name": (_set("input_layout.units", ["m"]), r"'input_layout\.units' must hold one unit per name"),
@@ -212,7 +248,7 @@ BAD = {  # what a sealed but wrong contract holds → what the error names
     "unknown graph": (_set("files.extra", "extra.onnx"), r"'files\.extra' is not a graph of the bundle"),
     "a graph without a hash": (_pop("sha256.encoder"), r"'sha256' must hold a hash for each graph"),
     "a hash that is not one": (_set("sha256.encoder", "zz"), r"'sha256\.encoder' must be a SHA-256 hex digest"),
-    "another format": (_set("format", "seqmotion-stepper/0"), r"format 'seqmotion-stepper/0'"),
+    "another format": (_set("format", "seqmotion-stepper/0"), r"format 'seqmotion-stepper/0'.*re-export"),
 }
 
 
@@ -229,16 +265,18 @@ def test_the_schema_names_the_bad_field_and_the_bundle(pancake, case):
 
 
 SLIDING_BAD = {
-    "no friction": (_set("dynamics.mu", 0.0), r"'dynamics\.mu' must be a finite number > 0"),
-    "friction missing": (_pop("dynamics.mu_dyn"), r"lacks the field 'dynamics\.mu_dyn'"),
-    "sliding friction above sticking": (_set("dynamics.mu_dyn", 2.0), r"'dynamics\.mu_dyn' \(2\.0\) must be <="),
-    "no gravity": (_set("dynamics.gravity", -9.8), r"'dynamics\.gravity'"),
-    "another pan": (_set("dynamics.pan_dim", 3), r"'dynamics\.pan_dim' must be 2"),
+    "friction value missing": (_pop("dynamics.physics.values.mu_dyn"),
+                                r"'dynamics\.physics\.values' must hold one value for each of \['mu', 'mu_dyn'\]"),
+    "friction infinite": (_set("dynamics.physics.values.mu", float("inf")), r"'dynamics\.physics\.values\.mu'"),
+    "inputs out of order": (_set("dynamics.physics.inputs", ["mu_dyn", "mu"]), r"in their order"),
+    "an input twice": (_set("dynamics.physics.inputs", ["mu", "mu"]), r"'dynamics\.physics\.inputs' must be a list"),
+    "not a double integrator": (_set("dynamics.closed_form", "double_integrator"),
+                                r"names the double integrator.*not 8 states for 2 outputs reading \['mu', 'mu_dyn'\]"),
 }
 
 
 @pytest.mark.parametrize("case", list(SLIDING_BAD))
-def test_the_schema_checks_each_kind_of_dynamics(pristine, tmp_path, case):
+def test_the_schema_checks_the_physics_of_the_dynamics(pristine, tmp_path, case):
     folder = Path(shutil.copytree(pristine / "sliding", tmp_path / "bundle"))
     edit, message = SLIDING_BAD[case]
     contract = read(folder)
@@ -279,8 +317,8 @@ def test_export_refuses_a_contract_the_runner_would_refuse(pristine, tmp_path, m
     before = files_of(out)
     real = export_module.stepper_contract
 
-    def nan_limit(model, dynamics):
-        contract = real(model, dynamics)
+    def nan_limit(model, dynamics, physics):
+        contract = real(model, dynamics, physics)
         contract["stop"]["accel_limit"][0] = NAN
         return contract
 
@@ -298,8 +336,8 @@ def test_an_export_replaces_the_whole_previous_bundle(tmp_path):
     export_onnx(sm.load_pretrained("pancake"), out, int8=True)
     assert {"violation.onnx", "decoder_step.int8.onnx"} <= set(files_of(out))
     export_onnx(sm.load_pretrained("sliding"), out)
-    assert set(files_of(out)) == {"contract.json", "encoder.onnx", "decoder_step.onnx", *export_module.RUNNER_FILES,
-                                  "stepper.py"}  # no stale pancake graphs
+    assert set(files_of(out)) == {"contract.json", "encoder.onnx", "decoder_step.onnx", "dynamics.onnx",
+                                  *export_module.RUNNER_FILES, "stepper.py"}  # no stale pancake graphs
     assert OnnxModel(out).contract["task"] == "sliding"
     assert not leftovers(tmp_path)
     empty = tmp_path / "empty"
@@ -360,11 +398,11 @@ def test_a_failed_export_leaves_the_previous_bundle_whole(pristine, tmp_path, mo
     before = files_of(out)
     name, n = where[:-1], int(where[-1])
     monkeypatch.setattr(os, name, _fail_at(n, getattr(os, name)))
-    with pytest.raises(OSError, match="No space left"):
-        export_onnx(sm.load_pretrained("sliding"), out)
+    with pytest.raises(OSError, match="No space left"):  # a re-export: its contract differs from the bundle's
+        export_onnx(sm.load_pretrained("pancake"), out, source="a re-export")
     monkeypatch.undo()
     assert files_of(out) == before
-    assert OnnxModel(out).contract["task"] == "pancake"
+    assert OnnxModel(out).contract["source"] == "pancake"
     assert not leftovers(tmp_path)
 
 
@@ -391,14 +429,14 @@ def _killed_swap(out: Path, files: dict[str, bytes], at: str, n: int) -> int:
                 os.kill(os.getpid(), signal.SIGKILL)
 
             if at == "write":
-                real_write = ckpt._write_durable
+                real_write = sm_io.write_durable
 
                 def write_half(path, data):
                     if hit():
                         real_write(path, data[: len(data) // 2])
                         die()
                     real_write(path, data)
-                ckpt._write_durable = write_half
+                sm_io.write_durable = write_half
             elif at == "remove":
                 real_remove = shutil.rmtree
 

@@ -11,7 +11,7 @@ import seqmotion as sm
 from seqmotion.data import pancake as gen
 from seqmotion.data import sliding as commands
 from seqmotion.latent.objectives import AtRest, EndPose, Ranges
-from seqmotion.latent.transcription import true_j1
+from seqmotion.latent.pancake import true_j1
 from seqmotion.physics import integrator
 from seqmotion.physics import pancake as physics
 from seqmotion.physics.transcription import casadi
@@ -96,7 +96,7 @@ def test_exact_is_refused_by_name(deformer, planner):
         sm.optimize_latent(planner, commands.circle(0.02, 200), lambda s, a: (s[:, -1, 4:6] ** 2).sum(-1), exact=True)
     with pytest.raises(ValueError, match="exact must be True or False"):
         sm.optimize_latent(deformer, x, EndPose((0.1, 0.0, 1.0)), exact="yes")
-    report = EndPose((0.1, 0.0, 1.0)).report(torch.zeros(1, 5, 6, dtype=torch.float64),
+    report = EndPose((0.1, 0.0, 1.0)).bind(deformer).report(torch.zeros(1, 5, 6, dtype=torch.float64),
                                              torch.zeros(1, 4, 3, dtype=torch.float64))
     assert not report["end error"].met and report["constraint"].met
 

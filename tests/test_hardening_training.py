@@ -14,7 +14,7 @@ import pytest
 import torch
 
 import seqmotion as sm
-from seqmotion import tasks
+from seqmotion import io, tasks
 from seqmotion.errors import RunInUseError
 from seqmotion.tasks import train
 from seqmotion.training import checkpoint as ckpt
@@ -168,15 +168,15 @@ def test_leftovers_of_a_killed_run_are_removed(tmp_path):
     """Item 3: `.step-*.tmp-PID` directories of killed runs were never cleaned."""
     run = tmp_path / "run"
     train(tiny(), run, progress=False, stop_at_step=2)
-    stale = [run / "checkpoints" / f".step-00000003{ckpt.TEMP_MARK}99999999",
-             run / f".model{ckpt.TEMP_MARK}1-ab.safetensors", run / f".metrics{ckpt.TEMP_MARK}99999999-cd.csv"]
+    stale = [run / "checkpoints" / f".step-00000003{io.TEMP_MARK}99999999",
+             run / f".model{io.TEMP_MARK}1-ab.safetensors", run / f".metrics{io.TEMP_MARK}99999999-cd.csv"]
     stale[0].mkdir()
     (stale[0] / "model.safetensors").write_bytes(b"half")
     stale[1].write_bytes(b"half")
     stale[2].write_bytes(b"half")
     train(tiny(), run, progress=False, stop_at_step=3)
     assert not any(p.exists() for p in stale)
-    assert not [p for p in run.rglob("*") if ckpt.TEMP_MARK in p.name]
+    assert not [p for p in run.rglob("*") if io.TEMP_MARK in p.name]
 
 
 def test_no_resume_starts_over_without_old_checkpoints(tmp_path):
@@ -190,14 +190,14 @@ def test_no_resume_starts_over_without_old_checkpoints(tmp_path):
 def test_a_new_model_directory_appears_whole(tmp_path, monkeypatch):
     """save_pretrained into a new directory: complete or absent, whatever fails."""
     model = sm.load_pretrained("pancake")
-    real = ckpt._write_durable
+    real = ckpt.write_durable
 
     def fail_on_config(path, data):
         if path.name == ckpt.CONFIG:
             raise OSError(28, "No space left on device")
         real(path, data)
 
-    monkeypatch.setattr(ckpt, "_write_durable", fail_on_config)
+    monkeypatch.setattr(ckpt, "write_durable", fail_on_config)
     with pytest.raises(OSError):
         model.save_pretrained(tmp_path / "new")
     assert not (tmp_path / "new").exists() and not list(tmp_path.iterdir())

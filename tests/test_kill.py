@@ -31,6 +31,7 @@ import numpy as np
 import pytest
 
 import seqmotion as sm
+from seqmotion import io
 from seqmotion.training import checkpoint as ckpt
 
 ROUNDS = int(os.environ.get("SEQMOTION_KILL_ROUNDS", "1"))
@@ -160,7 +161,7 @@ def place(where: str) -> str:
         return "flushing a folder's entries after a rename"
     name = where.split(" -> ")[-1].rsplit("/", 1)[-1]
     if "metrics" in name:
-        return "rewriting metrics.csv on resume" if rename or ckpt.TEMP_MARK in name else "appending a metrics.csv row"
+        return "rewriting metrics.csv on resume" if rename or io.TEMP_MARK in name else "appending a metrics.csv row"
     if "latest" in name:
         return "switching the latest pointer"
     if "/checkpoints/" in where:
@@ -289,7 +290,7 @@ def test_training_survives_kills_and_resumes_bit_for_bit(server, reference_run, 
         server.run([*TRAIN, "--out", str(run)], where="train")  # the rerun finishes (or repairs) the run
         assert (run / "model.safetensors").read_bytes() == (reference_dir / "model.safetensors").read_bytes()
         assert metrics_steps(run) == list(range(1, total + 1))
-        assert not [p for p in run.rglob("*") if ckpt.TEMP_MARK in p.name]
+        assert not [p for p in run.rglob("*") if io.TEMP_MARK in p.name]
         assert ckpt.model_is_complete(run) and sm.load(run).config["step"] == total
     assert kills >= 2 * ROUNDS
 

@@ -22,33 +22,49 @@ def deformer(tmp_path_factory):
     return sm.load(run)
 
 
-def test_end_pose_matches_eq_4_3():
+def test_end_pose_matches_eq_4_3(deformer):
     states = torch.zeros(1, 5, 6, dtype=torch.float64)
     states[0, -1, :3] = torch.tensor([0.1, -0.2, 1.0])
     accel = torch.zeros(1, 4, 3, dtype=torch.float64)
-    j = EndPose((0.0, 0.0, 0.0))(states, accel)
+    j = EndPose((0.0, 0.0, 0.0)).bind(deformer)(states, accel)  # the pancake's fields, its cone at μ = 1
     assert float(j) == pytest.approx(0.1**2 + 0.2**2 + (0.1 * 1.0) ** 2)
     # the cone term: a still spatula at 50° everywhere violates by 5° per sample
     states[0, :, 2] = math.radians(50)
     states[0, -1, :3] = 0.0
     states[0, -1, 2] = math.radians(50)
-    j = EndPose((0.0, 0.0, math.radians(50)), alpha=1.0)(states, accel)
+    j = EndPose((0.0, 0.0, math.radians(50)), alpha=1.0).bind(deformer)(states, accel)
     assert float(j) == pytest.approx(4 * math.radians(5))
 
 
-def test_ranges_terms_are_zero_inside_every_band():
+def test_objectives_refuse_to_be_evaluated_before_they_are_bound():
+    """The columns, the end pose and the constraint's physics come from the model: an unbound objective never
+    falls back to the pancake's columns and μ = 1."""
+    from seqmotion.latent.objectives import AtRest, TaskConstraint
+
+    s, a = torch.zeros(1, 5, 6, dtype=torch.float64), torch.zeros(1, 4, 3, dtype=torch.float64)
+    for objective in (EndPose((0.0, 0.0, 0.0)), AtRest(), TaskConstraint(), Ranges(), Ranges(end={"y": (0, 1)})):
+        with pytest.raises(ValueError, match="not bound to a model"):
+            objective(s, a)
+    with pytest.raises(ValueError, match="not bound to a model"):
+        EndPose((0.0, 0.0, 0.0)).report(s, a)
+    with pytest.raises(ValueError, match="not bound to a model"):
+        AtRest().exact_constraints()
+
+
+def test_ranges_terms_are_zero_inside_every_band(deformer):
     s = torch.zeros(1, 50, 6, dtype=torch.float64)
     s[0, -1, :3] = torch.tensor([0.1, 0.1, -3 * math.pi / 4 + 0.3])
     s[0, :, 3:] = torch.tensor([1.0, -1.0, 4.0])
-    assert float(Ranges()(s, torch.zeros(1, 49, 3, dtype=torch.float64))) == 0.0
+    j2 = Ranges().bind(deformer)
+    assert float(j2(s, torch.zeros(1, 49, 3, dtype=torch.float64))) == 0.0
     s[0, 10, 3] = 2.5  # 1 m/s over the y limit in one sample: β/K · 1²
-    assert float(Ranges()(s, torch.zeros(1, 49, 3, dtype=torch.float64))) == pytest.approx(0.01 / 50)
+    assert float(j2(s, torch.zeros(1, 49, 3, dtype=torch.float64))) == pytest.approx(0.01 / 50)
 
 
-def test_objectives_compose():
+def test_objectives_compose(deformer):
     s = torch.zeros(2, 5, 6, dtype=torch.float64)
     a = torch.zeros(2, 4, 3, dtype=torch.float64)
-    e = EndPose((0.1, 0.0, 0.0))
+    e = EndPose((0.1, 0.0, 0.0)).bind(deformer)
 
     def f(states, accel):
         return states[:, -1, 0] + 1.0
@@ -76,7 +92,7 @@ def test_each_case_reduces_the_end_pose_objective(deformer, case):
     assert res.states.shape == (120, 6) and res.accel.shape == (119, 3)
     np.testing.assert_allclose(integrator.step_reference(res.states[:-1], res.accel), res.states[1:], atol=1e-12)
     # the reported final objective is the objective of the returned motion
-    final = objective(torch.from_numpy(res.states)[None], torch.from_numpy(res.accel)[None])
+    final = objective.bind(deformer)(torch.from_numpy(res.states)[None], torch.from_numpy(res.accel)[None])
     assert float(final) == pytest.approx(res.history[-1], rel=1e-9)
 
 
@@ -92,11 +108,11 @@ def test_auto_step_size_decreases_monotonically(deformer):
         sm.optimize_latent(deformer, starts[0], EndPose([0.1, 0.0, 2.0]), optimizer="adam")
 
 
-def test_least_squares_residuals_compose():
+def test_least_squares_residuals_compose(deformer):
     s = torch.zeros(2, 5, 6, dtype=torch.float64)
     s[:, -1, 0] = 0.3
     a = torch.zeros(2, 4, 3, dtype=torch.float64)
-    e1, e2 = EndPose((0.1, 0.0, 0.0)), EndPose((0.0, 0.2, 1.0), alpha=3.0)
+    e1, e2 = EndPose((0.1, 0.0, 0.0)).bind(deformer), EndPose((0.0, 0.2, 1.0), alpha=3.0).bind(deformer)
     combo = 4 * e1 + e2
     r, p = combo.residuals(s, a), combo.penalty(s, a)
     assert r.shape == (2, 6)
@@ -122,13 +138,13 @@ def test_levenberg_marquardt_never_increases_and_beats_gradient_descent(deformer
         sm.optimize_latent(deformer, starts[0], EndPose(targets[0]), steps=1, optimizer="lm", continuation=(0.0, 4))
     relaxed = sm.optimize_latent(deformer, starts, EndPose(targets), steps=4, optimizer="lm", continuation=(1e-3, 2))
     # the history is the true objective: recompute it for the returned motion
-    final = EndPose(targets)(torch.from_numpy(relaxed.states), torch.from_numpy(relaxed.accel))
+    final = EndPose(targets).bind(deformer)(torch.from_numpy(relaxed.states), torch.from_numpy(relaxed.accel))
     np.testing.assert_allclose(relaxed.history[-1], final.numpy(), rtol=1e-5)
 
 
 def test_plain_gradient_descent_is_eq_4_2(deformer):
     start = gen.straight((0.0, 0.1, -1.0), 80)
-    objective = EndPose((0.0, 0.1, -1.0))
+    objective = EndPose((0.0, 0.1, -1.0)).bind(deformer)
     one = sm.optimize_latent(deformer, start, objective, steps=1, lr=3.0)
     x = torch.from_numpy(start)[None]
     z = deformer.encode_torch(x).detach().requires_grad_(True)

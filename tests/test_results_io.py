@@ -133,3 +133,60 @@ def test_version_prints_the_installed_version(capsys):
         main(["--version"])
     assert exit_.value.code == 0
     assert capsys.readouterr().out.strip() == f"seqmotion {importlib.metadata.version('seqmotion')}"
+
+
+def test_one_motion_with_task_named_views(results, planner, deformer):
+    """Every result is a Motion: code meant for any task reads ``motion().states``/``.accel``; the sliding plan's
+    own names are views of them, and CSV/NPZ columns are named by the task's layouts."""
+    from seqmotion.core.results import Motion, TrustSignals, View, columns_of
+
+    plan = results["plan"]
+    assert isinstance(plan, Motion) and plan.motion() is plan
+    np.testing.assert_array_equal(plan.pan_states, plan.states[:, :4])
+    np.testing.assert_array_equal(plan.rel_states, plan.states[:, 4:])
+    np.testing.assert_array_equal(plan.pan_accel, plan.accel)
+    columns, names = columns_of(plan, planner.state_layout, planner.accel_layout, planner.uncertainty_names)
+    assert names["pan_states"] == ["pan_x", "pan_y", "pan_v_x", "pan_v_y"] and names["rel_states"][:2] == ["x", "y"]
+    assert names["pan_accel"] == list(planner.accel_layout.names) and "states" not in columns
+    assert names["uncertainty"] == ["std.x", "std.y"] and float(columns["physics.mu"]) == plan.physics.mu
+    deformed = results["deform"]
+    columns, names = columns_of(deformed, deformer.state_layout, deformer.accel_layout)
+    assert names["states"] == list(deformer.state_layout.names) and names["accel"] == ["a_y", "a_z", "a_theta"]
+    assert names["psi"] == ["psi"] and names["violation"] == ["violation"]
+
+    @dataclasses.dataclass
+    class Scores(TrustSignals):  # a result without a motion
+        score: float
+
+    with pytest.raises(ValueError, match="Scores holds no states and accel"):
+        Scores(1.0).motion()
+    with pytest.raises(ValueError, match="'states' or 'accel'"):
+        View("torques")
+    with pytest.raises(ValueError, match="stop"):
+        View("states", 4, 2)
+
+
+def test_a_plan_saved_with_its_views_as_fields_loads(results, tmp_path):
+    """A sliding plan saved when ``pan_states``, ``rel_states`` and ``pan_accel`` were its fields comes back as
+    the plan, its views joined into ``states`` and ``accel``."""
+    import json
+
+    plan = results["plan"]
+    path = plan.save(tmp_path / "plan.npz")
+    with np.load(path) as saved:
+        arrays = {name: saved[name] for name in saved.files}
+    layout = json.loads(str(arrays["result.layout"]))
+    states, accel = arrays.pop("states"), arrays.pop("accel")
+    arrays.update(pan_states=states[:, :4], rel_states=states[:, 4:], pan_accel=accel)
+    fields = layout["fields"]
+    del fields["states"], fields["accel"]
+    for name in ("pan_accel", "pan_states", "rel_states"):
+        fields[name] = {"array": name, "as": "ndarray"}
+    arrays["result.layout"] = np.array(json.dumps(layout))
+    old = tmp_path / "old.npz"
+    np.savez(old, **arrays)
+    back = sm.load_result(old)
+    assert type(back) is type(plan)
+    np.testing.assert_array_equal(back.states, plan.states)
+    np.testing.assert_array_equal(back.accel, plan.accel)
+    assert back.physics == plan.physics and back.errors.keys() == plan.errors.keys()

@@ -191,10 +191,15 @@ def test_the_contract_is_data(pancake, sliding):
     c = pancake.generator(sm.data.pancake.straight((0.1, 0.0, 0.5), 100)).contract()
     assert c["chunk"] == 50 and c["state_layout"]["names"][3] == "v_y" and c["state_layout"]["units"][2] == "rad"
     assert c["velocity_columns"] == [3, 4, 5] and c["constraint"] and c["length"] == 100
-    assert "c_l = z" in c["decoder_init"] and c["dynamics"]["kind"] == "double_integrator"
+    assert "c_l = z" in c["decoder_init"]
+    assert c["dynamics"] == {"graph": "dynamics.onnx", "dt": 0.001, "chunk": 50, "closed_form": "double_integrator",
+                             "physics": {"class": "seqmotion.physics.pancake.PancakePhysics", "names": ["mu"],
+                                         "inputs": [], "values": {"mu": 1.0}}}
     json.dumps(c)
     s = sliding.generator(latent=np.zeros(256), x0=np.zeros(8), physics=sliding.physics.replace(mu=0.6)).contract()
-    assert s["dynamics"] == {**s["dynamics"], "kind": "sliding", "mu": 0.6} and not s["constraint"]
+    assert s["dynamics"]["physics"] == {"class": "seqmotion.physics.sliding.SlidingPhysics", "names": ["mu", "mu_dyn"],
+                                        "inputs": ["mu", "mu_dyn"], "values": {"mu": 0.6, "mu_dyn": 0.5}}
+    assert s["dynamics"]["chunk"] == 100 and s["dynamics"]["closed_form"] is None and not s["constraint"]
     assert s["length"] == 1500 and s["velocity_columns"] == [2, 3]  # the longest training motion, the pan
 
 

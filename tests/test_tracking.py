@@ -1,4 +1,4 @@
-"""Refining a sliding plan's latent for tracking (seqmotion.latent.tracking, issue 17)."""
+"""Refining a sliding plan's latent for tracking (seqmotion.latent.sliding)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import seqmotion as sm
-from seqmotion.latent.tracking import Tracking, refine_plan
+from seqmotion.latent.sliding import Tracking, refine_plan
 from seqmotion.reproduce.ch3 import rmse_mm
 
 

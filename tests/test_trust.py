@@ -15,7 +15,7 @@ from seqmotion.core.results import first_of
 from seqmotion.data import pancake as pancake_data
 from seqmotion.data import sliding as sliding_data
 from seqmotion.models.seq2seq import rollout
-from seqmotion.physics.integrator import propagate_covariance_reference
+from seqmotion.physics.integrator import integrate_covariance, propagate_covariance_reference
 
 
 def test_a_sketch_far_longer_than_any_trained_is_flagged_and_fresh_ones_mostly_not(deformer, one_thread):
@@ -53,7 +53,7 @@ def test_integrate_covariance_is_eq_2_14_sample_by_sample():
     a = rng.normal(size=(300, 2, 2))
     s_u = a @ a.transpose(0, 2, 1)
     ref = propagate_covariance_reference(s_u)[1:, :2, :2]
-    got = trust.integrate_covariance(torch.from_numpy(s_u)[None]).numpy()[0]
+    got = integrate_covariance(torch.from_numpy(s_u)[None]).numpy()[0]
     np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-18)
 
 
@@ -121,8 +121,8 @@ def test_calibration_ships_with_the_model_and_is_made_on_the_fly_elsewhere(defor
 def test_first_of_indexes_the_trust_fields():
     from seqmotion.tasks.pancake import DeformResult
 
-    batch = DeformResult(np.zeros((2, 3, 6)), np.zeros((2, 2, 3)), np.zeros((2, 2)), np.zeros((2, 2)),
-                         np.zeros((2, 4)), uncertainty=np.zeros((2, 3, 3)),
+    batch = DeformResult(states=np.zeros((2, 3, 6)), accel=np.zeros((2, 2, 3)), violation=np.zeros((2, 2)),
+                         psi=np.zeros((2, 2)), latent=np.zeros((2, 4)), uncertainty=np.zeros((2, 3, 3)),
                          errors={"shape_rmse_m": np.array([1.0, 2.0])}, out_of_distribution=np.array([False, True]),
                          ood_reasons=[[], ["length 9 < 100"]])
     one = first_of(batch)

@@ -13,6 +13,7 @@ import importlib.util
 import os
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,19 @@ import pytest
 import torch
 
 import seqmotion as sm
+from seqmotion.core.options import TaskOptions
+from seqmotion.core.task import Task
+from seqmotion.data.trajectories import TensorBatch, TrajectoryBatch, draw_lengths, s_curve
+from seqmotion.errors import check_number
+from seqmotion.models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
+from seqmotion.physics.integrator import DT
+from seqmotion.physics.layout import StateLayout
+from seqmotion.physics.parameters import Physics
+from seqmotion.tasks import train
+from seqmotion.training.config import TrainConfig
+from seqmotion.training.curriculum import Curriculum, CurriculumParams
 from seqmotion.training.files import read_arrays
+from seqmotion.training.losses import encode_and_rollout, sample_mask
 from seqmotion.view import commands, scene3d
 from seqmotion.view.sessions import (
     LatentSession,
@@ -143,6 +156,182 @@ def test_generic_task_panel_uses_the_layout(planner):
     assert gen.shape == inp.shape == (len(frame.states),)
     assert frame.state_path is not None and frame.input_path is not None
     assert "input 1" in frame.readout()
+
+
+# --- any registered task: a plug-in with its own physics and a torque output -----------------------------
+
+JOINT = StateLayout(("q", "dq"), ("rad", "rad/s"), "joint state")
+TORQUE = StateLayout(("tau",), ("N·m",), "joint torque")
+
+
+@dataclass(frozen=True)
+class JointPhysics(Physics):
+    """A single joint's viscous damping [N·m·s/rad] and inertia [kg·m²]."""
+
+    damping: float = 0.5
+    inertia: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("damping", "inertia"):
+            check_number(name, getattr(self, name), minimum=0.0, strict_minimum=name == "inertia")
+
+
+@dataclass(frozen=True)
+class JointOptions(TaskOptions):
+    length: tuple[int, int] = (40, 60)
+    max_speed: float = 2.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "length", tuple(self.length))
+
+
+@dataclass(frozen=True)
+class JointParams(CurriculumParams):
+    teacher_forcing_prob: float
+
+
+class JointDynamics:
+    """``I q̈ = τ − b q̇``, semi-implicit Euler at 1 ms: its own physics, driven by a torque."""
+
+    def __init__(self, physics: JointPhysics) -> None:
+        self.damping, self.inertia, self.dt = physics.damping, physics.inertia, DT
+
+    def start(self, x0: torch.Tensor) -> torch.Tensor:
+        return x0
+
+    def step(self, carry: torch.Tensor, mean: torch.Tensor, cov: torch.Tensor | None) -> tuple[torch.Tensor, dict]:
+        q, dq, out = carry[:, 0], carry[:, 1], []
+        for k in range(mean.shape[1]):
+            dq = dq + self.dt * (mean[:, k, 0].to(carry.dtype) - self.damping * dq) / self.inertia
+            q = q + self.dt * dq
+            out.append(torch.stack([q, dq], dim=-1))
+        states = torch.stack(out, dim=1)
+        return states[:, -1], {"states": states}
+
+    def decoder_input(self, states: torch.Tensor) -> torch.Tensor:
+        return states
+
+    def restart(self, carry: torch.Tensor, state: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return torch.where(mask.view(-1, 1), state.to(carry.dtype), carry)
+
+    def narrow(self, carry: torch.Tensor, rows: int) -> torch.Tensor:
+        return carry[:rows]
+
+
+class JointTask(Task):
+    """Follow a rough joint move with torques, the joint's speed under a limit."""
+
+    name = "view_joint"
+    presets = ("tiny", "small")
+    options_class = JointOptions
+    input_layout = state_layout = JOINT
+    accel_layout = TORQUE
+    physics_class = JointPhysics
+    params_class = JointParams
+    end_pose = (("q",), (1.0,))
+
+    def train_config(self, preset: str) -> TrainConfig:
+        model = Seq2SeqConfig(encoder_input_dim=2, decoder_input_dim=2, output_dim=1, chunk=10, layers=1, hidden=8,
+                              correlated_pairs=[],
+                              encoder_input_scale=[1.0, 1.0], decoder_input_scale=[1.0, 1.0], output_scale=[1.0])
+        curriculum = Curriculum(epochs=1, initial={"teacher_forcing_prob": 0.5})
+        return TrainConfig(task=self.name, preset=preset, model=model.to_dict(), curriculum=curriculum.to_dict(),
+                           batches_per_epoch=2, batch_size=4, options=JointOptions().to_dict())
+
+    def sample(self, n: int, rng: np.random.Generator, params: JointParams, options: JointOptions) -> TrajectoryBatch:
+        lengths = draw_lengths(rng, n, options.length)
+        k_max, end = int(lengths.max()), rng.uniform(-1.0, 1.0, n)
+        states = np.zeros((n, k_max, 2))
+        for b, k in enumerate(lengths):
+            s, ds, _ = s_curve(np.linspace(0.0, 1.0, k))
+            states[b, :k] = np.stack([end[b] * s, end[b] * ds / ((k - 1) * DT)], axis=1)
+            states[b, k:] = states[b, k - 1]
+        return TrajectoryBatch(states, lengths).longest_first()
+
+    def loss(self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: JointDynamics, params: JointParams,
+             options: JointOptions, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
+        states, lengths = batch.states, batch.lengths
+        k_max = states.shape[1]
+        out = encode_and_rollout(model, states, lengths, states[:, 0], dynamics, teacher=states,
+                                 teacher_forcing_prob=params.teacher_forcing_prob, generator=generator)
+        valid = sample_mask(lengths, k_max)
+        error = ((out.states[:, 1:k_max] - states[:, 1:]) ** 2).sum(-1)
+        speed = torch.relu(out.states[:, 1:k_max, 1].abs() - options.max_speed)
+        return masked_mean_tensor(error + speed, valid), {"error": float(masked_mean_tensor(error.detach(), valid))}
+
+    def dynamics(self, options: JointOptions, physics: JointPhysics) -> JointDynamics:
+        return JointDynamics(physics)
+
+    def violation(self, states: torch.Tensor, accel: torch.Tensor, options: JointOptions) -> torch.Tensor:
+        return torch.relu(states[:, 1 : accel.shape[1] + 1, 1].abs() - options.max_speed)
+
+
+def masked_mean_tensor(values: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    return (values * valid).sum() / valid.sum().clamp_min(1)
+
+
+@pytest.fixture(scope="module")
+def joint_run(tmp_path_factory):
+    """A tiny model of a task registered by hand, with its own physics and a torque output, trained two steps."""
+    from seqmotion.core import registry
+
+    registry.register(JointTask())
+    run = tmp_path_factory.mktemp("joint") / "run"
+    train(registry.get("view_joint").train_config("tiny"), run, progress=False)
+    yield run
+    registry.refresh()
+
+
+def test_generic_task_panel_for_a_plug_in_with_its_own_physics_and_torques(joint_run, tmp_path):
+    model = sm.load(joint_run)
+    session = TaskSession(model, n=3)
+    assert len(session.inputs) == 3 and session.inputs[2].shape[1] == 2  # Task.example_inputs, like training's
+    frame = session.update(2)
+    k = len(session.inputs[2])
+    assert frame.states.shape == (k, 2) and frame.accel.shape == (k - 1, 1) and frame.violation.shape == (k - 1,)
+    assert frame.fields == ("q", "dq", "tau") and frame.unit("tau") == "N·m"
+    tau, none = frame.series("tau")
+    np.testing.assert_array_equal(tau, frame.accel[:, 0])
+    assert none is None
+    q, q_in = frame.series("q")
+    np.testing.assert_array_equal(q_in, session.inputs[2][:, 0])
+    assert frame.state_path is None and frame.path_names is None  # no metre fields: no path, plots only
+    with pytest.raises(ValueError, match="no field 'x'.*'q', 'dq', 'tau'"):
+        frame.series("x")
+    assert "max constraint violation" in frame.readout()
+    # the export names every column by the task's layouts
+    path = session.export(frame, tmp_path / "joint.csv")
+    header = path.read_text().splitlines()[0].split(",")
+    assert header[:5] == ["input.q", "input.dq", "q", "dq", "tau"] and "violation" in header
+    npz = np.load(session.export(frame, tmp_path / "joint.npz"))
+    np.testing.assert_array_equal(npz["states"], frame.states)
+    assert float(npz["physics.damping"]) == 0.5
+    latent = LatentSession(model, n=6, directions=2)
+    assert latent.update((1.0, 0.0)).path is None and latent.update((1.0, 0.0)).states.shape == (latent.length, 2)
+
+
+def test_the_viewer_serves_a_plug_in_task_with_plots_and_no_3d_scene(joint_run, tmp_path):
+    if importlib.util.find_spec("viser") is None:
+        pytest.skip("viser is not installed")
+    from seqmotion.view.app import ViewerApp
+
+    threads = torch.get_num_threads()
+    app = ViewerApp(str(joint_run), port=0, simulate=False, latent_n=6, out=tmp_path / "exports")
+    try:
+        assert app.wait_idle(120)
+        panel = app.panels["task"]
+        assert app.errors == [] and panel.frame is not None and panel.arm is None and app.scene_choice is None
+        assert "plotted: **q** [rad]" in panel.readout.content and panel.violation_plot.visible
+        panel.field.value = "tau"  # as the page would set it: redrawn with the torque
+        panel.worker.submit(panel._redraw)
+        assert app.wait_idle(60) and "plotted: **tau** [N·m]" in panel.readout.content
+        panel.worker.submit(panel._export)
+        assert app.wait_idle(60) and app.errors == []
+        exported = sorted((tmp_path / "exports").glob("view_joint-input0.csv"))
+        assert exported and exported[0].read_text().startswith("input.q,input.dq,q,dq,tau")
+    finally:
+        app.stop()
+        torch.set_num_threads(threads)
 
 
 def test_latent_pca_decodes_live(deformer):

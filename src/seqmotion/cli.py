@@ -32,40 +32,11 @@ def _trained_model(value: str, expected_task: str | None = None):  # noqa: ANN20
 
 
 def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:  # noqa: ANN001
-    """A result dataclass's arrays and, for CSV headers, the task's column names of each.
+    """A result's arrays and, for CSV headers, the task's column names of each
+    (:func:`seqmotion.core.results.columns_of` with ``model``'s layouts)."""
+    from seqmotion.core.results import columns_of
 
-    ``states`` get the task's state names (``y, z, theta, …``), inputs the accel names, other
-    per-sample arrays of a known layout ``<field>.<name>``.
-    """
-    from dataclasses import fields
-
-    # named below, or printed
-    trust_fields = ("uncertainty", "errors", "out_of_distribution", "ood_reasons", "task", "physics")
-    columns = {f.name: getattr(result, f.name) for f in fields(result)
-               if getattr(result, f.name) is not None and f.name not in trust_fields}
-    names: dict[str, list[str]] = {}
-    uncertainty = getattr(result, "uncertainty", None)
-    if uncertainty is not None:  # predicted std per sample: std.y, std.z, std.theta
-        columns["uncertainty"] = uncertainty
-        names["uncertainty"] = [f"std.{n}" for n in model.uncertainty_names]
-    for key, value in (getattr(result, "errors", None) or {}).items():  # scalars: kept in .npz, printed for CSV
-        columns[f"errors.{key}"] = np.asarray(value)
-    if getattr(result, "out_of_distribution", None) is not None:
-        columns["out_of_distribution"] = np.asarray(result.out_of_distribution)
-    physics = getattr(result, "physics", None)
-    for key, value in (physics.to_dict() if physics is not None else {}).items():  # what it was computed at
-        columns[f"physics.{key}"] = np.asarray(value)
-    layouts = (model.state_layout, model.accel_layout, model.input_layout)
-    for field, value in columns.items():
-        if field in names:
-            continue
-        width = np.shape(value)[-1] if np.ndim(value) == 2 else None
-        layout = next((lay for lay in layouts if lay.dim == width), None)
-        if layout is None:
-            continue
-        plain = field in ("states", "accel") or (field.endswith("accel") and layout is model.accel_layout)
-        names[field] = list(layout.names) if plain else [f"{field}.{n}" for n in layout.names]
-    return columns, names
+    return columns_of(result, model.state_layout, model.accel_layout, model.uncertainty_names)
 
 
 # --- subcommands ---------------------------------------------------------------------------------
@@ -138,28 +109,28 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_deform(args: argparse.Namespace) -> int:
-    from seqmotion.physics.integrator import implied_accel
+    from seqmotion.physics.integrator import DoubleIntegratorDynamics, implied_accel
     from seqmotion.training.files import check_not_an_input, check_output, read_trajectory, write_arrays
 
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--input": args.input})
     if args.plot is not None:  # refused before the work, like --output
-        from seqmotion.training.checkpoint import check_writable
+        from seqmotion.io import check_writable
 
         check_writable(args.plot, (".png", ".pdf", ".svg"), "--plot")
         check_not_an_input(args.plot, "--plot", {"--input": args.input, "--output": args.output})
     model = _trained_model(args.model)
     inputs = read_trajectory(args.input, columns=model.input_layout.names)
     result = model.generate(inputs, keep_end=args.keep_end)
+    motion = result.motion()
     columns, names = result_columns(result, model)
     write_arrays(args.output, columns, names)
-    message = f"{model.task_def.name}: generated {len(result.states)} samples → {args.output}"
-    violation = getattr(result, "violation", None)
-    if violation is not None:
-        what = "F_c" if model.task_def.name == "pancake" else "constraint violation"
-        at = f" at mu = {model.options.mu:g}" if "mu" in model.options.names() else ""
-        message += f": max {what} {np.max(violation):.4f}{at}"
-        if model.input_layout == model.state_layout:  # the input's own violation, inputs implied by its velocities
+    message = f"{model.task_def.name}: generated {len(motion.states)} samples → {args.output}"
+    if motion.violation is not None:
+        message += f": max constraint violation {np.max(motion.violation):.4f}{violation_unit(model, ' ')}"
+        message += at_physics(result.physics)
+        # the input's own violation, where the model's outputs are what its velocities imply (a double integrator)
+        if model.input_layout == model.state_layout and isinstance(model.dynamics(), DoubleIntegratorDynamics):
             import torch
 
             x = torch.from_numpy(np.asarray(inputs, dtype=np.float64))[None]
@@ -169,7 +140,7 @@ def cmd_deform(args: argparse.Namespace) -> int:
     print(message)
     if args.keep_end:
         rates = [i for i, unit in enumerate(model.state_layout.units) if unit.endswith("/s")]
-        at_rest = bool(np.all(np.abs(np.asarray(result.states)[result.length - 1, rates]) < 1e-6))
+        at_rest = bool(np.all(np.abs(np.asarray(motion.states)[result.length - 1, rates]) < 1e-6))
         if result.exact:
             print("ends exactly at the input's end pose, at rest (polished)")
         elif at_rest:
@@ -191,6 +162,22 @@ def cmd_deform(args: argparse.Namespace) -> int:
     return 0
 
 
+def violation_unit(model, before: str = "") -> str:  # noqa: ANN001 - a task's TrainedModel
+    """The unit of the task's constraint violation, from its tolerance's name (``max_violation_rad`` → ``rad``),
+    with ``before`` in front; "" when the task names none."""
+    key = next((k for k in model.task_def.tolerances(model.options) if k.startswith("max_violation")), "")
+    unit = key.removeprefix("max_violation").removeprefix("_")
+    return f"{before}{unit}" if unit else ""
+
+
+def at_physics(physics: object) -> str:
+    """`` at mu = 0.8`` — the physics a result was computed at (:attr:`TrustSignals.physics`) — or "" for a task
+    without physics parameters."""
+    if physics is None or not physics.to_dict():
+        return ""
+    return f" at {physics.describe()}"
+
+
 def print_not_executable(model, result: object) -> None:  # noqa: ANN001 - a task's TrainedModel
     """Say when the learned motion misses the task's end tolerances (ends elsewhere, or still moving), so an arm
     cannot execute it as it is, and point to ``--keep-end`` where the task has an exact polish."""
@@ -209,17 +196,18 @@ def print_not_executable(model, result: object) -> None:  # noqa: ANN001 - a tas
 
 def plot_deform(model, inputs: np.ndarray, result: object, path: Path) -> None:  # noqa: ANN001
     """``--plot``: the input and the deformed motion, each state field over time, and the violation with its
-    limit (the task's tolerance), written atomically (:func:`~seqmotion.training.checkpoint.save_figure`)."""
+    limit (the task's tolerance), written atomically (:func:`~seqmotion.io.save_figure`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from seqmotion.training.checkpoint import save_figure
+    from seqmotion.io import save_figure
 
-    states = np.asarray(result.states)
+    motion = result.motion()
+    states = np.asarray(motion.states)
     positions = [i for i, unit in enumerate(model.state_layout.units) if not unit.endswith("/s")]
-    violation = getattr(result, "violation", None)
+    violation = motion.violation
     rows = len(positions) + (violation is not None)
     fig, axes = plt.subplots(rows, 1, figsize=(6.5, 1.8 * rows), sharex=True, squeeze=False)
     axes = axes[:, 0]
@@ -233,8 +221,8 @@ def plot_deform(model, inputs: np.ndarray, result: object, path: Path) -> None: 
     axes[0].legend(fontsize=8, loc="best")
     if violation is not None:
         tolerances = model.task_def.tolerances(model.options)
-        key, limit = next(((k, v) for k, v in tolerances.items() if k.startswith("max_violation")), ("", None))
-        unit = key.removeprefix("max_violation").removeprefix("_")  # "max_violation_rad" → rad
+        limit = next((v for k, v in tolerances.items() if k.startswith("max_violation")), None)
+        unit = violation_unit(model)
         ax = axes[-1]
         ax.plot(np.arange(len(violation)), np.asarray(violation), "-", color="tab:red", label="violation")
         if limit is not None:
@@ -281,16 +269,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     mu, mu_dyn = plan.physics.mu, plan.physics.mu_dyn
     write_arrays(args.output, {**columns, "command": command, "friction": friction},
                  {**names, "command": [f"command.{n}" for n in planner.input_layout.names]})
-    rmse = 1000 * np.sqrt(((plan.rel_states[:, :2] - command[:, :2]) ** 2).sum(1).mean())
-    reach = 1000 * np.linalg.norm(plan.pan_states[:, :2], axis=1).max()
+    rmse, reach = 1000 * plan.errors["tracking_rmse_m"], 1000 * plan.errors["pan_max_m"]
     print(f"planned {len(command)} samples → {args.output}: object RMSE {rmse:.1f} mm against the command, "
           f"pan within {reach:.0f} mm of its start (2-D physics, μ = {mu:g}, μ' = {mu_dyn:g})")
     tolerance = {} if args.tolerance is None else {"tracking_rmse_m": args.tolerance}
     for line in planner.trust_lines(plan, tolerance):
         print(line)
-    from seqmotion.sim.sliding import ARM_FRICTION  # constants only: MuJoCo is not imported
+    from seqmotion.sim.sliding import ARM_PHYSICS  # constants only: MuJoCo is not imported
 
-    arm = (ARM_FRICTION["mu"], ARM_FRICTION["mu_dyn"])
+    arm = (ARM_PHYSICS.mu, ARM_PHYSICS.mu_dyn)
     if (mu, mu_dyn) != arm:  # a plan (a refined one above all) exploits the friction it was made at
         print(f"note: the simulated arm's object has μ = {arm[0]:g}, μ' = {arm[1]:g}; to execute this plan with "
               f"`seqmotion simulate sliding`, plan at that friction (--mu {arm[0]:g} --mu-dyn {arm[1]:g})")
@@ -299,7 +286,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 def cmd_calibrate_trust(args: argparse.Namespace) -> int:
     from seqmotion.core import trust
-    from seqmotion.training.checkpoint import check_writable_dir as check
+    from seqmotion.io import check_writable_dir as check
 
     model = _trained_model(args.model)
     directory = Path(getattr(model, "source_dir", None) or args.model)
@@ -480,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def check_writable_dir(path: Path, what: str) -> Path:
     """An output folder that can be created and written (checked before the work; nothing is created)."""
-    from seqmotion.training.checkpoint import check_writable_dir as check
+    from seqmotion.io import check_writable_dir as check
 
     return check(path, what)
 

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
-from ..errors import MAX_LENGTH
+import numpy as np
+
+from ..errors import MAX_LENGTH, check_number
 
 T = TypeVar("T", bound="TaskOptions")
 
@@ -78,17 +79,23 @@ class TaskOptions:
 # --- checks used by the tasks' __post_init__ -----------------------------------------------------
 
 
+def _json_number(name: str, value: Any) -> None:
+    """Options are stored as JSON: a NumPy scalar other than ``float64`` (a ``float``) passes the number checks
+    but not ``json.dumps``."""
+    if isinstance(value, np.generic) and not isinstance(value, float):
+        raise ValueError(f"option {name} must be a plain Python number, got the NumPy {type(value).__name__} {value!r}")
+
+
 def check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
     """Refuse a value that is not a finite number > 0 (≥ 0 with ``allow_zero``)."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ValueError(f"option {name} must be a finite number, got {value!r}")
-    if value < 0 or (value == 0 and not allow_zero):
-        raise ValueError(f"option {name} must be {'≥' if allow_zero else '>'} 0, got {value!r}")
+    _json_number(name, value)
+    check_number(f"option {name}", value, minimum=0.0, strict_minimum=not allow_zero)
 
 
 def check_count(name: str, value: Any, minimum: int = 1, maximum: int = MAX_LENGTH) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
-        raise ValueError(f"option {name} must be an integer in [{minimum}, {maximum}], got {value!r}")
+    """Refuse a value that is not an integer in ``[minimum, maximum]``."""
+    _json_number(name, value)
+    check_number(f"option {name}", value, minimum=minimum, maximum=maximum, integer=True)
 
 
 def check_length_range(name: str, value: Any, minimum: int = 2) -> None:

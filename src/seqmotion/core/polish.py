@@ -77,16 +77,16 @@ times the axis's weight) of the end-pose error against the distance to the learn
 EXTEND_MARGIN = 0.5
 """``keep_end`` plans the time a too-short input needs as the bang-bang time at the task's
 :attr:`ExactForm.travel_accel`, by default this share of the arm's acceleration limits (the task's constraint
-takes part of them: measured on 40 pancake sketches, the full limits left most such polishes infeasible)…"""
+takes part of them: at the full limits most such polishes are infeasible)…"""
 EXTEND_GROWTH = 1.4
 """…and, when the polish is still infeasible, tries again with this many times more samples…"""
 EXTEND_ATTEMPTS = 4
 """…up to this many polishes in all (the last 1.4³ ≈ 2.7× the first time)…"""
 EXTEND_COLD_ITERATIONS = 100
 """…each but the last with this cap on IPOPT's iterations: a feasible polish converges in ~15–30, a local
-proof of infeasibility takes 50–150, and a longer horizon is the cheaper way on. (Searching the time on a
-coarser transcription first — inputs held for 3 or 10 samples — was tried: holding the inputs makes the
-cone much harder to keep while the spatula turns, so it asked for far more time and took longer.)"""
+proof of infeasibility takes 50–150, and a longer horizon is the cheaper way on. (The time is not searched on
+a coarser transcription first: inputs held for several samples make the cone much harder to keep while the
+spatula turns, and ask for far more time.)"""
 
 
 def steps_to_stop(x0: np.ndarray, columns: list[int], values: np.ndarray, steps: int, form: ExactForm) -> int:

@@ -1,8 +1,12 @@
 """What a trained model returns: a :class:`Motion` with its trust signals, saved and loaded without pickle.
 
-Every result (``Motion``, ``DeformResult``, ``SlidingPlan``, ``OptimizationResult``) is a dataclass
-deriving from :class:`TrustSignals`: the arrays of the motion plus ``errors``, ``uncertainty``,
-``out_of_distribution``/``ood_reasons``, ``exact``, ``task`` and ``physics``.
+Every result is a dataclass deriving from :class:`TrustSignals` (``errors``, ``uncertainty``,
+``out_of_distribution``/``ood_reasons``, ``exact``, ``length``, ``task``, ``physics``). A generated motion is a
+:class:`Motion` — ``states`` in the task's state layout, ``accel`` (the decoder's outputs) in its accel layout,
+``latent``, ``violation`` — and a task's own result (``DeformResult``, ``SlidingPlan``, ``OptimizationResult``)
+subclasses it, adding its fields and its names for parts of the arrays (:class:`View`: the sliding plan's
+``pan_states`` are ``states[..., :4]``). Code meant for any task reads ``result.motion().states`` and
+``.accel`` and names columns by the layouts (:func:`columns_of`); task code keeps its friendly names.
 """
 
 from __future__ import annotations
@@ -10,14 +14,17 @@ from __future__ import annotations
 import importlib
 import json
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from types import MappingProxyType
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
+from .. import io
+from ..physics.layout import StateLayout
 from ..physics.parameters import Physics
-from ..training import checkpoint as ckpt
 from ..training.files import read_npz, write_arrays
 from . import registry
 
@@ -98,6 +105,22 @@ class TrustSignals:
         """These fields by name, to pass on to another result (``Result(..., **motion.trust())``)."""
         return {f.name: getattr(self, f.name) for f in fields(TrustSignals)}
 
+    def motion(self) -> Motion:
+        """This result as a :class:`Motion` (``states``, ``accel``, ``latent``, ``violation`` and these trust
+        signals): how code meant for any task reads a result. A :class:`Motion` (every task's result that
+        subclasses it) is returned as it is; another result class must hold ``states`` and ``accel`` fields.
+
+        Raises:
+            ValueError: a result class with neither (subclass :class:`Motion` instead, naming its parts with
+                :class:`View`).
+        """
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        if "states" not in values or "accel" not in values:
+            raise ValueError(f"a {type(self).__name__} holds no states and accel fields: derive it from "
+                             "seqmotion.core.results.Motion (its own names for parts of them: View)")
+        return Motion(values["states"], values["accel"], values.get("latent"), values.get("violation"),
+                      **self.trust())
+
     def save(self, path: str | Path) -> Path:
         """Write this result to an ``.npz`` atomically, every field under its own name, no pickled objects.
 
@@ -112,7 +135,7 @@ class TrustSignals:
             ValueError: ``path`` is not a writable ``.npz`` path, or a field holds a value that cannot be
                 stored without pickling (naming the field).
         """
-        path = ckpt.check_writable(path, (".npz",), "result file")
+        path = io.check_writable(path, (".npz",), "result file")
         arrays: dict[str, np.ndarray] = {}
         layout = {f.name: _pack(getattr(self, f.name), f.name, arrays) for f in fields(self) if f.init}
         layout_json = json.dumps({"format": RESULT_FORMAT, "fields": layout})
@@ -288,7 +311,8 @@ def load_result(path: str | Path) -> TrustSignals:
     if isinstance(task, dict) and isinstance(task.get("str"), str):  # a plug-in's class is found through its task
         task_name = _text(read_npz(path, (task["str"],))[task["str"]], "task")
     cls = _result_class(name, task_name, path)
-    unknown = sorted(set(nodes) - {f.name for f in fields(cls) if f.init})
+    views = getattr(cls, "views", {})
+    unknown = sorted(set(nodes) - {f.name for f in fields(cls) if f.init} - set(views))
     if unknown:
         raise ValueError(f"{path}: a {cls.__name__} has no field(s) {unknown}")
     try:
@@ -302,9 +326,32 @@ def load_result(path: str | Path) -> TrustSignals:
         raise
     try:
         values = {name: _unpack(node, arrays, sys.modules[cls.__module__]) for name, node in nodes.items()}
-        return cls(**values)
+        return cls(**_join_views(values, views))
     except (ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
         raise ValueError(f"{path}: cannot rebuild the {cls.__name__}: {exc}") from None
+
+
+def _join_views(values: dict[str, Any], views: Mapping[str, View]) -> dict[str, Any]:
+    """``values`` with a result's views, saved as fields of their own (a file written before the class was a
+    :class:`Motion`: a sliding plan's ``pan_states``, ``rel_states``, ``pan_accel``), joined back into the
+    ``states`` and ``accel`` they are columns of."""
+    given = [name for name in views if name in values]
+    if not given:
+        return values
+    out = {k: v for k, v in values.items() if k not in views}
+    for source in ("states", "accel"):
+        parts = sorted((views[n].start, n) for n in given if views[n].source == source)
+        if not parts:
+            continue
+        if source in out:
+            raise ValueError(f"both {source!r} and its view(s) {[n for _, n in parts]} are saved")
+        arrays = [np.asarray(values[n]) for _, n in parts]
+        widths = [a.shape[-1] for a in arrays]
+        starts = [int(np.sum(widths[:i])) for i in range(len(arrays))]
+        if [start for start, _ in parts] != starts:
+            raise ValueError(f"the saved views {[n for _, n in parts]} do not tile the {source!r} columns")
+        out[source] = np.concatenate(arrays, axis=-1)
+    return out
 
 
 def _plot(result: TrustSignals, path: str | Path | None) -> Any:
@@ -312,35 +359,26 @@ def _plot(result: TrustSignals, path: str | Path | None) -> Any:
     from matplotlib.figure import Figure  # no pyplot: no global backend switch, nothing kept alive
 
     if path is not None:
-        path = ckpt.check_writable(path, None, "figure")
-    own = [f.name for f in fields(result) if f.name not in {g.name for g in fields(TrustSignals)}]
-    arrays = {n: getattr(result, n) for n in own if isinstance(getattr(result, n), np.ndarray)}
-    top = max((a.ndim for a in arrays.values()), default=0)
-    per_sample = {n: a for n, a in arrays.items() if a.ndim == top and top >= 2}
-    k = max((a.shape[-2] for a in per_sample.values()), default=0)
-    states = {n: a for n, a in per_sample.items() if a.shape[-2] == k}  # (K, n): states; (K-1, d) inputs are not
-    if not states:
-        raise ValueError(f"a {type(result).__name__} holds no per-sample states to plot")
+        path = io.check_writable(path, None, "figure")
+    motion = result.motion()
+    states = np.asarray(motion.states, dtype=np.float64)
+    if states.ndim not in (2, 3):
+        raise ValueError(f"a {type(result).__name__}'s states are {states.shape}, not (K, S) or (B, K, S)")
     layout = None
-    if result.task:  # the fields' names and units; a task not installed here: plotted by field and column
+    if result.task:  # the fields' names and units; a task not installed here: plotted by column
         try:
             layout = getattr(registry.get(result.task), "state_layout", None)
         except ValueError:
             layout = None
-    width = sum(a.shape[-1] for a in states.values())
-    columns = []  # (name, unit or the field's name, values (B, K)) per state column
-    start = 0
-    for field_name, array in states.items():
-        batch = array.reshape(-1, *array.shape[-2:])
-        for j in range(array.shape[-1]):
-            if layout is not None and layout.dim == width:
-                name, group = layout.names[start + j], layout.units[start + j]
-            else:
-                name, group = f"{field_name}[{j}]", field_name
-            columns.append((name, group, batch[:, :, j]))
-        start += array.shape[-1]
+    if layout is not None and layout.dim != states.shape[-1]:
+        layout = None
+    batch = states.reshape(-1, *states.shape[-2:])
+    columns = []  # (name, unit or "states", values (B, K)) per state column
+    for j in range(states.shape[-1]):
+        name, group = (layout.names[j], layout.units[j]) if layout is not None else (f"states[{j}]", "states")
+        columns.append((name, group, batch[:, :, j]))
     groups = list(dict.fromkeys(group for _, group, _ in columns))
-    violation = getattr(result, "violation", None)
+    violation = motion.violation
     panels = len(groups) + (violation is not None)
     figure = Figure(figsize=(8, 1.9 * panels + 0.6), layout="constrained")
     axes = figure.subplots(panels, 1, sharex=True, squeeze=False)[:, 0]
@@ -361,7 +399,7 @@ def _plot(result: TrustSignals, path: str | Path | None) -> Any:
     axes[-1].set_xlabel("sample k")
     figure.suptitle(f"{type(result).__name__}" + (f" ({result.task})" if result.task else ""))
     if path is not None:
-        ckpt.save_figure(figure, path)
+        io.save_figure(figure, path)
     return figure
 
 
@@ -374,27 +412,132 @@ def feasible_of(violation: np.ndarray | None) -> np.ndarray | bool | None:
     return bool(ok) if np.ndim(ok) == 0 else ok
 
 
+@dataclass(frozen=True)
+class View:
+    """A task's name for some columns of a motion's ``states`` or ``accel``: ``source[..., start:stop]``.
+
+    The sliding plan's ``pan_states`` are ``View("states", 0, 4)`` (the pan's ``x, y, v_x, v_y``) and its
+    ``pan_accel`` ``View("accel")``; CSV headers name the columns by the layout's names of that slice.
+    """
+
+    source: str
+    start: int = 0
+    stop: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.source not in ("states", "accel"):
+            raise ValueError(f"a View reads 'states' or 'accel', got {self.source!r}")
+        for name, value in (("start", self.start), ("stop", self.stop)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+                raise ValueError(f"a View's {name} must be an integer ≥ 0, got {value!r}")
+        if self.stop is not None and self.stop <= self.start:
+            raise ValueError(f"a View's stop ({self.stop}) must lie after its start ({self.start})")
+
+    def of(self, motion: Motion) -> np.ndarray:
+        """The columns ``(..., stop - start)`` of ``motion``'s source array."""
+        return np.asarray(getattr(motion, self.source))[..., self.start : self.stop]
+
+    def names(self, layout: StateLayout) -> tuple[str, ...]:
+        """The layout's names of these columns."""
+        return tuple(layout.names[self.start : self.stop])
+
+
 @dataclass
 class Motion(TrustSignals):
     """A generated motion (a leading B axis on every array for a batch), with its trust signals.
 
+    Every task's result is one (a task's own result class subclasses it): code meant for any task reads these
+    fields, a task's code may read its own names for parts of them (:attr:`views`).
+
     Attributes:
         states: ``(K, S)`` states in the task's ``state_layout``; ``states[0]`` is the start state.
-        accel: ``(K-1, d)`` the decoder's outputs ``u[0..K-2]`` in the task's ``accel_layout``.
-        latent: ``(L·H,)`` the latent z the motion was decoded from.
+        accel: ``(K-1, d)`` the decoder's outputs ``u[0..K-2]`` in the task's ``accel_layout`` (accelerations,
+            or whatever the task's physics is driven by, e.g. joint torques).
+        latent: ``(L·H,)`` the latent z the motion was decoded from (None where it was not decoded from one).
         violation: ``(K-1,)`` the task's constraint violation per transition (0 where it holds),
             or None for a task without a constraint.
     """
 
     states: np.ndarray
     accel: np.ndarray
-    latent: np.ndarray
+    latent: np.ndarray | None
     violation: np.ndarray | None = None
+
+    views: ClassVar[Mapping[str, View]] = MappingProxyType({})
+    """A task's names for parts of ``states`` and ``accel`` (name → :class:`View`), each readable as an
+    attribute (``plan.pan_states``) and written under that name by :func:`columns_of`."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("views")
+        if own is None:
+            return
+        cls.views = MappingProxyType(dict(own))
+        taken = {name for klass in cls.__mro__ for name in klass.__dict__.get("__annotations__", {})}
+        for name, view in cls.views.items():
+            if not isinstance(view, View) or not name.isidentifier() or name in taken:
+                raise ValueError(f"{cls.__name__}.views[{name!r}] must be a View under a name that is no field")
+            if name not in cls.__dict__:  # a task's own property of that name wins
+                setattr(cls, name, property(view.of, doc=f"``{view.source}[..., {view.start}:{view.stop or ''}]``"))
+
+    def motion(self) -> Motion:
+        """This motion itself (see :meth:`TrustSignals.motion`)."""
+        return self
 
     @property
     def feasible(self) -> np.ndarray | bool | None:
         """Whether the largest violation is ≤ 0.01 (per trajectory for a batch); None without a constraint."""
         return feasible_of(self.violation)
+
+
+_TRUST_COLUMNS = ("uncertainty", "errors", "out_of_distribution", "ood_reasons", "task", "physics")
+"""Trust fields :func:`columns_of` writes its own way (or leaves to the printed summary)."""
+
+
+def columns_of(
+    result: TrustSignals, state_layout: StateLayout, accel_layout: StateLayout,
+    uncertainty_names: tuple[str, ...] | None = None,
+) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+    """A result's arrays by name and, for CSV headers, one name per column — every name from the layouts.
+
+    ``states`` and ``accel`` are written under the task's views of them (the sliding plan's ``pan_states``,
+    ``rel_states``, ``pan_accel``; :attr:`Motion.views`), or as ``states``/``accel`` where no view reads them;
+    their columns take the layout's names (``y, z, theta, …``, ``a_y, a_z, a_theta``). A task's other
+    per-sample fields keep their field name (``violation``, ``psi``); ``uncertainty`` columns are
+    ``std.<field>``; errors, the out-of-distribution flag and the physics are written as ``errors.<name>``,
+    ``out_of_distribution``, ``physics.<name>`` (one value each: kept in an ``.npz``, left out of a CSV).
+    """
+    motion = result.motion()
+    layouts = {"states": state_layout, "accel": accel_layout}
+    columns: dict[str, np.ndarray] = {}
+    names: dict[str, list[str]] = {}
+    views = dict(getattr(type(result), "views", {}))
+    read = {view.source for view in views.values()}
+    for source in layouts:
+        if source not in read:
+            views[source] = View(source)
+    for name, view in views.items():
+        columns[name] = view.of(motion)
+        names[name] = list(view.names(layouts[view.source]))
+    skip = {"states", "accel", *_TRUST_COLUMNS}
+    for f in fields(result):
+        value = getattr(result, f.name)
+        if value is None or f.name in skip or f.name in columns:
+            continue
+        columns[f.name] = value
+        k = np.shape(motion.states)[-2]
+        if np.ndim(value) == np.ndim(motion.states) - 1 and np.shape(value)[-1] in (k, k - 1):  # psi, violation
+            names[f.name] = [f.name]
+    if result.uncertainty is not None and uncertainty_names is not None:
+        columns["uncertainty"] = result.uncertainty
+        names["uncertainty"] = [f"std.{n}" for n in uncertainty_names]
+    for key, value in (result.errors or {}).items():
+        columns[f"errors.{key}"] = np.asarray(value)
+    if result.out_of_distribution is not None:
+        columns["out_of_distribution"] = np.asarray(result.out_of_distribution)
+    for key, value in (result.physics.to_dict() if result.physics is not None else {}).items():
+        columns[f"physics.{key}"] = np.asarray(value)
+    return columns, names
 
 
 class Assessment(NamedTuple):

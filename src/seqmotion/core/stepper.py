@@ -75,7 +75,10 @@ from typing import Any
 
 import numpy as np
 
-CONTRACT_FORMAT = "seqmotion-stepper/1"
+CONTRACT_FORMAT = "seqmotion-stepper/2"
+"""The contract's format; a runner reads only its own (a bundle of another format is refused: re-export it)."""
+DYNAMICS_GRAPH = "dynamics.onnx"
+"""The file of the exported dynamics graph (one chunk of the task's ``ChunkDynamics.step``) in a bundle."""
 STOP_TAU = 0.05
 """Time constant of the end-of-motion deceleration [s] (at shrink factor 1)."""
 STOP_SHRINK = (1.0, 0.5, 0.25, 0.125, 0.0625)
@@ -110,32 +113,85 @@ def layout_dict(layout: Any) -> dict[str, Any]:
     return {"kind": layout.kind, "names": list(layout.names), "units": list(layout.units)}
 
 
-def dynamics_spec(dynamics: Any) -> dict[str, Any]:
-    """How the task's dynamics closes the loop, as data (what a NumPy reimplementation needs)."""
-    from ..physics.integrator import DoubleIntegratorDynamics
-    from ..physics.sliding import GRAVITY, SlidingDynamics
-
-    if isinstance(dynamics, DoubleIntegratorDynamics):
-        return {"kind": "double_integrator", "dim": int(dynamics.dim), "dt": float(dynamics.dt)}
-    if isinstance(dynamics, SlidingDynamics):
-        mu, mu_dyn = (np.asarray(v, dtype=np.float64) for v in (dynamics.mu, dynamics.mu_dyn))
-        if mu.size != 1 or mu_dyn.size != 1:
-            raise ValueError("the stepper needs one friction value (mu, mu_dyn), not one per trajectory")
-        return {"kind": "sliding", "pan_dim": 2, "mu": float(mu), "mu_dyn": float(mu_dyn), "dt": float(dynamics.dt),
-                "gravity": GRAVITY}
-    return {"kind": "custom", "class": f"{type(dynamics).__module__}.{type(dynamics).__qualname__}",
-            "dt": float(getattr(dynamics, "dt", 1e-3))}
+def physics_inputs(dynamics: Any, physics: Any) -> list[str]:
+    """The fields of ``physics`` (a :class:`~seqmotion.physics.parameters.Physics`) that ``dynamics`` reads as
+    attributes of the same name (sliding: ``mu``, ``mu_dyn``; a double integrator: none), in field order:
+    what an exported dynamics graph takes as its ``physics`` input, so a deployed model runs at other values."""
+    return [name for name in physics.names() if hasattr(dynamics, name)]
 
 
-def stepper_contract(model: Any, dynamics: Any) -> dict[str, Any]:
-    """The stepper's contract for a trained model (a ``TrainedModel``) and the dynamics it runs with."""
+CLOSED_FORMS = ("double_integrator",)
+"""The closed forms a contract may name for the task's dynamics (a runner computes them without the graph)."""
+CLOSED_FORM_TOLERANCE = 1e-12
+"""How close (relative to the states' magnitude) a task's dynamics must come to a closed form for the contract to
+name it: the same arithmetic in another order, ~1e-16 in float64."""
+
+
+def closed_form(dynamics: Any, state_dim: int, accel_dim: int, chunk: int, reads_physics: bool) -> str | None:
+    """``"double_integrator"`` when ``dynamics`` compute the double integrator (states ``[p (d), v (d)]`` driven by
+    the outputs as accelerations, :func:`seqmotion.physics.integrator.integrate`) on random states and a random
+    chunk of outputs, else None; a runner may then predict in closed form. Judged by what the dynamics compute,
+    not by their class; never for dynamics that read physics (another value could make them another system)."""
+    if reads_physics or state_dim != 2 * accel_dim:
+        return None
+    import torch
+
+    from ..physics.integrator import DT, integrate
+
+    rng = np.random.default_rng(0)
+    x = torch.from_numpy(rng.standard_normal((4, state_dim)))
+    accel = torch.from_numpy(10.0 * rng.standard_normal((4, chunk, accel_dim)))
+    with torch.no_grad():
+        _, out = dynamics.step(dynamics.start(x), accel, None)
+        ref = integrate(x, accel, float(getattr(dynamics, "dt", DT)))[:, 1:]
+    states = out["states"].detach().cpu().double()
+    if states.shape != ref.shape:
+        return None
+    gap = float((states - ref).abs().max()) / float(ref.abs().max())
+    return CLOSED_FORMS[0] if gap <= CLOSED_FORM_TOLERANCE else None
+
+
+def dynamics_spec(dynamics: Any, physics: Any, chunk: int, state_dim: int, accel_dim: int) -> dict[str, Any]:
+    """How the task's dynamics closes the loop, as data: the graph that runs one chunk of it, the time step,
+    the chunk, the physics (its class, every field, the fields the graph reads and the values it runs at) and
+    the closed form the dynamics compute, if any (:func:`closed_form`).
+
+    The values are ``physics`` with each field the dynamics reads taken from the dynamics object itself, so
+    the contract states what the stepper runs with.
+
+    Raises:
+        ValueError: a field the dynamics hold one value per trajectory of (the stepper runs one value).
+    """
+    from ..physics.integrator import DT
+
+    inputs = physics_inputs(dynamics, physics)
+    held = {}
+    for name in inputs:
+        value = getattr(dynamics, name)
+        value = np.asarray(value.detach().cpu() if hasattr(value, "detach") else value, dtype=np.float64)
+        if value.size != 1:
+            raise ValueError(f"the stepper runs one value of {name}, not one per trajectory (got shape {value.shape})")
+        held[name] = float(value.reshape(()))
+    return {
+        "graph": DYNAMICS_GRAPH,
+        "dt": float(getattr(dynamics, "dt", DT)),
+        "chunk": int(chunk),
+        "physics": {"class": physics.key(), "names": list(physics.names()), "inputs": inputs,
+                    "values": physics.replace(**held).to_dict()},
+        "closed_form": closed_form(dynamics, state_dim, accel_dim, chunk, bool(inputs)),
+    }
+
+
+def stepper_contract(model: Any, dynamics: Any, physics: Any = None) -> dict[str, Any]:
+    """The stepper's contract for a trained model (a ``TrainedModel``), the dynamics it runs with and their
+    physics (default: the model's own, ``model.physics``)."""
     cfg = model.model.cfg
     state, accel = model.state_layout, model.accel_layout
     d = accel.dim
     velocity = list(range(d, 2 * d))
     if 2 * d > state.dim or not all(state.units[i].endswith("/s") for i in velocity):
         velocity = None  # not the [positions, velocities] convention: the stop holds (outputs 0)
-    spec = dynamics_spec(dynamics)
+    spec = dynamics_spec(dynamics, model.physics if physics is None else physics, cfg.chunk, state.dim, d)
     lengths = getattr(model.options, "length", None)
     return {
         "format": CONTRACT_FORMAT,
@@ -290,6 +346,7 @@ class StepperCore:
         self._length = self._check_length(length)
         self.replan = bool(replan)
         self._pending: tuple[np.ndarray, int | None] | None = None
+        self._rows: tuple[np.ndarray, np.ndarray] | None = None
         self.reset()
 
     # --- checks ----------------------------------------------------------------------------------
@@ -478,16 +535,24 @@ class StepperCore:
         if not self._contract["constraint"]:
             return stop_accel(v, n, np.ones(b), self._tau, self._limit, self.dt, self._rest)
         ns = len(self._shrink)
-        scale = np.repeat(np.asarray(self._shrink), b)  # candidate-major: (ns·B,)
-        accel = stop_accel(np.tile(v, (ns, 1)), n, scale, self._tau, self._limit, self.dt, self._rest)
+        rows, scale = self._candidate_rows(b)
+        accel = stop_accel(v[rows[: ns * b]], n, scale, self._tau, self._limit, self.dt, self._rest)
         candidates = np.concatenate([accel, np.zeros((b, n, d))])  # + coasting, the reference
-        start = np.tile(x, (ns + 1, 1))
+        start = x[rows]
         states = np.concatenate([start[:, None], self._predict(start, candidates)], axis=1)
         worst = self._violation(states, candidates).max(axis=1).reshape(ns + 1, b)
         ok = worst[:ns] <= np.maximum(worst[ns], 0.0) + self._tol  # no worse than not decelerating
         lost = worst[ns] > self._tol  # even coasting breaks the constraint: stop promptly instead
         pick = np.where(ok.any(axis=0), ok.argmax(axis=0), np.where(lost, 0, worst[:ns].argmin(axis=0)))
         return accel.reshape(ns, b, n, d)[pick, np.arange(b)]
+
+    def _candidate_rows(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        """For B states: the rows that repeat them once per stop candidate and once for coasting
+        (candidate-major, ``((ns+1)·B,)``), and each candidate row's shrink factor ``(ns·B,)`` — made once:
+        the stop is planned at every call near the end of a motion, where a call must stay short."""
+        if self._rows is None or self._rows[0].size != (len(self._shrink) + 1) * b:
+            self._rows = (np.tile(np.arange(b), len(self._shrink) + 1), np.repeat(np.asarray(self._shrink), b))
+        return self._rows
 
     # --- the backend -------------------------------------------------------------------------------
 
@@ -552,7 +617,7 @@ class OnlineGenerator(StepperCore):
 
 
 __all__ = [
-    "CONTRACT_FORMAT", "OnlineGenerator", "REST_VELOCITY", "SEMANTICS", "STOP_SHRINK", "STOP_TAU", "StepperCore",
-    "VIOLATION_TOLERANCE", "check_states", "check_vectors", "dynamics_spec", "layout_dict", "stepper_contract",
-    "stop_accel",
+    "CLOSED_FORMS", "CLOSED_FORM_TOLERANCE", "CONTRACT_FORMAT", "DYNAMICS_GRAPH", "OnlineGenerator", "REST_VELOCITY",
+    "SEMANTICS", "STOP_SHRINK", "STOP_TAU", "StepperCore", "VIOLATION_TOLERANCE", "check_states", "check_vectors",
+    "closed_form", "dynamics_spec", "layout_dict", "physics_inputs", "stepper_contract", "stop_accel",
 ]

@@ -27,12 +27,11 @@ import torch
 
 from ..data.trajectories import TensorBatch, TrajectoryBatch
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig
-from ..physics.integrator import DoubleIntegratorDynamics
+from ..physics.integrator import DoubleIntegratorDynamics, integrate_covariance
 from ..physics.layout import StateLayout
 from ..physics.parameters import Physics
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, CurriculumParams
-from . import trust
 from .options import TaskOptions
 from .polish import ExactForm
 from .results import FEASIBLE_TOLERANCE, Motion
@@ -97,8 +96,8 @@ class Task(ABC):
     def example_inputs(self, n: int, seed: int = 0) -> np.ndarray:
         """``n`` input motions ``(n, K, input_dim)`` like those the task trains on, of one length K (docs,
         tests, the viewer and ``calibrate-trust`` use them). Default: the training generator at the end of
-        the ``small`` preset's curriculum, each cut to the shortest of the draw."""
-        config = self.train_config("small")
+        the ``small`` preset's curriculum (else the first preset's), each cut to the shortest of the draw."""
+        config = self.train_config("small" if "small" in self.presets else self.presets[0])
         params = self.params(Curriculum.from_dict(config.curriculum).final())
         batch = self.sample(n, np.random.default_rng(seed), params, self.options(config))
         return np.asarray(batch.states[:, : int(np.min(batch.lengths))], dtype=np.float64)
@@ -218,11 +217,11 @@ class Task(ABC):
 
         ``states`` ``(B, K, S)``, ``accel`` ``(B, K-1, d)`` and the dynamics' other ``outputs`` (first K-1
         samples) are the motion's. Default: the closed form of the double integrator
-        (:func:`seqmotion.tasks.trust.integrate_covariance`) when the task's dynamics is one; None (the
+        (:func:`seqmotion.physics.integrator.integrate_covariance`) when the task's dynamics is one; None (the
         chunk-by-chunk propagation is used) otherwise.
         """
         if isinstance(dynamics, DoubleIntegratorDynamics):
-            return trust.integrate_covariance(accel_cov, dynamics.dt)
+            return integrate_covariance(accel_cov, dynamics.dt)
         return None
 
     def tolerances(self, options: TaskOptions) -> dict[str, float]:

@@ -323,7 +323,8 @@ class TrainedModel(PretrainedModel):
         self, inputs: object, keep_end: bool = False, extend: bool = True, physics: Physics | None = None
     ) -> Any:
         """Encode ``(K, input_dim)`` or ``(B, K, input_dim)`` motions (any K ≥ 2) and decode them
-        through the task's physics: the task's result (a :class:`Motion` unless the task says otherwise).
+        through the task's physics: a :class:`Motion` (the task's own subclass of it, e.g. ``DeformResult``,
+        ``SlidingPlan``; any task's code reads ``result.motion().states`` and ``.accel``).
 
         ``keep_end=True``: then polish each motion (:meth:`polish`) so it ends exactly at the input's
         end pose (the task's ``end_pose`` fields of the input's last sample), at rest, with the task's
@@ -403,7 +404,7 @@ class TrainedModel(PretrainedModel):
                 start = reach_end(x0[b], ref, columns, values[b], np.array(form.accel_weights), form.dt)
                 last = attempt == attempts - 1  # a failing try is cut short: a longer one will likely succeed
                 # MX: a motion's length (its input's, or an extended one) seldom recurs soon, and "auto" would
-                # build the slow-to-build SX graph (0.18 s mean, 1 s at K = 1000) on its second request
+                # build the slow-to-build SX graph on its second request
                 solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
                                        cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
                                        symbolic="MX")
@@ -446,7 +447,7 @@ class TrainedModel(PretrainedModel):
         rest = end_values(rates, "end at rest")
         # from standing still — feasible for the constraint, limits and reach from a start at rest — toward
         # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
-        # IPOPT failed to converge on 1 of the 5 such motions of 600 sketches; from rest on none
+        # IPOPT converges less often
         solution = self.polish(x0, ref, [rest], [np.zeros(len(rates))], start=np.zeros_like(ref), warm=False,
                                symbolic="MX", end_cost=(pose, weights, target))
         if self._holds(solution):

@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..io import atomic_write_json
 from ..physics.integrator import DT
 from ..physics.layout import StateLayout
-from ..training.checkpoint import atomic_write_json
 from ..training.config import TrainConfig
 
 TRUST_FILE = "trust.json"
@@ -46,9 +46,9 @@ UPPER_PERCENTILE = 99.5
 UNCERTAINTY_FEATURE = "end_std_m"
 """The predicted-uncertainty feature: the predicted std of the end position [m] (metre fields)."""
 MARGIN = 0.1
-"""Headroom on every upper bound: a feature is out beyond ``(1 + MARGIN) ×`` its upper percentile.
-Measured (benchmarks/results_trust.md): at the 99.5th percentile alone ~2–3 % of fresh pancake
-sketches were flagged (seven features, heavy tails); with 10 % headroom 1–2.5 %."""
+"""Headroom on every upper bound: a feature is out beyond ``(1 + MARGIN) ×`` its upper percentile (the
+features have heavy tails: the percentile alone flags too many fresh in-distribution inputs,
+``benchmarks/results_trust.md``)."""
 DEFAULT_N = 2048
 """Calibration inputs drawn by :func:`calibrate` (a shipped model's ``trust.json``)."""
 ON_THE_FLY_N = 512
@@ -113,18 +113,6 @@ def position_std(pos_cov: torch.Tensor | np.ndarray, length: int) -> np.ndarray:
     cov = pos_cov.detach().cpu().numpy() if torch.is_tensor(pos_cov) else np.asarray(pos_cov)
     diag = np.sqrt(np.clip(np.diagonal(cov[:, : length - 1], axis1=-2, axis2=-1), 0.0, None))
     return np.concatenate([np.zeros_like(diag[:, :1]), diag], axis=1)
-
-
-def integrate_covariance(accel_cov: torch.Tensor, dt: float = DT) -> torch.Tensor:
-    """Position covariances ``(B, N, d, d)`` of states ``1..N`` of a double integrator started from a known
-    state under independent inputs with covariances ``accel_cov`` ``(B, N, d, d)`` (eq. 2.14), in one pass:
-    ``P[n] = dt⁴ Σ_{j<n} (n - j - ½)² S[j] = dt⁴ (n² C0[n] - 2n C1[n] + C2[n])`` with the cumulative sums
-    ``C_m[n] = Σ_{j<n} (j + ½)^m S[j]``. Run it in float64 (the three terms cancel to about a sixth)."""
-    n_steps = accel_cov.shape[1]
-    a = torch.arange(n_steps, dtype=accel_cov.dtype, device=accel_cov.device).view(1, -1, 1, 1) + 0.5
-    n = a + 0.5  # n = j + 1 for the state after input j
-    c0, c1, c2 = accel_cov.cumsum(1), (a * accel_cov).cumsum(1), (a * a * accel_cov).cumsum(1)
-    return dt**4 * (n * n * c0 - 2 * n * c1 + c2)
 
 
 class HeadCovarianceOnly:
@@ -404,6 +392,6 @@ def summary_lines(
 
 __all__ = [
     "HeadCovarianceOnly", "TRUST_FILE", "TrustCalibration", "calibrate", "calibration_for", "features_of",
-    "format_error", "input_features", "integrate_covariance", "missed", "position_std", "predicted_std",
+    "format_error", "input_features", "missed", "position_std", "predicted_std",
     "read_calibration", "summary_lines", "training_inputs", "uncertainty_features", "write_calibration",
 ]

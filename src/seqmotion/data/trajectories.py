@@ -101,12 +101,6 @@ def normalized_time(lengths: np.ndarray) -> np.ndarray:
     return np.minimum(k[None, :] / (lengths[:, None] - 1.0), 1.0)
 
 
-def pad_mask(lengths: np.ndarray, k_max: int | None = None) -> np.ndarray:
-    """``(B, K_max)`` bool, True on real samples."""
-    k_max = int(lengths.max()) if k_max is None else k_max
-    return np.arange(k_max)[None, :] < lengths[:, None]
-
-
 def repeat_last(values: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """Overwrite the padding of ``(B, K_max, ...)`` with each trajectory's last real sample."""
     idx = np.minimum(np.arange(values.shape[1])[None, :], lengths[:, None] - 1)
@@ -141,6 +135,30 @@ def combine(lengths: np.ndarray, parts: list[tuple[np.ndarray, TrajectoryBatch]]
                 value = padded(part.extras[name])
                 carried.setdefault(name, np.zeros((len(lengths),) + value.shape[1:]))[idx] = value
     return TrajectoryBatch(states=states, lengths=lengths, extras=carried or None)
+
+
+def tracking_rmse(achieved: np.ndarray, target: np.ndarray | None = None) -> np.ndarray | float:
+    """How closely a motion follows another: the root mean square over the samples of the Euclidean distance
+    between them, ``√(mean_k |a[k] - t[k]|²)``.
+
+    Args:
+        achieved: ``(..., K, d)`` positions (or, without ``target``, their errors already).
+        target: ``(..., K, d)`` what they should have been.
+
+    Returns:
+        ``(...)`` in the unit of the positions (a float for a single motion); NaN for a motion of no samples
+        (nothing was tracked).
+    """
+    err = np.asarray(achieved, dtype=np.float64)
+    if target is not None:
+        err = err - np.asarray(target, dtype=np.float64)
+    if err.ndim < 2:
+        raise ValueError(f"tracking_rmse needs (..., K, d) positions, got shape {err.shape}")
+    if err.shape[-2] == 0:
+        out = np.full(err.shape[:-2], np.nan)
+    else:
+        out = np.sqrt(np.mean(np.sum(err**2, axis=-1), axis=-1))
+    return float(out) if out.ndim == 0 else out
 
 
 def unpad(batch: TrajectoryBatch) -> list[np.ndarray]:

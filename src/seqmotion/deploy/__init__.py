@@ -1,11 +1,14 @@
-"""Deployment: a trained model's encoder and decoder step as ONNX, run by onnxruntime and NumPy.
+"""Deployment: a trained model's encoder, decoder step and own dynamics as ONNX, run by onnxruntime and NumPy.
 
 >>> import seqmotion as sm
 >>> sm.deploy.export_onnx(sm.load_pretrained("pancake"), "pancake-onnx")    # seqmotion export-onnx pancake pancake-onnx
 >>> gen = sm.deploy.OnnxStepper("pancake-onnx", sketch)                      # model.generator(sketch)'s interface
 >>> u = gen.step(); u = gen.step(measured)
+>>> plan = sm.deploy.OnnxStepper("sliding-onnx", command, physics={"mu": 0.8})  # at another friction
 
-The folder is self-contained: its ``onnx_stepper.py`` runs with NumPy and onnxruntime alone. It is
+The task's dynamics are a graph of the bundle, traced from the PyTorch code the model trains with,
+so any task's physics deploys (a plug-in's too) and runs at other values of the physics fields the
+graph reads. The folder is self-contained: its ``onnx_stepper.py`` runs with NumPy and onnxruntime alone. It is
 written whole (a re-export swaps it in) and sealed: ``contract.json`` carries the SHA-256 of each
 graph and of itself, and loading refuses an edited, invalid or mixed bundle (``bundle.py``).
 Needs the optional extra ``pip install 'seqmotion[deploy]'`` (onnx, onnxruntime).

@@ -4,19 +4,21 @@
 runner trusts of it, and it is copied beside the graphs (standard library only), so the
 standalone runner checks the same things.
 
-**The schema** (:data:`FIELDS`, :data:`DYNAMICS_FIELDS`, then :func:`_check_relations`): every
-field the runner reads, with its type and range — counts are integers ≥ 1, times and limits
-finite and > 0, kinds from a known list, layouts lists of names with one unit each, and each
-graph in ``files`` a plain file name ending in ``.onnx`` (no folder, not absolute, no ``..``)
-of a file inside the bundle. Fields the runner does not read (``semantics``, ``graphs``,
-``model``, …) are only covered by the seal.
+**The schema** (:data:`FIELDS`, then :func:`_check_relations`): every field the runner reads,
+with its type and range — counts are integers ≥ 1, times and limits finite and > 0, layouts
+lists of names with one unit each, the dynamics' physics a list of field names, the ones its
+graph reads among them and a finite value for each, and each graph in ``files`` a plain file
+name ending in ``.onnx`` (no folder, not absolute, no ``..``) of a file inside the bundle.
+Fields the runner does not read (``semantics``, ``graphs``, ``model``, …) are only covered by
+the seal.
 
 **The seal.** ``sha256`` holds the SHA-256 of each graph file (keyed like ``files``) and
 ``contract_sha256`` that of the contract itself: of its canonical JSON (sorted keys, separators
 ``","`` and ``":"``) without ``contract_sha256``. :func:`read_contract` verifies the seal before
 the schema (an edited contract is reported as edited), and :func:`read_graphs` reads each graph
 once and checks its hash, so onnxruntime loads the very bytes that were checked. A bundle without
-a seal (exported before it existed) is refused with the advice to re-export it.
+a seal (exported before it existed), or of another format (one exported before the dynamics
+were a graph of the bundle), is refused with the advice to re-export it.
 """
 
 from __future__ import annotations
@@ -30,16 +32,16 @@ from pathlib import Path
 from typing import Any
 
 try:  # inside the seqmotion package
-    from ..core.stepper import CONTRACT_FORMAT
+    from ..core.stepper import CLOSED_FORMS, CONTRACT_FORMAT
 except ImportError:  # the standalone copy beside the graphs
-    from stepper import CONTRACT_FORMAT  # type: ignore[no-redef]
+    from stepper import CLOSED_FORMS, CONTRACT_FORMAT  # type: ignore[no-redef]
 
 CONTRACT = "contract.json"
 SEAL = "contract_sha256"
 """The contract's own hash (of its canonical JSON without this key)."""
 HASHES = "sha256"
 """The graphs' hashes, keyed like ``files``."""
-GRAPHS = ("encoder", "decoder_step", "violation", "decoder_step_int8")
+GRAPHS = ("encoder", "decoder_step", "dynamics", "violation", "decoder_step_int8")
 """The keys of ``files`` a bundle may have (``violation`` may be null; ``decoder_step_int8`` absent)."""
 MAX_CONTRACT_BYTES = 2**20
 """A ``contract.json`` larger than this (exported ones are ~10 kB) is refused before it is parsed."""
@@ -74,6 +76,8 @@ FRACTION: Check = (lambda v: _is_real(v) and 0 < v <= 1, "a number in (0, 1]")
 INDEX: Check = (lambda v: _is_int(v) and v >= 0, "an integer >= 0")
 NAMES: Check = (lambda v: isinstance(v, list) and len(v) > 0 and all(isinstance(x, str) for x in v),
                 "a non-empty list of strings")
+FIELD_NAMES: Check = (lambda v: isinstance(v, list) and all(isinstance(x, str) and x.isidentifier() for x in v)
+                      and len(set(v)) == len(v), "a list of distinct field names (possibly empty)")
 DIGEST: Check = (lambda v: isinstance(v, str) and len(v) == 64 and all(c in "0123456789abcdef" for c in v),
                  "a SHA-256 hex digest (64 lowercase hex digits)")
 GRAPH: Check = (is_plain_graph_name, "a plain file name ending in .onnx (no folder, not absolute, no '..')")
@@ -102,8 +106,15 @@ FIELDS: dict[str, Check] = {  # in order: a parent object before its fields
     "constraint": FLAG,
     "default_length": optional((lambda v: _is_int(v) and v >= 2, "an integer >= 2")),
     "dynamics": OBJECT,
-    "dynamics.kind": (lambda v: v in DYNAMICS_FIELDS, "one of 'double_integrator', 'sliding'"),
+    "dynamics.graph": GRAPH,
     "dynamics.dt": POSITIVE,  # [s]
+    "dynamics.chunk": COUNT,
+    "dynamics.physics": OBJECT,
+    "dynamics.physics.class": TEXT,
+    "dynamics.physics.names": FIELD_NAMES,  # every field of the task's physics, in order
+    "dynamics.physics.inputs": FIELD_NAMES,  # those the graph reads (its ``physics`` input, in this order)
+    "dynamics.physics.values": OBJECT,  # the default of each field
+    "dynamics.closed_form": optional((lambda v: v in CLOSED_FORMS, f"one of {list(CLOSED_FORMS)}")),
     "stop": OBJECT,
     "stop.tau": POSITIVE,  # [s]
     "stop.shrink": list_of(FRACTION),
@@ -113,17 +124,12 @@ FIELDS: dict[str, Check] = {  # in order: a parent object before its fields
     "files": OBJECT,
     "files.encoder": GRAPH,
     "files.decoder_step": GRAPH,
+    "files.dynamics": GRAPH,
     "files.violation": optional(GRAPH),
     HASHES: OBJECT,
     SEAL: DIGEST,
 }
 """Every field the runner reads, with what it must be (a dotted name is a field of an object)."""
-DYNAMICS_FIELDS: dict[str, dict[str, Check]] = {
-    "double_integrator": {"dynamics.dim": COUNT},
-    "sliding": {"dynamics.pan_dim": (lambda v: v == 2, "2"), "dynamics.mu": POSITIVE,
-                "dynamics.mu_dyn": NON_NEGATIVE, "dynamics.gravity": POSITIVE},
-}
-"""The fields of each kind of dynamics (those :class:`numpy_physics.NumpyDynamics` implements)."""
 
 _MISSING = object()
 
@@ -135,6 +141,14 @@ def _get(contract: dict, field: str) -> Any:
         if value is _MISSING:
             break
     return value
+
+
+def _format_message(where: str, found: Any, directory: str | Path | None = None) -> str:
+    """Why a contract of another format is refused, and what to do."""
+    folder = directory if directory is not None else "OUT"
+    return (f"{where} has format {found!r}; this runner reads {CONTRACT_FORMAT!r}: the bundle was exported by "
+            f"another seqmotion (before {CONTRACT_FORMAT!r}, the dynamics were not a graph of the bundle); "
+            f"re-export the model: seqmotion export-onnx MODEL {folder}")
 
 
 def canonical_json(data: Any) -> bytes:
@@ -169,10 +183,8 @@ def check_contract(contract: Any, where: str) -> None:
     if not isinstance(contract, dict):
         raise ValueError(f"{where} must hold a JSON object, got {type(contract).__name__}")
     if contract.get("format") != CONTRACT_FORMAT:
-        raise ValueError(f"{where} has format {contract.get('format')!r}; this runner reads {CONTRACT_FORMAT!r}")
+        raise ValueError(_format_message(where, contract.get("format")))
     fields = dict(FIELDS)
-    if isinstance(contract.get("dynamics"), dict):
-        fields.update(DYNAMICS_FIELDS.get(contract["dynamics"].get("kind"), {}))
     if isinstance(contract.get("files"), dict) and "decoder_step_int8" in contract["files"]:
         fields["files.decoder_step_int8"] = GRAPH
     for field, (ok, what) in fields.items():
@@ -196,24 +208,33 @@ def _check_relations(c: dict, where: str) -> None:
         if len(c[layout]["units"]) != len(c[layout]["names"]):
             fail(f"field '{layout}.units' must hold one unit per name ({len(c[layout]['names'])}), "
                  f"got {len(c[layout]['units'])}")
-    if c["dynamics"]["dt"] != c["dt"]:
-        fail(f"field 'dynamics.dt' ({c['dynamics']['dt']}) differs from 'dt' ({c['dt']}): one time step per sample")
+    dynamics, files = c["dynamics"], c["files"]
+    if dynamics["dt"] != c["dt"]:
+        fail(f"field 'dynamics.dt' ({dynamics['dt']}) differs from 'dt' ({c['dt']}): one time step per sample")
+    if dynamics["chunk"] != c["chunk"]:
+        fail(f"field 'dynamics.chunk' ({dynamics['chunk']}) differs from 'chunk' ({c['chunk']}): the dynamics graph "
+             "runs one decoder chunk")
+    if dynamics["graph"] != files["dynamics"]:
+        fail(f"field 'dynamics.graph' ({dynamics['graph']!r}) differs from 'files.dynamics' ({files['dynamics']!r})")
+    physics = dynamics["physics"]
+    names, inputs, values = physics["names"], physics["inputs"], physics["values"]
+    if [n for n in names if n in inputs] != inputs:
+        fail(f"field 'dynamics.physics.inputs' ({inputs}) must be fields of 'dynamics.physics.names' ({names}), "
+             "in their order")
+    if set(values) != set(names):
+        fail(f"field 'dynamics.physics.values' must hold one value for each of {names}, got {sorted(values)}")
+    for name, value in values.items():
+        if not _is_real(value):
+            fail(f"field 'dynamics.physics.values.{name}' must be a finite number, got {value!r}")
     s, d = len(c["state_layout"]["names"]), len(c["accel_layout"]["names"])
+    if dynamics["closed_form"] == "double_integrator" and (2 * d != s or inputs):
+        fail(f"field 'dynamics.closed_form' names the double integrator, which has 2 states per output and reads no "
+             f"physics: not {s} states for {d} outputs reading {inputs}")
     if len(c["stop"]["accel_limit"]) != d:
         fail(f"field 'stop.accel_limit' must hold {d} limits (one per output), got {len(c['stop']['accel_limit'])}")
     velocity = c["velocity_columns"]
     if velocity is not None and (len(velocity) != d or len(set(velocity)) != d or max(velocity) >= s):
         fail(f"field 'velocity_columns' must be null or {d} distinct state columns below {s}, got {velocity}")
-    dynamics = c["dynamics"]
-    if dynamics["kind"] == "double_integrator" and (dynamics["dim"] != d or 2 * d != s):
-        fail(f"field 'dynamics.dim' ({dynamics['dim']}) does not match {d} outputs and {s} states "
-             "(a double integrator of dim d has d outputs and 2d states)")
-    if dynamics["kind"] == "sliding":
-        if (d, s) != (2, 8):
-            fail(f"the sliding dynamics need 2 outputs and 8 states, got {d} and {s}")
-        if dynamics["mu_dyn"] > dynamics["mu"]:
-            fail(f"field 'dynamics.mu_dyn' ({dynamics['mu_dyn']}) must be <= 'dynamics.mu' ({dynamics['mu']})")
-    files = c["files"]
     for key in files:
         if key not in GRAPHS:
             fail(f"field 'files.{key}' is not a graph of the bundle (known: {', '.join(GRAPHS)})")
@@ -270,7 +291,7 @@ def read_contract(directory: str | Path) -> dict[str, Any]:
     if not isinstance(contract, dict):
         raise ValueError(f"{path} must hold a JSON object, got {type(contract).__name__}")
     if contract.get("format") != CONTRACT_FORMAT:
-        raise ValueError(f"{path} has format {contract.get('format')!r}; this runner reads {CONTRACT_FORMAT!r}")
+        raise ValueError(_format_message(str(path), contract.get("format"), directory))
     if SEAL not in contract:
         raise ValueError(f"{path} is not sealed (no {SEAL}): it was exported by an older seqmotion, which did not "
                          f"record the graphs' hashes; re-export the model: seqmotion export-onnx MODEL {directory}")

@@ -9,14 +9,22 @@
 * ``decoder_step.onnx`` — one decoder step: inputs ``h``, ``c`` ``(L, B, H)`` and ``window``
   ``(B, C, S)`` float32 (C states in physical units; the task's decoder-input map and the scales are
   inside); outputs ``h_out``, ``c_out`` and ``accel`` ``(B, C, d)`` (the Gaussian head's means).
+* ``dynamics.onnx`` — one chunk of the task's own dynamics, traced from the PyTorch code the model
+  trains with (``ChunkDynamics.step``; the sliding contact's stick/slip cases are ``Where`` nodes, so
+  every case and every friction value runs through the same graph): inputs ``x`` ``(B, S)`` and
+  ``accel`` ``(B, C, d)`` float64, and ``physics`` ``(P,)`` float64 — the fields of the task's physics
+  the dynamics read (:func:`~seqmotion.core.stepper.physics_inputs`; absent when there are none) —
+  output ``states`` ``(B, C, S)`` float64, the C states that follow ``x``.
 * ``violation.onnx`` (tasks with a constraint) — ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)``
   float32 → ``violation`` ``(B, N)``: the task's constraint at the model's options.
 * ``contract.json`` — :func:`seqmotion.core.stepper.stepper_contract` (layouts, units, chunk, dt,
-  how z initialises the decoder, the stop, the dynamics) plus the graphs' files and tensors, sealed:
-  the SHA-256 of each graph and of the contract itself (:mod:`seqmotion.deploy.bundle`, which also
-  holds the schema the runner checks it against; an export the runner would refuse is refused here).
+  how z initialises the decoder, the stop, the dynamics' graph and physics) plus the graphs' files and
+  tensors, sealed: the SHA-256 of each graph and of the contract itself (:mod:`seqmotion.deploy.bundle`,
+  which also holds the schema the runner checks it against; an export the runner would refuse is
+  refused here).
 * ``onnx_stepper.py``, ``bundle.py``, ``stepper.py``, ``numpy_physics.py`` — the runner: NumPy +
-  onnxruntime only (``from onnx_stepper import OnnxStepper`` with OUT/ on the path).
+  onnxruntime only (``from onnx_stepper import OnnxStepper`` with OUT/ on the path). Dynamics the
+  contract names a closed form of (the double integrator) it computes in NumPy.
 * with ``int8=True`` also ``decoder_step.int8.onnx``: onnxruntime's dynamic quantisation (int8
   weights per output channel) of the layers ≥ 256 wide, like ``TrainedModel.quantized()``.
 
@@ -41,16 +49,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.stepper import stepper_contract
+from ..core.stepper import DYNAMICS_GRAPH, stepper_contract
 from ..core.trained import TrainedModel
-from ..training.checkpoint import check_writable_dir, replace_directory
+from ..io import check_writable_dir, replace_directory
+from ..physics.parameters import Physics
 from .bundle import CONTRACT, check_contract, previous_path, seal
 
 OPSET = 17
 INT8_MIN_FEATURES = 256
 RUNNER_FILES = ("onnx_stepper.py", "bundle.py", "numpy_physics.py")
-GRAPH_FILES = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx", "violation": "violation.onnx",
-               "decoder_step_int8": "decoder_step.int8.onnx"}
+GRAPH_FILES = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx", "dynamics": DYNAMICS_GRAPH,
+               "violation": "violation.onnx", "decoder_step_int8": "decoder_step.int8.onnx"}
 """The graphs' file names, by their key in the contract's ``files``."""
 BUNDLE_NAMES = frozenset({CONTRACT, "stepper.py", *RUNNER_FILES, *GRAPH_FILES.values(), "__pycache__"})
 """What a previous export (of any version) holds; ``__pycache__``: Python's, from running the runner there."""
@@ -103,6 +112,23 @@ class DecoderStep(nn.Module):
         state = tuple((h[i], c[i]) for i in range(h.shape[0]))
         state, mean, _ = self.model.decode_step(state, self.dynamics.decoder_input(window), need_cov=False)
         return torch.stack([s[0] for s in state]), torch.stack([s[1] for s in state]), mean
+
+
+class DynamicsStep(nn.Module):
+    """One chunk of the task's dynamics, ``(x (B, S), accel (B, C, d)[, physics (P,)])`` → ``states (B, C, S)``:
+    ``model.dynamics(physics)`` with each field in ``inputs`` set, as an attribute of the dynamics object, to the
+    traced ``physics[i]`` (a 0-d tensor), so the graph computes with whatever value it is given."""
+
+    def __init__(self, trained: TrainedModel, physics: Physics, inputs: list[str]) -> None:
+        super().__init__()
+        self.trained, self.physics, self.inputs = trained, physics, list(inputs)
+
+    def forward(self, x: torch.Tensor, accel: torch.Tensor, physics: torch.Tensor | None = None) -> torch.Tensor:
+        dynamics = self.trained.dynamics(self.physics)
+        for i, name in enumerate(self.inputs):
+            setattr(dynamics, name, physics[i])
+        _, out = dynamics.step(dynamics.start(x), accel, None)
+        return out["states"]
 
 
 class Violation(nn.Module):
@@ -271,7 +297,7 @@ def bundle_target(out: str | Path) -> Path:
 
 def write_bundle(out: str | Path, files: dict[str, bytes]) -> None:
     """Replace the folder ``out`` by one holding ``files`` (name → bytes), whole (module docstring;
-    :func:`~seqmotion.training.checkpoint.replace_directory`, the old bundle set aside under the name the runner
+    :func:`~seqmotion.io.replace_directory`, the old bundle set aside under the name the runner
     knows, :func:`~seqmotion.deploy.bundle.previous_path`).
 
     Raises:
@@ -282,43 +308,143 @@ def write_bundle(out: str | Path, files: dict[str, bytes]) -> None:
     replace_directory(target, files, previous_path(target))
 
 
+PARITY_TOLERANCE = 1e-6
+"""How far (relative to the states' largest magnitude) the traced dynamics graph may differ from the PyTorch
+dynamics on inputs other than the traced ones before the export is refused: rounding in another order is
+~1e-16 in float64 and ~1e-7 in float32; a value the tracer baked in (a Python ``if`` on a tensor, a NumPy
+call) is off by the size of the states themselves."""
+
+
+def physics_read(proto: Any) -> set[int]:
+    """The entries of the graph input ``physics`` that ``proto`` reads: each ``Gather(physics, i)`` with a
+    constant index i (how the tracer writes ``physics[i]``); any other use of ``physics`` reads all of it.
+    Returns the empty set when the graph has no ``physics`` input or never uses it."""
+    from onnx import numpy_helper
+
+    graph = proto.graph
+    if not any(value.name == "physics" for value in graph.input):
+        return set()
+    size = next(v for v in graph.input if v.name == "physics").type.tensor_type.shape.dim[0].dim_value
+    constants = {init.name: numpy_helper.to_array(init) for init in graph.initializer}
+    for node in graph.node:
+        if node.op_type == "Constant" and node.attribute and node.attribute[0].name == "value":
+            constants[node.output[0]] = numpy_helper.to_array(node.attribute[0].t)
+    read: set[int] = set()
+    for node in graph.node:
+        if "physics" not in node.input:
+            continue
+        index = constants.get(node.input[1]) if node.op_type == "Gather" and len(node.input) > 1 else None
+        if index is None or np.ndim(index) != 0:
+            return set(range(size))
+        read.add(int(index) % size)
+    return read
+
+
+def dynamics_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> Any:
+    """The ``dynamics`` graph of ``model`` at ``physics``, with a ``physics`` input for the fields ``inputs``
+    (module docstring), checked: each of those fields is read by the graph, and on inputs other than the
+    traced ones the graph computes what the PyTorch dynamics do.
+
+    Raises:
+        ValueError: naming the task and the reason: tracing failed, the dynamics hold a physics field as an
+            attribute the traced step does not read (a value derived from it when the dynamics were built
+            would not follow an override), or the graph differs from PyTorch (something the tracer cannot
+            follow, such as a Python ``if`` on a tensor's value: write it with ``torch.where``).
+    """
+    task = model.task_def.name
+    cfg = model.model.cfg
+    s, d = model.state_layout.dim, model.accel_layout.dim
+    step = DynamicsStep(model, physics, inputs)
+    vector = (torch.tensor([getattr(physics, name) for name in inputs], dtype=torch.float64),) if inputs else ()
+    x, accel = torch.zeros(1, s, dtype=torch.float64), torch.zeros(1, cfg.chunk, d, dtype=torch.float64)
+    try:
+        proto = to_onnx(step, (x, accel, *vector), ["x", "accel", *(["physics"] if inputs else [])], ["states"],
+                        {"x": {0: "B"}, "accel": {0: "B"}, "states": {0: "B"}})
+    except Exception as exc:  # whatever the task's own dynamics code raises under the tracer
+        raise ValueError(f"the {task!r} task's dynamics ({type(model.dynamics(physics)).__name__}) cannot be "
+                         f"exported as an ONNX graph: tracing their step failed with {type(exc).__name__}: {exc}"
+                         ) from exc
+    read = physics_read(proto)
+    unread = [name for i, name in enumerate(inputs) if i not in read]
+    if unread:
+        raise ValueError(f"the {task!r} task's dynamics ({type(model.dynamics(physics)).__name__}) hold the physics "
+                         f"field(s) {unread} as attributes, but the traced step does not read them: a deployed model "
+                         "could not run at other values of them. Read them in step() (not a value derived from them "
+                         "when the dynamics are built), or name the attribute unlike the field")
+    _check_traced(model, physics, inputs, proto)
+    return proto
+
+
+def _check_traced(model: TrainedModel, physics: Physics, inputs: list[str], proto: Any) -> None:
+    """Refuse a dynamics graph that differs from the PyTorch dynamics on fresh inputs (:data:`PARITY_TOLERANCE`):
+    rows at rest and rows in motion, accelerations up to the model's output scale."""
+    import onnxruntime as ort
+
+    cfg = model.model.cfg
+    s, d = model.state_layout.dim, model.accel_layout.dim
+    rng = np.random.default_rng(0)
+    x = 0.1 * rng.standard_normal((8, s))
+    x[:2] = 0.0  # at rest (a contact sticking, say) as well as moving
+    scale = np.asarray(cfg.output_scale or [1.0] * d, dtype=np.float64)
+    accel = scale * rng.standard_normal((8, cfg.chunk, d))
+    feeds = {"x": x, "accel": accel}
+    if inputs:
+        feeds["physics"] = np.array([getattr(physics, name) for name in inputs], dtype=np.float64)
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    (graph,) = session.run(None, feeds)
+    dynamics = model.dynamics(physics)
+    with torch.no_grad():
+        _, out = dynamics.step(dynamics.start(torch.from_numpy(x)), torch.from_numpy(accel), None)
+    ref = out["states"].double().cpu().numpy()
+    same = (graph == ref) | (np.isnan(graph) & np.isnan(ref))  # a NaN both give (e.g. sqrt of a negative) agrees
+    diff = np.where(same, 0.0, np.abs(graph - ref))
+    finite = np.abs(ref[np.isfinite(ref)])
+    gap = float(np.nan_to_num(diff, nan=np.inf).max()) / max(float(finite.max()) if finite.size else 0.0, 1e-300)
+    if not gap <= PARITY_TOLERANCE:
+        raise ValueError(f"the {model.task_def.name!r} task's dynamics traced into a graph that differs from PyTorch "
+                         f"on inputs other than the traced ones (by {gap:.3g} of the states' magnitude): the step "
+                         "has something the tracer cannot follow, such as a Python if on a tensor's value (write it "
+                         "with torch.where) or a computation outside torch (NumPy, numba)")
+
+
 def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, source: str | None = None,
-                **physics: Any) -> dict[str, Any]:
-    """Write ``model``'s encoder, decoder step, constraint, sealed contract and NumPy runner into ``out``.
+                physics: Physics | None = None) -> dict[str, Any]:
+    """Write ``model``'s encoder, decoder step, dynamics, constraint, sealed contract and runner into ``out``.
 
     Args:
-        model: a trained seq2seq model of any task whose dynamics have a NumPy implementation
-            (double integrator, sliding).
+        model: a trained seq2seq model of any task whose dynamics trace into ONNX (torch code, data-dependent
+            cases written with ``torch.where``).
         out: the output folder: new, empty, or a previous export, which is replaced whole
             (:func:`write_bundle`).
         int8: also write a dynamically quantised int8 decoder step.
         source: how the model was named (recorded in the contract).
-        physics: the task's physics parameters (e.g. sliding ``mu``) the contract records.
+        physics: the physics the contract records as the deployed model's default, a physics of the model's
+            kind (default: the model's own, ``model.physics``); the runner may override the fields the
+            dynamics graph reads (``OnnxStepper(..., physics={"mu": 0.8})``).
 
     Returns:
         The contract written to ``contract.json``.
 
     Raises:
-        ValueError: a model that is not a seq2seq ``TrainedModel``, dynamics without a NumPy
-            implementation, a contract the runner would refuse (e.g. a non-finite output scale),
-            an output that is a file, not writable, or a folder that is not a previous export.
+        ValueError: a model that is not a seq2seq ``TrainedModel``, physics of another kind, dynamics that
+            do not trace into a graph that computes what they do (:func:`dynamics_graphs`), a contract the
+            runner would refuse (e.g. a non-finite output scale), an output that is a file, not writable,
+            or a folder that is not a previous export.
         OSError: writing failed (the previous bundle is left as it was).
     """
     import importlib.util
 
-    if importlib.util.find_spec("onnx") is None:
-        raise ValueError("export-onnx needs the onnx package: pip install 'seqmotion[deploy]'")
+    if importlib.util.find_spec("onnx") is None or importlib.util.find_spec("onnxruntime") is None:
+        raise ValueError("export-onnx needs the onnx and onnxruntime packages: pip install 'seqmotion[deploy]'")
     if not isinstance(model, TrainedModel):
         raise ValueError(f"export-onnx exports sequence-to-sequence motion models, not a {type(model).__name__}")
     if getattr(model, "is_quantized", False):
         raise ValueError("export the float model: its int8 copy runs on a PyTorch kernel; export_onnx(int8=True) "
                          "(--int8) writes an int8 decoder step for onnxruntime")
     bundle_target(out)  # before the work
-    dynamics = model.dynamics(**physics)
-    contract = stepper_contract(model, dynamics)
-    if contract["dynamics"]["kind"] == "custom":
-        raise ValueError(f"the {model.task_def.name!r} task's dynamics ({contract['dynamics']['class']}) have no NumPy "
-                         "implementation for the deployed stepper (known: double integrator, sliding)")
+    physics = model.resolve_physics(physics)
+    dynamics = model.dynamics(physics)
+    contract = stepper_contract(model, dynamics, physics)
     cfg = model.model.cfg
     layers, hidden, c, s, d = cfg.layers, cfg.hidden, cfg.chunk, model.state_layout.dim, model.accel_layout.dim
     graphs = {
@@ -329,6 +455,7 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
             ["h", "c", "window"], ["h_out", "c_out", "accel"],
             {"h": {1: "B"}, "c": {1: "B"}, "window": {0: "B"}, "h_out": {1: "B"}, "c_out": {1: "B"},
              "accel": {0: "B"}}),
+        "dynamics": dynamics_graph(model, physics, contract["dynamics"]["physics"]["inputs"]),
     }
     if contract["constraint"]:
         graphs["violation"] = to_onnx(
@@ -338,10 +465,12 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     if int8:
         with tempfile.TemporaryDirectory(prefix="seqmotion-int8-") as scratch:  # quantize_dynamic works on files
             blobs["decoder_step_int8"] = quantized(graphs["decoder_step"], Path(scratch))
-    files = {"encoder": GRAPH_FILES["encoder"], "decoder_step": GRAPH_FILES["decoder_step"],
-             "violation": GRAPH_FILES["violation"] if contract["constraint"] else None}
+    files = {key: GRAPH_FILES[key] for key in ("encoder", "decoder_step", "dynamics")}
+    files["violation"] = GRAPH_FILES["violation"] if contract["constraint"] else None
     if int8:
         files["decoder_step_int8"] = GRAPH_FILES["decoder_step_int8"]
+    vector_doc = {"physics": "(P,) float64: the values of dynamics.physics.inputs, in that order"} \
+        if contract["dynamics"]["physics"]["inputs"] else {}
     contract = {
         **contract,
         "source": source,
@@ -360,6 +489,12 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
                            "window": "(B, C, S) float32: C states of state_layout in its units"},
                 "outputs": {"h_out": "(L, B, H) float32", "c_out": "(L, B, H) float32",
                             "accel": "(B, C, d) float32: the next C outputs (accel_layout means)"},
+            },
+            "dynamics": {
+                "inputs": {"x": "(B, S) float64: the state before the chunk (state_layout)",
+                           "accel": "(B, C, d) float64: C outputs (accel_layout); fewer: pad with zeros and keep "
+                                    "the first states (the dynamics are causal)", **vector_doc},
+                "outputs": {"states": "(B, C, S) float64: the C states that follow x"},
             },
             "violation": None if not contract["constraint"] else {
                 "inputs": {"states": "(B, N+1, S) float32", "accel": "(B, N, d) float32"},
@@ -380,16 +515,25 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     return contract
 
 
-def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, **physics: Any) -> float:
-    """Largest |difference| of accelerations between PyTorch ``generate`` and the exported graphs on ``inputs``."""
+def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, physics: Physics | None = None
+                 ) -> dict[str, float]:
+    """How far the exported bundle's ``generate`` is from PyTorch ``generate`` on ``inputs`` at ``physics``
+    (default: the model's): the largest |difference| of the outputs (``accel``, in the accel layout's units) and
+    of the states (``states``, the state layout's)."""
     from .onnx_stepper import OnnxModel
 
-    ref = model.generate(inputs, **physics)
-    accel = getattr(ref, "accel", None)
-    if accel is None:
-        accel = ref.pan_accel
-    mine = OnnxModel(out).generate(inputs, **physics)
-    return float(np.max(np.abs(mine["accel"] - accel)))
+    physics = model.resolve_physics(physics)
+    batch = np.asarray(inputs, dtype=np.float64)
+    batch = batch[None] if batch.ndim == 2 else batch
+    with torch.inference_mode():  # generate's rollout, as tensors (any task's result holds these)
+        x = torch.from_numpy(batch)
+        states, accel = model.decode_torch(model.encode_torch(x), model.start_state(x).double(), batch.shape[1],
+                                           physics)
+    onnx_model = OnnxModel(out)
+    mine = onnx_model.generate(batch, physics={name: getattr(physics, name) for name in onnx_model.physics_inputs})
+    return {"accel": float(np.max(np.abs(mine["accel"] - accel.cpu().numpy()))),
+            "states": float(np.max(np.abs(mine["states"] - states.cpu().numpy())))}
 
 
-__all__ = ["OPSET", "bundle_target", "check_parity", "encoder_graph", "export_onnx", "to_onnx", "write_bundle"]
+__all__ = ["OPSET", "bundle_target", "check_parity", "dynamics_graph", "encoder_graph", "export_onnx", "physics_read",
+           "to_onnx", "write_bundle"]

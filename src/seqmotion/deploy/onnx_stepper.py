@@ -1,15 +1,21 @@
 """Run an exported model with onnxruntime and NumPy only: the same stepper as ``model.generator``.
 
 ``seqmotion export-onnx MODEL OUT/`` writes the graphs, ``contract.json`` and this file (with
-``bundle.py``, ``stepper.py`` and ``numpy_physics.py``) into OUT/. Loading checks the bundle first
-(``bundle.py``): the contract's seal and schema, and each graph's SHA-256. On a robot computer that
-has only NumPy and onnxruntime::
+``bundle.py``, ``stepper.py`` and ``numpy_physics.py``) into OUT/. Loading checks the bundle first (``bundle.py``): the
+contract's seal and schema, and each graph's SHA-256. On a robot computer that has only NumPy and
+onnxruntime::
 
     import sys; sys.path.insert(0, "OUT")
     from onnx_stepper import OnnxModel, OnnxStepper
     gen = OnnxStepper("OUT", motion)                 # or OnnxStepper("OUT", latent=z, x0=x0, length=K)
     u = gen.step()                                   # u[0..C-1]
     u = gen.step(measured)                           # 1..len(u) measured states → the next outputs
+
+The task's dynamics run as the bundle's ``dynamics.onnx`` graph (traced from the PyTorch code the
+model trained with), at the physics the contract records (``contract["dynamics"]["physics"]``) or
+at other values of the fields that graph reads: ``OnnxStepper("OUT", motion, physics={"mu": 0.8})``.
+Dynamics the contract names a closed form of (``"closed_form": "double_integrator"``: the pancake's,
+the tray's) are computed in NumPy instead (``numpy_physics.py``), the same numbers without a session run.
 
 Inside seqmotion the same classes are ``sm.deploy.OnnxModel`` / ``sm.deploy.OnnxStepper``. The
 semantics of ``step``, ``set_latent``, ``reset`` and the end of the motion are the module
@@ -19,6 +25,7 @@ docstring of ``stepper.py`` (:mod:`seqmotion.core.stepper`), shared by both back
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,25 +33,32 @@ import numpy as np
 
 try:  # inside the seqmotion package
     from ..core.stepper import StepperCore, check_vectors
+    from ..physics.parameters import Physics
     from .bundle import locate, read_contract, read_graphs
-    from .numpy_physics import NumpyDynamics
+    from .numpy_physics import integrate
 except ImportError:  # the standalone copy that export-onnx writes beside the graphs
     from bundle import locate, read_contract, read_graphs  # type: ignore[no-redef]
-    from numpy_physics import NumpyDynamics  # type: ignore[no-redef]
+    from numpy_physics import integrate  # type: ignore[no-redef]
     from stepper import StepperCore, check_vectors  # type: ignore[no-redef]
+
+    Physics = None  # type: ignore[assignment,misc]
 
 
 class OnnxModel:
-    """An exported model: encoder, decoder step and constraint in onnxruntime sessions.
+    """An exported model: encoder, decoder step, dynamics and constraint in onnxruntime sessions.
 
     Args:
         directory: the folder ``export-onnx`` wrote (its contract and graphs are verified: see ``bundle.py``).
         int8: use the int8 decoder step (exported with ``--int8``).
         threads: onnxruntime intra-op threads per session (1: lowest latency for small models).
 
+    Attributes:
+        physics_inputs: the physics fields the dynamics graph reads, which ``physics=`` may override.
+        physics_defaults: every physics field's value in the contract (what the graph runs at by default).
+
     Raises:
-        ValueError: no bundle there, or one whose contract is unsealed, edited or invalid, or whose
-            graphs are missing or do not match their hashes (the message names the field or file).
+        ValueError: no bundle there, or one whose contract is unsealed, edited, of another format or invalid,
+            or whose graphs are missing or do not match their hashes (the message names the field or file).
     """
 
     def __init__(self, directory: str | Path, *, int8: bool = False, threads: int = 1) -> None:
@@ -63,13 +77,13 @@ class OnnxModel:
         options.log_severity_level = 3
 
         def session(key: str) -> Any:
-            file_key = f"{key}_int8" if int8 and key == "decoder_step" else key
-            if files.get(file_key) is None:
-                raise ValueError(f"{self.directory} has no {'int8 ' if int8 else ''}{key} graph"
-                                 + (" (export with --int8)" if int8 else ""))
-            return ort.InferenceSession(graphs[file_key], options, providers=["CPUExecutionProvider"])
+            return ort.InferenceSession(graphs[key], options, providers=["CPUExecutionProvider"])
 
-        self.encoder, self.decoder = session("encoder"), session("decoder_step")
+        if int8 and files.get("decoder_step_int8") is None:
+            raise ValueError(f"{self.directory} has no int8 decoder_step graph (export with --int8)")
+        self.encoder = session("encoder")
+        self.decoder = session("decoder_step_int8" if int8 else "decoder_step")
+        self.dynamics_session = session("dynamics")
         self.violation_session = session("violation") if files.get("violation") else None
         # a constraint that reads only the accelerations (tray) has no states input in its graph
         self._violation_inputs = [i.name for i in self.violation_session.get_inputs()] if self.violation_session else []
@@ -77,10 +91,71 @@ class OnnxModel:
         self.chunk, self.layers, self.hidden = int(c["chunk"]), int(c["layers"]), int(c["hidden"])
         self.input_dim = len(c["input_layout"]["names"])
         self.state_dim = len(c["state_layout"]["names"])
+        self.accel_dim = len(c["accel_layout"]["names"])
+        self.dt = float(c["dt"])
+        self.closed_form: str | None = c["dynamics"]["closed_form"]
+        physics = c["dynamics"]["physics"]
+        self.physics_inputs: tuple[str, ...] = tuple(physics["inputs"])
+        self.physics_defaults: dict[str, float] = {k: float(v) for k, v in physics["values"].items()}
+        feeds = ["x", "accel", *(["physics"] if self.physics_inputs else [])]
+        names = [i.name for i in self.dynamics_session.get_inputs()]
+        if names != feeds:  # a sealed bundle whose graph does not take what its contract says it reads
+            raise ValueError(f"{self.directory}: the dynamics graph takes {names}, not {feeds} as its contract says "
+                             f"(dynamics reading {list(self.physics_inputs) or 'no physics'}); re-export the model")
+        self._default_vector = self.physics_vector(None)
+        self._pads: dict[int, np.ndarray] = {}
 
     def __repr__(self) -> str:
         c = self.contract
         return f"OnnxModel({str(self.directory)!r}, task={c['task']!r}, {c['layers']}x{c['hidden']}, C={c['chunk']})"
+
+    # --- physics -------------------------------------------------------------------------------------
+
+    def physics_vector(self, physics: Mapping[str, float] | None) -> np.ndarray:
+        """The dynamics graph's ``physics`` input ``(P,)`` float64: the contract's values with ``physics``
+        (field name → value) put in; None: the contract's values.
+
+        Raises:
+            ValueError: not a dict, a name the graph does not read (the message lists those it reads), or a
+                value that is not a finite real number; inside seqmotion also values the task's physics class
+                refuses (e.g. sliding ``mu_dyn > mu``), when that class is defined.
+        """
+        values = {name: self.physics_defaults[name] for name in self.physics_inputs}
+        if physics is not None:
+            if not isinstance(physics, Mapping):
+                raise ValueError(f"physics must be a dict of field name → value (e.g. {{'mu': 0.8}}), got "
+                                 f"{type(physics).__name__}")
+            unknown = sorted(set(physics) - set(self.physics_inputs))
+            if unknown:
+                task = self.contract["task"]
+                if not self.physics_inputs:
+                    raise ValueError(f"the {task!r} model's exported dynamics take no physics (got {unknown}): "
+                                     "they read no physics parameter")
+                raise ValueError(f"the {task!r} model's exported dynamics take no physics {unknown}; they take "
+                                 f"{list(self.physics_inputs)}")
+            for name, value in physics.items():
+                if isinstance(value, (bool, np.bool_)) or np.iscomplexobj(value):
+                    raise ValueError(f"physics {name} must be a real number, got {value!r}")
+                try:
+                    number = float(value)
+                except (TypeError, ValueError):
+                    raise ValueError(f"physics {name} must be a number, got {value!r}") from None
+                if not math.isfinite(number):
+                    raise ValueError(f"physics {name} must be finite, got {number}")
+                values[name] = number
+            self._check_physics(values)
+        return np.array([values[name] for name in self.physics_inputs], dtype=np.float64)
+
+    def _check_physics(self, values: dict[str, float]) -> None:
+        """Inside seqmotion, ``values`` checked by the task's physics class if this installation defines it (the
+        standalone runner has no classes: there the graph runs at any finite values it is given)."""
+        if Physics is None:
+            return
+        try:
+            cls = Physics.class_named(self.contract["dynamics"]["physics"]["class"])
+        except ValueError:  # a class this process has not defined (its task's package is not imported)
+            return
+        cls.from_dict({**self.physics_defaults, **values})
 
     # --- the graphs ----------------------------------------------------------------------------------
 
@@ -121,6 +196,41 @@ class OnnxModel:
                                              "window": np.ascontiguousarray(window, dtype=np.float32)})
         return (h, c), mean.astype(np.float64)
 
+    def predict(self, x: np.ndarray, accel: np.ndarray, physics: np.ndarray | None = None) -> np.ndarray:
+        """The states ``(B, n, S)`` float64 that outputs ``accel`` ``(B, n, d)`` produce from states ``x`` ``(B, S)``
+        through the task's dynamics, at ``physics`` (the graph's input vector, :meth:`physics_vector`; None: the
+        contract's): in closed form where the contract names one, else :meth:`predict_graph`."""
+        if self.closed_form == "double_integrator":
+            return integrate(np.asarray(x, dtype=np.float64), np.asarray(accel, dtype=np.float64), self.dt)
+        return self.predict_graph(x, accel, physics)
+
+    def predict_graph(self, x: np.ndarray, accel: np.ndarray, physics: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`predict` through the dynamics graph. It runs C outputs at a time: fewer are padded with zeros
+        (the dynamics are causal, so the first n states do not depend on the padding), more run chunk after chunk."""
+        vector = self._default_vector if physics is None else physics
+        x, accel = np.asarray(x, dtype=np.float64), np.asarray(accel, dtype=np.float64)
+        b, n = accel.shape[:2]
+        c = self.chunk
+        out = [np.empty((b, 0, self.state_dim))]
+        for start in range(0, n, c):
+            part = accel[:, start:start + c]
+            m = part.shape[1]
+            if m < c:
+                pad = self._pads.get(b)
+                if pad is None:
+                    pad = self._pads[b] = np.zeros((b, c, self.accel_dim))
+                pad[:, :m] = part
+                pad[:, m:] = 0.0
+                part = pad
+            feeds = {"x": np.ascontiguousarray(x), "accel": np.ascontiguousarray(part, dtype=np.float64)}
+            if self.physics_inputs:
+                feeds["physics"] = vector
+            (states,) = self.dynamics_session.run(None, feeds)
+            states = states[:, :m].astype(np.float64, copy=False)
+            out.append(states)
+            x = states[:, -1]
+        return out[-1] if len(out) <= 2 else np.concatenate(out, axis=1)
+
     def violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray | None:
         """The violation ``(B, N)`` of ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)`` (None: no constraint)."""
         if self.violation_session is None:
@@ -132,34 +242,39 @@ class OnnxModel:
 
     # --- whole motions ---------------------------------------------------------------------------------
 
-    def generate(self, inputs: object, **physics: float) -> dict[str, np.ndarray | None]:
-        """Encode and decode in closed loop through the NumPy dynamics, like PyTorch ``generate``.
+    def generate(self, inputs: object, physics: Mapping[str, float] | None = None) -> dict[str, np.ndarray | None]:
+        """Encode and decode in closed loop through the dynamics graph, like PyTorch ``generate``, at the
+        contract's physics with ``physics`` (field name → value) put in.
 
         Returns a dict: ``states`` ``(K, S)``, ``accel`` ``(K-1, d)``, ``violation`` ``(K-1,)`` or None,
         ``latent`` (a leading B axis for a batch).
         """
+        vector = self.physics_vector(physics)
         z, x0, single = self.encode(inputs)
         k = np.shape(inputs)[-2]
-        out = self._rollout(z, x0, k, NumpyDynamics(self.contract["dynamics"], **physics))
+        out = self._rollout(z, x0, k, vector)
         return {key: v if v is None else (v[0] if single else v) for key, v in out.items()}
 
-    def decode(self, latent: object, x0: object, length: int, **physics: float) -> dict[str, np.ndarray | None]:
-        """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples."""
+    def decode(self, latent: object, x0: object, length: int, physics: Mapping[str, float] | None = None
+               ) -> dict[str, np.ndarray | None]:
+        """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples
+        (at the contract's physics with ``physics`` put in)."""
+        vector = self.physics_vector(physics)
         z, single = check_vectors(latent, int(self.contract["latent_dim"]), "latent", "L·H numbers")
         x, _ = check_vectors(x0, self.state_dim, "x0", self.contract["state_layout"]["kind"], z.shape[0])
         if int(length) < 2:
             raise ValueError(f"length must be at least 2, got {length}")
-        out = self._rollout(z.astype(np.float32), x, int(length), NumpyDynamics(self.contract["dynamics"], **physics))
+        out = self._rollout(z.astype(np.float32), x, int(length), vector)
         return {key: v if v is None else (v[0] if single else v) for key, v in out.items()}
 
-    def _rollout(self, z: np.ndarray, x0: np.ndarray, length: int, dynamics: NumpyDynamics) -> dict[str, Any]:
+    def _rollout(self, z: np.ndarray, x0: np.ndarray, length: int, physics: np.ndarray) -> dict[str, Any]:
         steps = max(1, math.ceil((length - 1) / self.chunk))
         state = self.initial_state(z)
         window = np.repeat(x0[:, None], self.chunk, axis=1)
         x, states, accels = x0, [x0[:, None]], []
         for _ in range(steps):
             state, mean = self.decode_step(state, window)
-            window = dynamics.predict(x, mean)
+            window = self.predict(x, mean, physics)
             x = window[:, -1]
             states.append(window)
             accels.append(mean)
@@ -183,15 +298,16 @@ class OnnxStepper(StepperCore):
         length: K (default: the input's length, else the longest motion the model trained on).
         replan: correct the plan between chunk boundaries from the latest measured states.
         int8: with a folder, use its int8 decoder step.
-        physics: the task's physics parameters (sliding: ``mu``, ``mu_dyn``).
+        physics: values of the physics fields the dynamics graph reads (``OnnxModel.physics_inputs``; sliding:
+            ``{"mu": 0.8, "mu_dyn": 0.4}``); the others, and any not given, are the contract's.
     """
 
     def __init__(self, model: OnnxModel | str | Path, inputs: object | None = None, *, latent: object | None = None,
                  x0: object | None = None, length: int | None = None, replan: bool = True, int8: bool = False,
-                 **physics: float) -> None:
+                 physics: Mapping[str, float] | None = None) -> None:
         self.onnx = model if isinstance(model, OnnxModel) else OnnxModel(model, int8=int8)
         contract = self.onnx.contract
-        self.dynamics = NumpyDynamics(contract["dynamics"], **physics)
+        self._physics = self.onnx.physics_vector(physics)
         if inputs is not None:
             if latent is not None or x0 is not None:
                 raise ValueError("give either the input motion, or latent and x0 — not both")
@@ -204,6 +320,20 @@ class OnnxStepper(StepperCore):
             raise ValueError("give either the input motion, or both latent and x0")
         super().__init__(contract, z, start, single, length, replan)
 
+    @property
+    def physics(self) -> dict[str, float]:
+        """The physics the stepper runs at: every field's value (the contract's, with the overrides given)."""
+        return {**self.onnx.physics_defaults, **dict(zip(self.onnx.physics_inputs, self._physics.tolist(),
+                                                         strict=True))}
+
+    def contract(self) -> dict[str, Any]:
+        """The stepper's contract (``stepper.py``) with this generator's length and mode, and the physics it
+        runs at in ``dynamics.physics.values``."""
+        out = super().contract()
+        dynamics = out["dynamics"]
+        out["dynamics"] = {**dynamics, "physics": {**dynamics["physics"], "values": self.physics}}
+        return out
+
     def _initial_state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.onnx.initial_state(z)
 
@@ -213,7 +343,7 @@ class OnnxStepper(StepperCore):
         return self.onnx.decode_step(state, windows)
 
     def _predict(self, x: np.ndarray, accel: np.ndarray) -> np.ndarray:
-        return self.dynamics.predict(x, accel)
+        return self.onnx.predict(x, accel, self._physics)
 
     def _violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray:
         return self.onnx.violation(states, accel)

@@ -41,7 +41,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     goal.add_argument("--target", nargs="+", type=float, metavar="VALUE",
                       help="end pose for J1, one value per field of the task's end pose "
                            "(pancake: Y Z THETA [m, m, rad])")
-    goal.add_argument("--preset", choices=["j2"], help="j2: the velocity-limited turn of §4.4.2 (eq. 4.10; pancake)")
+    goal.add_argument("--preset", choices=["j2"],
+                      help="j2: the pancake's velocity-limited turn of §4.4.2 (eq. 4.10; other tasks refuse it)")
     p.add_argument("--input", help="input motion (.npz 'states' or .csv, (K, input_dim)); default: the task's sketch "
                                    "to the target (pancake: an S-curve)")
     p.add_argument("--length", type=int, help="K of the default input (samples at 1 ms; default: the longest "
@@ -65,8 +66,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..api import resolve_model
     from ..errors import MAX_LENGTH, check_number
+    from ..io import check_writable
     from ..tasks import TrainedModel
-    from ..training.checkpoint import check_writable
     from ..training.files import check_not_an_input, check_output, read_trajectory, write_arrays
     from . import optimize_latent, optimize_trajectory
     from .objectives import EndPose, Ranges
@@ -130,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
     message = (f"{objective!r}: {res.history[0]:.3g} → {res.history[-1]:.3g} in {steps} updates "
                f"({1000 * res.seconds_per_update:.1f} ms each); end {end}")
     if violation is not None:
-        at = f" at mu = {model.options.mu:g}" if "mu" in model.options.names() else ""
+        physics = res.physics
+        at = f" at {physics.describe()}" if physics is not None and physics.to_dict() else ""
         message += f", max violation {float(violation.max()):.4f}{at}"
     print(message + f" → {args.output}")
     for line in res.describe().splitlines():  # each stage, and each term of the objective: met or MISSED
@@ -150,38 +152,55 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plot(model, res, violation: np.ndarray | None, path: Path) -> None:  # noqa: ANN001
+def _plot(model: Any, res: Any, violation: np.ndarray | None, path: Path) -> None:
+    """``--plot``: the adjusted motion's position fields (by the task's layout), its constraint (the task's own
+    panel where it has one, e.g. the pancake's ψ in the friction cone; else the violation with its limit) and the
+    objective's progress, written atomically."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..training.checkpoint import atomic_path
+    from ..io import save_figure
 
     layout = model.state_layout
     fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
     t = np.arange(len(res.states))
-    half = layout.dim // 2  # positions first, then velocities (the double-integrator convention)
-    for j, label in enumerate(layout.labels()[:half]):
-        axes[0].plot(t, res.states[:, j], label=label)
+    for j, label in enumerate(layout.labels()):
+        if not layout.units[j].endswith("/s"):  # positions: the rates would crowd them out
+            axes[0].plot(t, res.states[:, j], label=label)
     axes[0].set(xlabel="time [ms]", title="adjusted motion")
     axes[0].legend(fontsize=8)
-    if model.task_def.name == "pancake":  # ψ against the cone of the model's own μ
-        from ..physics import pancake as physics
-
-        cone = math.atan(model.options.mu)
-        axes[1].axhspan(-cone, cone, color="tab:blue", alpha=0.15, label=f"cone ±atan μ, μ = {model.options.mu:g}")
-        axes[1].plot(t[:-1], physics.psi(res.states[:-1], res.accel), label="ψ")
-        axes[1].set(ylabel="ψ [rad]", ylim=(-np.pi, np.pi))
-        axes[1].legend(fontsize=8)
+    panel = CONSTRAINT_PANELS.get(model.task_def.name)
+    if panel is not None:
+        panel(axes[1], model, res.states, res.accel)
     elif violation is not None:
-        axes[1].plot(t[:-1], violation)
+        limit = next((v for k, v in model.task_def.tolerances(model.options).items() if k.startswith("max_violation")),
+                     None)
+        axes[1].plot(t[:-1], violation, color="tab:red", label="violation")
+        if limit is not None:
+            axes[1].axhline(limit, color="k", ls=":", lw=1, label=f"limit {limit:g}")
         axes[1].set(ylabel="constraint violation")
+        axes[1].legend(fontsize=8)
     title = "constraint" if violation is None else f"constraint (max {violation.max():.3f})"
     axes[1].set(xlabel="time [ms]", title=title)
     axes[2].plot(res.history)
     axes[2].set(yscale="log", xlabel="update", ylabel="objective", title="progress")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, close=True, dpi=120)
+
+
+def _pancake_cone(ax: Any, model: Any, states: np.ndarray, accel: np.ndarray) -> None:
+    """The pancake's constraint panel: ψ(t) against the cone ±atan μ of the model's own μ."""
+    from ..physics import pancake as physics
+
+    cone = model.physics.cone_half_angle
+    t = np.arange(len(accel))
+    ax.axhspan(-cone, cone, color="tab:blue", alpha=0.15, label=f"cone ±atan μ, μ = {model.physics.mu:g}")
+    ax.plot(t, physics.psi(states[:-1], accel), label="ψ")
+    ax.set(ylabel="ψ [rad]", ylim=(-np.pi, np.pi))
+    ax.legend(fontsize=8)
+
+
+CONSTRAINT_PANELS = {"pancake": _pancake_cone}
+"""Task name → its own constraint panel for ``--plot`` (others get their violation against its limit)."""

@@ -162,7 +162,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Execute the parsed ``lfd`` subcommand; bad arguments raise ``ValueError``."""
-    from ..training.checkpoint import check_writable, check_writable_dir
+    from ..io import check_writable, check_writable_dir
 
     if args.lfd_command == "collect":
         from .dataset import collect
@@ -322,7 +322,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         latents=None if args.oracle_latents is None else _oracle_latents(policy, args.oracle_latents),
     )
     if args.json:  # before printing: a closed stdout (e.g. piped into head) must not lose the result
-        from ..training.checkpoint import atomic_write_bytes
+        from ..io import atomic_write_bytes
 
         # keys in position order, not sorted
         atomic_write_bytes(Path(args.json), (json.dumps(result.as_dict(), indent=1) + "\n").encode())

@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import sys
 import time
 from collections.abc import Iterable, Sequence
@@ -59,6 +58,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from ..errors import check_number
 
 FORMAT = "seqmotion.lfd.pushing"
 VERSION = 1
@@ -114,12 +115,6 @@ def episode_rng(seed: int, set_id: int, episode: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(set_id, episode)))
 
 
-def _check_seed(seed: object) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
-
-
 def _scene_description() -> dict:
     from ..sim import pushing
 
@@ -163,26 +158,24 @@ def collect_set(
     """
     import h5py
 
+    from ..io import atomic_path, check_writable
     from ..sim import pushing
-    from ..training.checkpoint import atomic_path, check_writable
     from .operator import PHASES, OperatorParams, ScriptedOperator
     from .teleop import BilateralGains, teleoperate
 
     if name not in SETS:
         raise ValueError(f"unknown dataset {name!r}; choose one of {sorted(SETS)}")
     spec = SETS[name]
-    seed = _check_seed(seed)
+    seed = check_number("seed", seed, minimum=0, integer=True)
     per_position = spec.per_position if per_position is None else per_position
-    if isinstance(per_position, bool) or not isinstance(per_position, int | np.integer) or per_position < 1:
-        raise ValueError(f"per_position must be a positive integer, got {per_position!r}")
+    per_position = check_number("per_position", per_position, minimum=1, integer=True)
     if camera is True:
         camera = spec.camera
     elif camera is False:
         camera = None
     if camera is not None and camera not in pushing.CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)} or None")
-    if not (isinstance(duration, int | float) and math.isfinite(duration) and 0.5 <= duration <= 60):
-        raise ValueError(f"duration must be between 0.5 and 60 s, got {duration!r}")
+    duration = check_number("duration [s]", duration, minimum=0.5, maximum=60.0)
     path = Path(path)
     if path.exists() and not overwrite:
         raise ValueError(f"{path} already exists (pass overwrite=True to replace it)")
@@ -455,7 +448,7 @@ def save_dataset(data: PushingDataset, path: str | Path, overwrite: bool = False
     """
     import h5py
 
-    from ..training.checkpoint import atomic_path, check_writable
+    from ..io import atomic_path, check_writable
 
     path = Path(path)
     if path.exists() and not overwrite:

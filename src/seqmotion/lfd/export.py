@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.registry import home_package
-from ..training.checkpoint import atomic_write_bytes
+from ..io import atomic_write_bytes
 from ..training.pretrained import check_pretrained_name, export_pretrained
 from .models import PushingPolicy
 from .task import TASK

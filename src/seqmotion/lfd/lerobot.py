@@ -145,7 +145,7 @@ def to_lerobot(
     Returns:
         ``{set name: dataset folder}``. Each folder is written whole or not at all.
     """
-    from ..training.checkpoint import check_writable_dir
+    from ..io import check_writable_dir
     from .dataset import load_dataset
 
     data_dir, out = Path(data_dir), Path(out)
@@ -180,7 +180,7 @@ def export_set(
 ) -> Path:
     """Write one :class:`PushingDataset` as the LeRobot v3.0 folder ``target`` (atomically: a temporary sibling
     renamed when complete); see the module docstring for the layout."""
-    from ..training.checkpoint import atomic_path
+    from ..io import atomic_path
 
     frames = _frames(data, fps)
     has_images = data.images is not None

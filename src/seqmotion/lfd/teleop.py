@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import check_number
 from ..sim import pushing
 from ..sim.observers import DisturbanceObserver, PseudoDerivative, ReactionTorqueObserver
 from ..sim.pushing import ArmSim, BlockPosition, MasterArm, PushingScene, SceneVariation
@@ -226,9 +227,7 @@ class _Recorder:
 
 
 def _check_duration(duration: float, dt: float) -> int:
-    if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be a positive number of seconds, got {duration!r}")
-    steps = round(duration / dt)
+    steps = round(check_number("duration [s]", duration, minimum=0.0, strict_minimum=True) / dt)
     if steps < 2:
         raise ValueError(f"duration {duration} s is shorter than two control periods ({dt} s)")
     return steps

@@ -14,28 +14,27 @@ Three procedures, each seeded and deterministic on a given machine and thread co
 writes policy directories (``<method>_<camera>/``) loadable with ``sm.load``.
 
 Beyond the dissertation (all switchable; defaults in :class:`SeqAETraining` and :class:`CNNTraining`;
-the end-to-end baseline gets the same settings, so the comparison stays like for like):
+the end-to-end baseline gets the same settings, so the comparison stays like for like; how each was
+chosen, with the closed-loop success rates, is in ``benchmarks/RESULTS_lfd.md``):
 
 * **Noise injection** on the decoder's *inputs* (the slave states; white Gaussian, σ = 0.3 in
   normalised units) while the targets stay the recorded master states. With plain teacher
   forcing the decoder learns to copy the slave (the master leads it by a few hundredths of a
-  radian), ignores z and, in closed loop, wanders off in the wrong direction (measured: 10 %
-  success for the 3 × 32 model); with noise it must use z and its own memory, and it learns to
-  steer back towards the demonstration from states slightly off it.
+  radian), ignores z and, in closed loop, wanders off in the wrong direction; with noise it must
+  use z and its own memory, and it learns to steer back towards the demonstration from states
+  slightly off it.
 * **Latent noise**: Gaussian noise (σ = 0.1) on z while decoding, so that z's near a
   demonstration's decode to similar motions (the CNN's ẑ is never exact: 18 images, 2–3 per
   position). An optional penalty ``β · ½ |z|²`` (off by default) turns it into a VAE with a
-  fixed posterior spread; measured on the 3 × 32 model (30 trials, default camera):
-  σ = 0.1, β = 0: 96.7 %; σ = 0.5, β = 0.01: 93.3 %; σ = 0.5, β = 0.1: 50 %.
+  fixed posterior spread (it did not help the closed loop).
 * **Photometric augmentation** of the CNN's training images (brightness, colour gain, offset,
   pixel noise; never geometry).
 * Failed demonstrations (``success = False``, 3 of 90 in the default set) are left out.
 * Gradient-norm clipping at 1 and a cosine learning-rate decay to 10 % over the run.
 * Checkpoints and exact resume of the long trainings (SeqAE, end-to-end baseline).
 * Epochs per preset (:data:`SEQAE_EPOCHS`, :func:`default_settings`): the dissertation's 2000
-  for the ``smaller`` SeqAE (5–9 min on one core of the project's shared 2-core CPU) and the
-  ``original`` (~48 CPU-minutes), 1200 for ``larger`` (~1.5 h on two threads); 2000 for the
-  end-to-end baseline of every size, as in the dissertation.
+  for the ``smaller`` and ``original`` SeqAE, 1200 for ``larger``; 2000 for the end-to-end
+  baseline of every size, as in the dissertation.
 
 All three run on the library's one optimisation loop,
 :class:`~seqmotion.training.loop.TrainingLoop` (Adam, the learning-rate schedule, clipping,
@@ -61,7 +60,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..training.checkpoint import atomic_write_bytes
+from ..errors import check_number
+from ..io import atomic_write_bytes
+from ..training.config import Optimization
 from ..training.loop import TrainingLoop
 from ..training.provenance import machine_record
 from .models import (
@@ -76,20 +77,21 @@ from .models import (
     motion_loss,
     preset,
 )
+from .task import PushingTask
 
 CHECKPOINT_EVERY = 50
 """Epochs between training checkpoints of the SeqAE and the end-to-end baseline."""
 
 
-@dataclass
-class SeqAETraining:
+@dataclass(kw_only=True)
+class SeqAETraining(Optimization):
     """Optimisation settings of the SeqAE (and of the end-to-end baseline's motion loss).
 
     Attributes:
         epochs: passes over the motions (dissertation: 2000).
         batch_size: motions per mini-batch (dissertation: 16).
-        lr: Adam's initial learning rate (cosine-decayed to ``lr_final_fraction · lr``).
-        lr_final_fraction: learning rate at the end, relative to ``lr``.
+        lr, lr_final_fraction, grad_clip: the optimiser's settings shared with ``seqmotion train``
+            (:class:`~seqmotion.training.config.Optimization`); here a cosine decay to 10 % and clipping at 1.
         state_noise: stationary std of the noise on the decoder's slave-state inputs [normalised units].
         noise_correlation: correlation time of that noise [decoder steps of 20 ms]; 0 = white,
             otherwise a first-order autoregressive (Ornstein–Uhlenbeck) process, which looks like
@@ -99,46 +101,40 @@ class SeqAETraining:
             this is a variational bottleneck (a VAE with a fixed posterior spread): the encoder
             cannot outgrow the noise, so z keeps what explains most of the motions (where the
             block is) before the operator's idiosyncrasies, which an image cannot predict.
-        grad_clip: global gradient-norm clip (0: none).
         seed: seeds the weights, the batch order and the noise.
     """
 
     epochs: int = 2000
     batch_size: int = 16
-    lr: float = 1e-3
     lr_final_fraction: float = 0.1
     state_noise: float = 0.3
     noise_correlation: float = 0.0
     latent_noise: float = 0.1
     latent_penalty: float = 0.0
-    grad_clip: float = 1.0
     seed: int = 0
 
     def __post_init__(self) -> None:
-        _positive_int("epochs", self.epochs)
-        _positive_int("batch_size", self.batch_size)
-        for name in (
-            "lr",
-            "lr_final_fraction",
-            "state_noise",
-            "noise_correlation",
-            "latent_noise",
-            "latent_penalty",
-            "grad_clip",
-        ):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite non-negative number, got {value!r}")
-        if self.lr <= 0:
-            raise ValueError(f"lr must be positive, got {self.lr!r}")
-        _seed(self.seed)
+        _check_counts(self)
+        for name in ("state_noise", "noise_correlation", "latent_noise", "latent_penalty"):
+            check_number(name, getattr(self, name), minimum=0)
 
 
-@dataclass
-class CNNTraining:
+def _check_counts(settings: SeqAETraining | CNNTraining) -> None:
+    """The checks every chapter-5 training's settings share: the optimiser's, epochs, batch size and seed."""
+    settings.check_optimization()
+    check_number("epochs", settings.epochs, minimum=1, integer=True)
+    check_number("batch_size", settings.batch_size, minimum=1, integer=True)
+    check_number("seed", settings.seed, minimum=0, integer=True)
+
+
+@dataclass(kw_only=True)
+class CNNTraining(Optimization):
     """Optimisation settings of the CNN (dissertation: 100 epochs, mini-batches of 8, Adam).
 
     Attributes:
+        lr, lr_final_fraction, grad_clip: the optimiser's settings
+            (:class:`~seqmotion.training.config.Optimization`); here the dissertation's plain Adam:
+            a constant rate, no clipping.
         augment: photometric augmentation of the training images (see :func:`augment_images`):
             the nuisance the webcam sees between episodes is lighting and colour, and 18 images
             show too little of it. Geometry is never altered (it carries the block's position).
@@ -159,19 +155,15 @@ class CNNTraining:
 
     epochs: int = 100
     batch_size: int = 8
-    lr: float = 1e-3
+    grad_clip: float | None = None
     augment: bool = True
     targets: str = "position_medoid"
     seed: int = 0
 
     def __post_init__(self) -> None:
-        _positive_int("epochs", self.epochs)
-        _positive_int("batch_size", self.batch_size)
-        if not (isinstance(self.lr, int | float) and math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"lr must be positive, got {self.lr!r}")
+        _check_counts(self)
         if self.targets not in CNN_TARGETS:
             raise ValueError(f"CNN targets must be one of {CNN_TARGETS}, got {self.targets!r}")
-        _seed(self.seed)
 
 
 CNN_TARGETS = ("position_medoid", "position_mean", "pair")
@@ -180,19 +172,14 @@ CNN_TARGETS = ("position_medoid", "position_mean", "pair")
 DEFAULT_PRESET = "smaller"
 """Model size ``seqmotion lfd train`` (and the shipped ``"pushing"`` policy) uses by default.
 
-Not the dissertation's 7-layer model, by measurement (30 closed-loop trials on the default
-camera, evaluation seeds 1 / 0, the defaults below; ``benchmarks/RESULTS_lfd.md``): the 3 × 32
-``smaller`` model reaches 100 % / 100 % after a 7–9-minute SeqAE training, inside the 45-minute
-collect-and-train budget of a 2-core CPU; the 7 × 64 ``original`` also reaches 100 % / 100 %
-but its 2000 SeqAE epochs take ~48 CPU-minutes, and the 10 × 128 ``larger`` (100 % / 100 %)
-takes 1.5 hours on both cores for 1200 epochs.
+Not the dissertation's 7-layer model: the 3 × 32 ``smaller`` model succeeds as often in closed loop
+and its SeqAE training fits the 45-minute collect-and-train budget of a 2-core CPU, which the larger
+ones' do not (``benchmarks/RESULTS_lfd.md``).
 """
 
 SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 1200}
-"""Default SeqAE epochs per preset: the dissertation's 2000, except ``larger`` (``tiny`` is for
-tests). Measured: 0.22–0.27 s/epoch for 3 × 32 and 1.43 s for 7 × 64 on one core; 4.5 s for
-10 × 128 on two threads, so its 1200 epochs take 1.5 h (2000 were not run with the all-layers
-readout of :class:`~seqmotion.lfd.models.SeqAEConfig`, which the 10 × 128 encoder needs)."""
+"""Default SeqAE epochs per preset: the dissertation's 2000, except ``larger``, whose 2000 epochs would take
+hours on a 2-core CPU (``tiny`` is for tests)."""
 
 E2E_EPOCHS = 2000
 """Default epochs of the end-to-end baseline (the dissertation's), every preset."""
@@ -219,17 +206,6 @@ def augment_images(images: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
     return x.clamp(0.0, 255.0)
 
 
-def _positive_int(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-
-
-def _seed(seed: Any) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    return int(seed)
-
-
 # ----------------------------------------------------------------------------------------------
 # The three procedures
 # ----------------------------------------------------------------------------------------------
@@ -239,10 +215,12 @@ def train_seqae(
     settings: SeqAETraining | None = None,
     progress: bool = False,
     checkpoint_dir: str | Path | None = None,
+    resume: bool = True,
 ) -> tuple[SeqAE, dict]:
     """Train a SeqAE on motions ``(N, K, 6J)`` sampled every 20 ms (raw units), J = ``config.joints``.
 
-    ``checkpoint_dir``: write resumable checkpoints there and continue from one found there.
+    ``checkpoint_dir``: write resumable checkpoints there and continue from one found there (``resume``;
+    False: remove them and start over).
 
     Returns:
         ``(model in eval mode, history)`` with ``history = {"loss": [per-epoch mean eq.-5.1 loss],
@@ -261,45 +239,45 @@ def train_seqae(
     history = _fit(model, params, len(data), settings, gen,
                    lambda idx: _seqae_loss(model, data[idx], settings, gen),
                    f"SeqAE {config.layers}x{config.hidden}", progress,
-                   checkpoint_dir=checkpoint_dir, data=(motions,))
+                   checkpoint_dir=checkpoint_dir, data=(motions,), resume=resume, part="seqae")
     return model.eval(), history
 
 
 def _fit(
     module: torch.nn.Module, params: list, n: int, settings: SeqAETraining | CNNTraining, gen: torch.Generator,
     batch_loss: Any, desc: str, progress: bool, min_batch: int = 1,
-    checkpoint_dir: str | Path | None = None, data: tuple = (),
+    checkpoint_dir: str | Path | None = None, data: tuple = (), resume: bool = True, part: str | None = None,
 ) -> dict[str, Any]:
     """Adam over ``settings.epochs`` shuffled passes of ``n`` examples, on the shared :class:`TrainingLoop`.
 
     ``batch_loss(indices) -> loss`` is the mean loss of one mini-batch; mini-batches smaller
-    than ``min_batch`` are skipped. The learning rate follows the loop's cosine to
-    ``settings.lr_final_fraction`` and gradients are clipped to ``settings.grad_clip``; the
-    CNN's settings have neither (the dissertation's plain Adam: constant rate, no clipping).
+    than ``min_batch`` are skipped. The loop takes its optimiser settings from ``settings``
+    (:meth:`~seqmotion.training.config.Optimization.loop_settings`). ``desc`` names the training on the
+    progress bar, ``part`` (``"seqae"``, ``"cnn"``, ``"end_to_end"``; default ``desc``) in its checkpoints.
     Returns ``{"loss": per-epoch mean, "seconds": wall time}``.
 
     With ``checkpoint_dir``, everything the loop depends on (weights, Adam's moments, the random
     generator, the epoch, the loss history) is written there every :data:`CHECKPOINT_EVERY`
     epochs and at the end, with a ``metrics.csv`` of the per-epoch loss, and a run finding a
     checkpoint of the same settings and ``data`` (arrays whose hash identifies the training
-    set) there continues from it: an interrupted run resumed ends with exactly the weights of
-    an uninterrupted one.
+    set) there continues from it (unless ``resume`` is False: the loop then removes them first):
+    an interrupted run resumed ends with exactly the weights of an uninterrupted one.
     """
     steps_per_epoch = math.ceil(n / settings.batch_size)
     digest = hashlib.sha256()
     for array in data:
         digest.update(np.ascontiguousarray(array).tobytes())
     shapes = {name: list(t.shape) for name, t in module.state_dict().items()}
-    identity = {"task": "lfd-fit", "what": desc, "data_sha256": digest.hexdigest(), "settings": asdict(settings),
-                "shapes": shapes}
+    # what makes a checkpoint this training's: the task and part, the data, the settings and the layers
+    identity = {"task": PushingTask.name, "part": part or desc, "data_sha256": digest.hexdigest(),
+                "settings": asdict(settings), "shapes": shapes}
     loop = TrainingLoop(
-        module, params, lr=settings.lr, total_steps=settings.epochs * steps_per_epoch,
-        lr_final_fraction=getattr(settings, "lr_final_fraction", 1.0), grad_clip=getattr(settings, "grad_clip", None),
+        module, params, **settings.loop_settings(), total_steps=settings.epochs * steps_per_epoch,
         run_dir=checkpoint_dir, identity=identity, generators={"rng": gen},
     )
     try:
         history = _epochs(loop, module, n, settings, gen, batch_loss, desc, progress, min_batch, checkpoint_dir,
-                          steps_per_epoch)
+                          steps_per_epoch, resume)
     finally:
         loop.close()  # also unlocks the checkpoint directory when the training fails
     history["seconds"] = loop.elapsed
@@ -309,10 +287,10 @@ def _fit(
 def _epochs(
     loop: TrainingLoop, module: torch.nn.Module, n: int, settings: SeqAETraining | CNNTraining, gen: torch.Generator,
     batch_loss: Any, desc: str, progress: bool, min_batch: int, checkpoint_dir: str | Path | None,
-    steps_per_epoch: int,
+    steps_per_epoch: int, resume: bool,
 ) -> dict[str, Any]:
     """The epochs of :func:`_fit` on its loop."""
-    saved = loop.start()
+    saved = loop.start(resume=resume)
     history: dict[str, Any] = {"loss": list(saved.get("loss", []))}
     first_epoch = int(saved.get("epoch", 0))
     module.train()
@@ -427,7 +405,8 @@ def train_cnn(
         return ((cnn(batch) - y[idx]) ** 2).sum(-1).mean()
 
     # BatchNorm cannot normalise a batch of one: a last mini-batch of one image is skipped
-    history = _fit(cnn, list(cnn.parameters()), len(x), settings, gen, batch_loss, "CNN", progress, min_batch=2)
+    history = _fit(cnn, list(cnn.parameters()), len(x), settings, gen, batch_loss, "CNN", progress, min_batch=2,
+                   part="cnn")
     return cnn.eval(), history
 
 
@@ -441,11 +420,12 @@ def train_end_to_end(
     preset_name: str = "",
     progress: bool = False,
     checkpoint_dir: str | Path | None = None,
+    resume: bool = True,
 ) -> tuple[PushingPolicy, dict]:
     """The baseline: CNN → z → decoder trained together on image–motion pairs with eq. 5.1.
 
     Same layers and the same optimisation settings (noise injection included) as the
-    proposed method; mini-batches of ``settings.batch_size`` pairs. ``checkpoint_dir`` as in
+    proposed method; mini-batches of ``settings.batch_size`` pairs. ``checkpoint_dir`` and ``resume`` as in
     :func:`train_seqae`.
     """
     settings = settings or SeqAETraining()
@@ -484,7 +464,7 @@ def train_end_to_end(
     # BatchNorm in the CNN needs two images per batch
     history = _fit(policy, list(policy.parameters()), len(data), settings, gen, batch_loss,
                    f"end-to-end {config.layers}x{config.hidden}", progress, min_batch=2,
-                   checkpoint_dir=checkpoint_dir, data=(images, motions))
+                   checkpoint_dir=checkpoint_dir, data=(images, motions), resume=resume, part="end_to_end")
     return policy.eval(), history
 
 
@@ -559,12 +539,12 @@ def train(
         successful_only: leave failed demonstrations out (default); False keeps every episode.
         resume: continue the SeqAE and end-to-end trainings from their checkpoints in
             ``out/checkpoints/`` (written every :data:`CHECKPOINT_EVERY` epochs) when there are
-            some; False deletes them and starts over.
+            some; False has each training this run does remove its own and start over.
         mapping: ``{field: feature key}`` for LeRobot folders (``--map``, see
             :func:`seqmotion.lfd.lerobot.from_lerobot`): another robot's feature names.
     """
     data_dir, out = Path(data_dir), Path(out)
-    seed = _seed(seed)
+    seed = check_number("seed", seed, minimum=0, integer=True)
     config = preset(preset_name)
     methods = tuple(methods)
     if not methods or any(m not in METHODS for m in methods):
@@ -588,10 +568,6 @@ def train(
 
     report = TrainReport(out)
     checkpoints = out / "checkpoints"
-    if not resume and checkpoints.exists():
-        import shutil
-
-        shutil.rmtree(checkpoints)
     record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_record()}
 
     if needs_motions:
@@ -615,7 +591,7 @@ def train(
                                  f"have {config.joints}")
             seqae_record = {"reused_from": str(seqae_from), **donor.config.training.get("seqae", {})}
         else:
-            seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae")
+            seqae, history = train_seqae(motions, config, seqae_settings, progress, checkpoints / "seqae", resume)
             seqae_record = _record(
                 report, "seqae", seqae_settings, history, motions=int(len(keep_motions)), of=len(motions_data)
             )
@@ -675,6 +651,7 @@ def train(
                 preset_name=preset_name,
                 progress=progress,
                 checkpoint_dir=checkpoints / f"end_to_end_{camera}",
+                resume=resume,
             )
             e2e_record = _record(
                 report, f"end_to_end_{camera}", e2e_settings, history, pairs=int(len(keep)), of=len(data),

@@ -86,10 +86,6 @@ class StackedLSTM(nn.Module):
         sizes = [input_size] + [hidden_size] * (num_layers - 1)
         self.cells = nn.ModuleList(LayerNormLSTMCell(s, hidden_size) for s in sizes)
 
-    def zero_state(self, batch: int, like: torch.Tensor) -> LSTMState:
-        z = like.new_zeros(batch, self.hidden_size)
-        return tuple((z, z) for _ in self.cells)
-
     def run_packed(self, x: torch.Tensor, sizes: list[int]) -> LSTMState:
         """Run sequences of different lengths, packed, from a zero state; return each one's final state.
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import torch
 from torch import nn
@@ -250,6 +250,17 @@ class GaussianHead(nn.Module):
         return torch.stack([v for row in full for v in row], dim=-1).view(*entries.shape[:-1], self.dim, self.dim)
 
 
+T = TypeVar("T", int, torch.Tensor)
+
+
+def chunks_needed(length: T, chunk: int) -> T:
+    """Decoder steps that generate the inputs ``u[0..K-2]`` of a length-K motion: ``max(1, ⌈(K-1)/C⌉)``, for an
+    ``int`` K or a tensor of lengths (elementwise; the same integer arithmetic, so both agree)."""
+    if torch.is_tensor(length):
+        return (length - 2).clamp_min(0) // chunk + 1
+    return max(length - 2, 0) // chunk + 1
+
+
 class ChunkedSeq2Seq(nn.Module):
     """Encoder–decoder over chunks of C samples with a Gaussian output head."""
 
@@ -303,8 +314,8 @@ class ChunkedSeq2Seq(nn.Module):
         return self.cfg.latent_dim
 
     def num_chunks(self, length: int) -> int:
-        """Decoder steps needed to generate inputs ``u[0..K-2]`` of a length-K trajectory."""
-        return max(1, math.ceil((length - 1) / self.chunk))
+        """Decoder steps needed to generate inputs ``u[0..K-2]`` of a length-K trajectory (:func:`num_chunks`)."""
+        return chunks_needed(length, self.chunk)
 
     def encode(self, x: torch.Tensor, lengths: torch.Tensor | None = None) -> torch.Tensor:
         """Encode trajectories into latents.
@@ -543,7 +554,7 @@ def _longest_first(
     batch, device = x0.shape[0], x0.device
     if lengths is None or not hasattr(dynamics, "narrow"):
         return [batch] * num_chunks, None, z, x0, teacher
-    needed = ((lengths.to(device) - 2).clamp_min(0) // chunk + 1).clamp_max(num_chunks)  # num_chunks(K)
+    needed = chunks_needed(lengths.to(device), chunk).clamp_max(num_chunks)
     order = torch.argsort(needed, descending=True, stable=True)
     if bool((order == torch.arange(batch, device=device)).all()):
         order = None  # already longest first (the training losses' batches are drawn so)

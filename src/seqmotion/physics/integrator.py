@@ -19,10 +19,18 @@ independent across samples, so the position block after ``n`` steps is::
 (X = position–velocity cross covariance, V = velocity covariance) and the sum is a fixed
 lower-triangular ``C × C`` matrix applied along time: exact, with no cancellation.
 
-For a decoder's training step both are whole-chunk matrix products: :func:`integrate_chunk` (a chunk's C
-states from its start state and inputs, two products instead of ~15 small operations) and
-:func:`propagate_entrywise` (the position covariances of all N·C samples of a rollout at once, each
-non-zero entry of ``S_u`` alike, with the carries at the chunk boundaries and teacher forcing's restarts).
+Every integration and covariance propagation of a double integrator in the library is one of these:
+
+* states: :func:`integrate` (tensors) and :func:`integrate_numpy` (the same operations in NumPy), and for a
+  decoder's chunk :func:`integrate_chunk` (the same closed form as two matrix products instead of ~15 small
+  operations: the decoder's step is the training's hot loop);
+* covariances: :func:`propagate_covariance` (one chunk from a carried covariance: the decoder's step),
+  :func:`propagate_entrywise` (all N·C samples of a rollout at once, each non-zero entry of ``S_u`` alike, with
+  the carries at the chunk boundaries and teacher forcing's restarts: the training's fast path) and
+  :func:`integrate_covariance` (a whole motion from a known state in O(K), for the predicted std after a
+  rollout; the chunk forms' C × C weights would be K × K there);
+* the definitions sample by sample, which the closed forms agree with: :func:`step_reference`,
+  :func:`propagate_covariance_reference`.
 """
 
 from __future__ import annotations
@@ -67,9 +75,19 @@ def integrate(x0: torch.Tensor, accel: torch.Tensor, dt: float = DT) -> torch.Te
 
 
 def integrate_numpy(x0: np.ndarray, accel: np.ndarray, dt: float = DT) -> np.ndarray:
-    """NumPy float64 front end of :func:`integrate` (same shapes)."""
-    out = integrate(torch.as_tensor(np.asarray(x0, dtype=np.float64)), torch.as_tensor(accel, dtype=torch.float64), dt)
-    return out.numpy()
+    """:func:`integrate` in NumPy float64 (same shapes, the same operations in the same order: bit for bit
+    what :func:`integrate` gives in float64), for callers without tensors (the simulator's references,
+    transcriptions, deployment)."""
+    x0, accel = np.asarray(x0, dtype=np.float64), np.asarray(accel, dtype=np.float64)
+    d = accel.shape[-1]
+    p0, v0 = x0[..., None, :d], x0[..., None, d:]
+    zero = np.zeros_like(accel[..., :1, :])
+    s1 = np.concatenate([zero, np.cumsum(accel, axis=-2)], axis=-2)  # S1[n], n = 0..N
+    s2 = np.concatenate([zero, np.cumsum(s1[..., :-1, :], axis=-2)], axis=-2)  # S2[n]
+    n = np.arange(accel.shape[-2] + 1, dtype=np.float64)[:, None]
+    v = v0 + dt * s1
+    p = p0 + n * dt * v0 + dt**2 * (s2 + 0.5 * s1)
+    return np.concatenate([p, v], axis=-1)
 
 
 def implied_accel(states: np.ndarray, dt: float = DT) -> np.ndarray:
@@ -120,7 +138,8 @@ def reach_end(
 
 
 def step_reference(x: np.ndarray, u: np.ndarray, dt: float = DT) -> np.ndarray:
-    """One explicit ``A x + B u`` step (the sample-by-sample reference used in tests)."""
+    """One explicit ``A x + B u`` step: the definition (eq. 2.13) sample by sample, which the closed forms
+    agree with."""
     a, b = transition_matrices(u.shape[-1], dt)
     return x @ a.T + u @ b.T
 
@@ -192,6 +211,18 @@ def propagate_covariance(
     cross = carry.cross + c * dt * carry.vel + dt**3 * sum_ws
     vel = carry.vel + dt**2 * sum_s
     return pos, CovarianceCarry(pos[:, -1], cross, vel)
+
+
+def integrate_covariance(accel_cov: torch.Tensor, dt: float = DT) -> torch.Tensor:
+    """Position covariances ``(B, N, d, d)`` of states ``1..N`` of a double integrator started from a known
+    state under independent inputs with covariances ``accel_cov`` ``(B, N, d, d)`` (eq. 2.14), in one pass:
+    ``P[n] = dt⁴ Σ_{j<n} (n - j - ½)² S[j] = dt⁴ (n² C0[n] - 2n C1[n] + C2[n])`` with the cumulative sums
+    ``C_m[n] = Σ_{j<n} (j + ½)^m S[j]``. Run it in float64 (the three terms cancel to about a sixth)."""
+    n_steps = accel_cov.shape[1]
+    a = torch.arange(n_steps, dtype=accel_cov.dtype, device=accel_cov.device).view(1, -1, 1, 1) + 0.5
+    n = a + 0.5  # n = j + 1 for the state after input j
+    c0, c1, c2 = accel_cov.cumsum(1), (a * accel_cov).cumsum(1), (a * a * accel_cov).cumsum(1)
+    return dt**4 * (n * n * c0 - 2 * n * c1 + c2)
 
 
 @lru_cache(maxsize=32)
@@ -299,7 +330,8 @@ def propagate_entrywise(
 
 
 def propagate_covariance_reference(accel_cov: np.ndarray, dt: float = DT) -> np.ndarray:
-    """Sample-by-sample eq. 2.14 from ``S_x[0] = 0``; returns full ``(N+1, 2d, 2d)`` (tests)."""
+    """Eq. 2.14 by its definition, sample by sample from ``S_x[0] = 0``: the full ``(N+1, 2d, 2d)`` covariances
+    the closed forms (:func:`propagate_covariance`, :func:`integrate_covariance`) agree with."""
     n, d, _ = accel_cov.shape
     a, b = transition_matrices(d, dt)
     out = np.zeros((n + 1, 2 * d, 2 * d))

@@ -38,7 +38,23 @@ class PancakePhysics(Physics):
     mu: float = MU
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mu", check_number("mu", self.mu, minimum=0.0, strict_minimum=True))
+        object.__setattr__(self, "mu", check_mu(self.mu))
+
+    @property
+    def cone_half_angle(self) -> float:
+        """atan μ [rad]: the largest |ψ| at which the pancake holds."""
+        return cone_half_angle(self.mu)
+
+
+def check_mu(mu: object) -> float:
+    """``mu`` as a float, or ``ValueError`` unless it is a positive finite number (a friction coefficient)."""
+    return float(check_number("mu", mu, minimum=0.0, strict_minimum=True))
+
+
+def cone_half_angle(mu: float) -> float:
+    """atan μ [rad]: the half-angle of the friction cone, the largest |ψ| at which the pancake holds (45° at
+    μ = 1). Every cone drawn or judged takes its angle from here."""
+    return math.atan(mu)
 
 
 STATE_LAYOUT = StateLayout(("y", "z", "theta", "v_y", "v_z", "v_theta"), ("m", "m", "rad", "m/s", "m/s", "rad/s"),
@@ -79,7 +95,7 @@ def violation_angle(theta: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
 
 def violation_torch(theta: torch.Tensor, accel: torch.Tensor, mu: float = MU) -> torch.Tensor:
     """``F_c = max(0, |ψ| - atan μ)`` (eq. 2.18) in torch, differentiable. Shapes as above."""
-    return torch.relu(violation_angle(theta, accel).abs() - math.atan(mu))
+    return torch.relu(violation_angle(theta, accel).abs() - cone_half_angle(mu))
 
 
 def tilt_for(accel_yz: np.ndarray) -> np.ndarray:
@@ -99,14 +115,6 @@ def _prepare(states: object, accel: object) -> tuple[torch.Tensor, torch.Tensor,
         raise ValueError(f"accel has more samples ({ac.shape[1]}) than states ({st.shape[1]})")
     theta = torch.as_tensor(st[:, : ac.shape[1], 2])
     return theta, torch.as_tensor(ac), single
-
-
-def check_mu(mu: object) -> float:
-    """``mu`` as a float, or ``ValueError`` unless it is a positive finite number."""
-    if isinstance(mu, bool) or not isinstance(mu, int | float | np.integer | np.floating) or not math.isfinite(mu) \
-            or mu <= 0:
-        raise ValueError(f"mu must be a positive finite number, got {mu!r}")
-    return float(mu)
 
 
 def violation(states: object, accel: object, mu: float = MU) -> np.ndarray:

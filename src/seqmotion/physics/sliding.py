@@ -246,12 +246,17 @@ loop on a GPU (see the results file)."""
 
 def resolve_backend(backend: str | None, device: torch.device) -> str:
     """The backend to use for tensors on ``device``: ``backend`` itself, or for ``None``
-    :data:`CPU_BACKEND` on the CPU and :data:`DEVICE_BACKEND` anywhere else."""
+    :data:`CPU_BACKEND` on the CPU and :data:`DEVICE_BACKEND` anywhere else.
+
+    While tracing (``torch.onnx.export`` of the dynamics) any backend runs as ``"torch_autograd"``: the
+    numba kernel is opaque to the tracer (its result would be baked in as a constant), and the
+    ``autograd.Function`` of ``"torch"`` does not export; the forward arithmetic is the same in all three.
+    """
     if backend is None:
         backend = CPU_BACKEND if device.type == "cpu" else DEVICE_BACKEND
     if backend not in BACKENDS:
         raise ValueError(f"unknown contact backend {backend!r}; choose from {BACKENDS}")
-    return backend
+    return "torch_autograd" if torch.jit.is_tracing() else backend
 
 
 def _friction_t(value: float | torch.Tensor, batch: int, device: torch.device) -> torch.Tensor:
@@ -265,7 +270,7 @@ def _sqrt(x: torch.Tensor) -> torch.Tensor:
     ``sqrt`` on the CPU is not (torch 2.13: about 1 % of results 1 ulp off; of speeds within a few ulps
     of the one-step stop, about 1 in 2000 would then stop or slide unlike the kernel), so there the
     value comes from NumPy (the gradient still from torch); CUDA's ``sqrt`` is IEEE round-to-nearest."""
-    if x.device.type != "cpu":
+    if x.device.type != "cpu" or torch.jit.is_tracing():  # traced: ONNX Sqrt is IEEE round-to-nearest too
         return x.sqrt()
     exact = torch.from_numpy(np.sqrt(x.detach().numpy()))
     if not (x.requires_grad and torch.is_grad_enabled()):

@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from ..data import pancake as inputs
+from ..io import atomic_write_text, pyplot, save_figure
 from ..physics import pancake as physics
 from ..physics.integrator import implied_accel
 from ..tasks.pancake import FEASIBLE_TOLERANCE, THETA_WEIGHT, Deformer
-from ..training.checkpoint import atomic_write_text, save_figure
 
 FIG25_TARGETS = [(y, z, 2.5) for y in (-0.2, 0.0, 0.2) for z in (-0.2, 0.0, 0.2)]
 FIG26_TARGET = (0.2, 0.0, 2.5)
@@ -106,10 +106,7 @@ def _table(summary: dict) -> str:
 
 
 def figures(deformer: Deformer, out: Path) -> dict:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     originals = np.stack([inputs.straight(t, FIG_LENGTH) for t in FIG25_TARGETS])
     deformed = deformer.deform(originals)
@@ -128,8 +125,7 @@ def figures(deformer: Deformer, out: Path) -> dict:
     axes[0].set_aspect("equal", adjustable="datalim")
     axes[1].set(xlabel="time [ms]", ylabel="θ [rad]", title="attitude")
     fig.tight_layout()
-    save_figure(fig, out / "fig2_5_deformation.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig2_5_deformation.png", dpi=130, close=True)
 
     x, r = originals[red], deformer.deform(originals[red])
     psi_in = physics.psi(x[:-1], implied_accel(x))
@@ -144,8 +140,7 @@ def figures(deformer: Deformer, out: Path) -> dict:
            title="Fig. 2.6: the (0.2, 0, 2.5) motion")
     ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
-    save_figure(fig, out / "fig2_6_psi.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig2_6_psi.png", dpi=130, close=True)
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for i, (name, unit) in enumerate((("y", "m"), ("z", "m"), ("θ", "rad"))):
@@ -153,8 +148,7 @@ def figures(deformer: Deformer, out: Path) -> dict:
     ax.set(xlabel="time [ms]", ylabel="deformed − original", title="Fig. 2.7: amount of deformation")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    save_figure(fig, out / "fig2_7_deformation_amount.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig2_7_deformation_amount.png", dpi=130, close=True)
     return {
         "fig2_5_max_fc_deformed": float(deformed.violation.max()),
         "fig2_5_max_fc_original": float(physics.violation_of_states(originals).max()),

@@ -29,8 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from ..data import sliding as commands
+from ..data.trajectories import tracking_rmse
+from ..io import atomic_write_text, pyplot, save_figure
 from ..tasks.sliding import PAN_LIMIT, SlidingPlanner
-from ..training.checkpoint import atomic_write_text, save_figure
 
 FRICTION_GRID = [(mu, mud) for mu in (0.7, 0.9, 1.1, 1.3) for mud in (0.3, 0.4, 0.6, 0.7) if mud < mu]
 LENGTH = 1200
@@ -62,7 +63,7 @@ def eval_commands(n: int, seed: int) -> np.ndarray:
 
 def rmse_mm(rel_states: np.ndarray, command: np.ndarray) -> np.ndarray:
     """Reproduction RMSE between command and achieved object positions, per trajectory [mm]."""
-    return 1000 * np.sqrt(((rel_states[..., :2] - command[..., :2]) ** 2).sum(-1).mean(-1))
+    return 1000 * tracking_rmse(rel_states[..., :2], command[..., :2])
 
 
 def farthest_m(states: np.ndarray) -> np.ndarray:
@@ -134,10 +135,7 @@ def _tables(study: dict, out: Path) -> None:
 
 
 def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int) -> np.ndarray:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     command = eval_commands(1, seed + 1)[0]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
@@ -154,8 +152,7 @@ def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int
         ax.legend(fontsize=8)
     fig.suptitle("Fig. 3.7: reproduced trajectories in the 2-D physics (K = 1200)")
     fig.tight_layout()
-    save_figure(fig, out / "fig3_7_paths.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig3_7_paths.png", dpi=130, close=True)
 
     fig, axes = plt.subplots(1, len(study["models"]), figsize=(4.2 * len(study["models"]), 3.8), squeeze=False)
     mus, muds = sorted({m for m, _ in FRICTION_GRID}), sorted({d for _, d in FRICTION_GRID})
@@ -170,8 +167,7 @@ def figures(models: dict[str, SlidingPlanner], study: dict, out: Path, seed: int
         fig.colorbar(im, ax=ax, label="RMSE [mm]")
     fig.suptitle("Fig. 3.10: reproduction error across friction the models never saw")
     fig.tight_layout()
-    save_figure(fig, out / "fig3_10_friction.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig3_10_friction.png", dpi=130, close=True)
     return command
 
 

@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from ..data import pancake as inputs
+from ..io import atomic_write_text, pyplot, save_figure
 from ..latent import optimize_latent, optimize_trajectory
 from ..latent.objectives import EndPose, Ranges
+from ..physics.pancake import cone_half_angle
 from ..tasks.pancake import FEASIBLE_TOLERANCE, Deformer
-from ..training.checkpoint import atomic_write_text, save_figure
 from ..training.files import write_arrays
 from .ch2 import load_deformer
 
@@ -100,10 +101,7 @@ def _band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
     """Figs. 4.2–4.6 from ``runs[method][case]``: the first method is drawn with bands and paths;
     the cone band is ±atan μ of the model's own μ."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     results = runs[next(iter(runs))]
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -122,8 +120,7 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
     ax.set(yscale="log", xlabel="update", ylabel="J1 (mean of 27 targets)", title="Fig. 4.2: progress of the objective")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    save_figure(fig, out / "fig4_2_objective.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig4_2_objective.png", dpi=130, close=True)
 
     fig, axes = plt.subplots(1, 2, figsize=(8, 3.5))
     names = list(results)
@@ -136,8 +133,7 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
     axes[1].set(ylabel="end-attitude RMSE [deg]", xticks=range(3), xticklabels=["1", "2", "3"], xlabel="case")
     fig.suptitle("Fig. 4.6: end-pose errors after 100 updates")
     fig.tight_layout()
-    save_figure(fig, out / "fig4_6_end_rmse.png", dpi=130)
-    plt.close(fig)
+    save_figure(fig, out / "fig4_6_end_rmse.png", dpi=130, close=True)
 
     res = results[names[0]]
     psi = _psi(res.states, res.accel)
@@ -155,12 +151,12 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
         axes[0].set(xlabel="time [ms]", ylabel="y, z [m] (–, --), θ [rad] (:)", title="(a) time–position")
         axes[1].set(xlabel="y [m]", ylabel="z [m]", title="(b) paths; × targets")
         axes[1].set_aspect("equal", adjustable="datalim")
-        axes[2].axhspan(-math.atan(mu), math.atan(mu), color="tab:blue", alpha=0.15, label=f"cone, μ = {mu:g}")
+        cone = cone_half_angle(mu)
+        axes[2].axhspan(-cone, cone, color="tab:blue", alpha=0.15, label=f"cone, μ = {mu:g}")
         axes[2].set(xlabel="time [ms]", ylabel="ψ [rad]", ylim=(-math.pi, math.pi), title="(c) cone angle")
         fig.suptitle(f"Case 1 after 100 updates, final attitude {label}")
         fig.tight_layout()
-        save_figure(fig, out / fname, dpi=120)
-        plt.close(fig)
+        save_figure(fig, out / fname, dpi=120, close=True)
 
 
 def _psi(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
@@ -171,10 +167,7 @@ def _psi(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
 
 def j2_study(deformer: Deformer, out: Path) -> dict:
     """§4.4.2: J2 from a uniform motion to (0, 0, −3π/4) in 0.5 s, η = 100, updates 0, 10, 20."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     x = inputs.straight((0.0, 0.0, -3 * math.pi / 4), LENGTH, timing="linear")
     objective = Ranges()
@@ -260,14 +253,14 @@ def timing(deformer: Deformer) -> dict:
 
 def peer(deformer: Deformer, targets: np.ndarray) -> list[dict]:
     """Per target, side by side in one run: the strong IPOPT peer (hard force-form cone, cold from the
-    S-curve: :mod:`seqmotion.latent.transcription`), ``optimize_latent(..., exact=True)`` (latent
+    S-curve: :mod:`seqmotion.latent.pancake`), ``optimize_latent(..., exact=True)`` (latent
     Levenberg–Marquardt, then the polish), and the default call's J1 after 5 updates.
 
     Both NLPs are built before the timing (once per K and μ; targets are parameters), and the
     order of the two solvers alternates from target to target. A motion is exact when its true J1
     (the end error, plus Σ F_c) is ≤ 1e-9 and its max F_c ≤ 1e-6 rad.
     """
-    from ..latent.transcription import solve_end_pose, true_j1
+    from ..latent.pancake import solve_end_pose, true_j1
 
     mu = deformer.options.mu
     solve_end_pose(tuple(targets[0]), mu=mu)  # build both NLPs outside the timing

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ..training.checkpoint import atomic_write_text, save_figure
+from ..io import atomic_write_text, pyplot, save_figure
 
 PRESET_NAMES = ("original", "larger", "smaller")
 CAMERA_NAMES = ("default", "position1", "position2")
@@ -352,18 +352,9 @@ def _shape(preset_name: str) -> str:
     return f"{config.layers}x{config.hidden}"
 
 
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _plot_fig5_9(out: Path, table52: dict, quick: bool = False) -> None:
     """Bars: measured success per model size and method; markers: the dissertation's values."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     x = np.arange(len(PRESET_NAMES))
     for i, (method, color) in enumerate((("proposed", "tab:blue"), ("end_to_end", "tab:orange"))):
@@ -386,13 +377,12 @@ def _plot_fig5_9(out: Path, table52: dict, quick: bool = False) -> None:
                  fontsize=8 if quick else None)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    save_figure(fig, out / "fig5_9_success.png", dpi=150)
-    plt.close(fig)
+    save_figure(fig, out / "fig5_9_success.png", dpi=150, close=True)
 
 
 def _fig5_11(out: Path, paths: dict, unseen: Any, quick: bool = False) -> dict:
     """PCA (2 components) of ẑ of the unseen images, both methods of the main (default) size (those evaluated)."""
-    plt = _pyplot()
+    plt = pyplot()
     from ..lfd.models import PushingPolicy
     from ..sim.pushing import POSITIONS
 
@@ -422,8 +412,7 @@ def _fig5_11(out: Path, paths: dict, unseen: Any, quick: bool = False) -> dict:
     fig.suptitle(f"Fig. 5.11: latents of {len(unseen)} unseen images by block position ({main_preset()} model)"
                  + (f"\n{SMOKE_TEST}" if quick else ""))
     fig.tight_layout()
-    save_figure(fig, out / "fig5_11_latent_pca.png", dpi=150)
-    plt.close(fig)
+    save_figure(fig, out / "fig5_11_latent_pca.png", dpi=150, close=True)
     atomic_write_text(out / "fig5_11_latent_pca.json", json.dumps({"explained_variance": explained, **points}) + "\n")
     return explained
 

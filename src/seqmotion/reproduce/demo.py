@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import pancake as inputs
+from ..data.trajectories import tracking_rmse
 from ..physics import pancake as physics
 
 
@@ -82,7 +83,7 @@ def _sliding(out: Path) -> None:
     start = time.perf_counter()
     plan = planner.plan(command)
     seconds = time.perf_counter() - start
-    rmse = 1000 * np.sqrt(((plan.rel_states[:, :2] - command[:, :2]) ** 2).sum(1).mean())
+    rmse = 1000 * tracking_rmse(plan.rel_states[:, :2], command[:, :2])
     reach = 1000 * np.abs(command[:, :2]).max()
     print(f"\nSliding an object on a frying pan — an unseen random path (1.2 s, within {reach:.0f} mm of the start)")
     print(f"  object follows the command within {rmse:.1f} mm RMSE; pan stays within "

@@ -26,7 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..errors import as_trajectories
+from ..errors import as_trajectories, check_number
 from .backend import CONTROL_DT, GRAVITY, control_period, import_mujoco
 from .control import Gains, TaskSpaceController, solve_ik
 from .kinematics import Reference, quat_to_matrix
@@ -452,10 +452,7 @@ MAX_EXTRA_TIME = 60.0
 def check_times(**times: float) -> None:
     """``ValueError`` naming the first of ``times`` [s] that is not a number of seconds in [0, 60]."""
     for name, value in times.items():
-        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-            raise ValueError(f"{name} must be a number of seconds, got {value!r}")
-        if not (np.isfinite(value) and 0 <= value <= MAX_EXTRA_TIME):
-            raise ValueError(f"{name} must be between 0 and {MAX_EXTRA_TIME:g} s, got {value}")
+        check_number(f"{name} [s]", value, minimum=0.0, maximum=MAX_EXTRA_TIME)
 
 
 def first_true(mask: np.ndarray) -> int | None:
@@ -464,6 +461,3 @@ def first_true(mask: np.ndarray) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
-def rmse(err: np.ndarray) -> float:
-    """Root mean square of the norms of the rows of ``err`` ``(N, d)`` (NaN if empty)."""
-    return float(np.sqrt(np.mean(np.sum(err**2, axis=-1)))) if err.size else float("nan")

@@ -61,7 +61,7 @@ def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse unwritable outputs, and outputs that are the trajectory file itself, before the simulation runs
     (``ValueError`` naming the option)."""
-    from ..training.checkpoint import check_writable
+    from ..io import check_writable
     from ..training.files import check_not_an_input
 
     for option, suffixes in (("video", (".mp4",)), ("snapshots", (".png",)), ("json", None)):
@@ -73,7 +73,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the simulation named by the parsed arguments; print and optionally save the metrics."""
-    from ..training.checkpoint import atomic_write_bytes
+    from ..io import atomic_write_bytes
     from .pancake import run_pancake
     from .sliding import run_sliding
 
@@ -107,12 +107,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.mu is not None:
             raise ValueError("--mu applies to the pancake scene only (the sliding measurements use no friction cone)")
-        from .sliding import ARM_FRICTION
+        from .sliding import ARM_PHYSICS
 
         arrays = _read(path, ("pan_states", "rel_states", "command", "friction"), 4)
         pan = arrays["pan_states"]
         planned = np.asarray(arrays.get("friction", []), dtype=np.float64).ravel()
-        arm = np.array([ARM_FRICTION["mu"], ARM_FRICTION["mu_dyn"]])
+        arm = ARM_PHYSICS.vector()  # (mu, mu_dyn)
         if planned.shape == (2,) and not np.allclose(planned, arm):
             print(f"warning: {path} was planned at μ = {planned[0]:g}, μ' = {planned[1]:g}, the arm's object has "
                   f"μ = {arm[0]:g}, μ' = {arm[1]:g}: plan at the arm's friction (seqmotion plan --mu {arm[0]:g} "

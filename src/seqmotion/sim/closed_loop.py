@@ -33,11 +33,12 @@ from typing import Any
 
 import numpy as np
 
+from ..data.trajectories import tracking_rmse
 from .arm import workspace_problem
-from .kinematics import planar_reference
+from .kinematics import planar_reference, stop_accelerations
 
 PANCAKE_NOISE = (1e-3, 1e-3, 1e-2, 2e-2, 2e-2, 0.2)
-"""Measurement noise σ of the pancake Deformer's state ``[y, z, θ, v_y, v_z, v_θ]`` (issue 18):
+"""Measurement noise σ of the pancake Deformer's state ``[y, z, θ, v_y, v_z, v_θ]``:
 1 mm, 1 mm, 10 mrad, 2 cm/s, 2 cm/s, 0.2 rad/s."""
 
 TURN_END_Y = (-0.1, 0.1)
@@ -149,9 +150,7 @@ class ClosedLoopResult:
 
 
 def _planned_states(result: Any) -> np.ndarray:
-    if hasattr(result, "states"):
-        return np.asarray(result.states, dtype=np.float64)
-    return np.concatenate([result.pan_states, result.rel_states], axis=-1)  # the sliding planner's plan
+    return np.asarray(result.motion().states, dtype=np.float64)
 
 
 def _every(replan_every: str | int, chunk: int) -> int:
@@ -292,10 +291,8 @@ def run_episode(
 
     # The tail: constant deceleration of the reference to rest, then a hold (as run_pancake's).
     if ended is None and stop == "decel":
-        n_dec, n_hold = round(decel_time / base.dt), round(hold_time / base.dt)
-        decel = -base.reference[n_pos:] / decel_time if n_dec else np.zeros(n_pos)
-        for j in range(n_dec + n_hold):
-            _, _, terminated, truncated, info = env.step(base.to_action(decel if j < n_dec else np.zeros(n_pos)))
+        for accel in stop_accelerations(base.reference[n_pos:], decel_time, hold_time, base.dt):
+            _, _, terminated, truncated, info = env.step(base.to_action(accel))
             tail_infos.append(info)
             if terminated or truncated:
                 ended, in_tail = why(info, terminated), True
@@ -329,9 +326,6 @@ def run_episode(
                 end_att_sk = float(abs(end[2] - sketch[-1, 2]))
     n = len(states)
 
-    def rmse(a: np.ndarray, b: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(np.sum((a - b) ** 2, -1)))) if n else nan
-
     return ClosedLoopResult(
         states=states_a, measured=np.array(measured), reference=ref_a, plan=plan, accel=np.array(applied),
         replanning=replanning, generator_calls=len(call_ms),
@@ -340,8 +334,8 @@ def run_episode(
         max_slip=float(max_slip), max_gap=float(max_gap),
         end_position_error=end_pos, end_attitude_error=end_att,
         end_position_error_sketch=end_pos_sk, end_attitude_error_sketch=end_att_sk,
-        tracking_rmse=rmse(states_a[:, pos_dims], ref_a[:, pos_dims]) if n else nan,
-        plan_rmse=rmse(states_a[:, pos_dims], plan[1 : n + 1, pos_dims]) if n else nan,
+        tracking_rmse=tracking_rmse(states_a[:, pos_dims], ref_a[:, pos_dims]) if n else nan,
+        plan_rmse=tracking_rmse(states_a[:, pos_dims], plan[1 : n + 1, pos_dims]) if n else nan,
         ended=ended, wall_s=time.perf_counter() - start_wall,
         infos=infos,
     )

@@ -87,6 +87,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from ..physics.integrator import integrate_numpy
 from ..physics.layout import StateLayout
 from ..physics.pancake import ACCEL_LAYOUT as PANCAKE_ACCEL
 from ..physics.pancake import STATE_LAYOUT as PANCAKE_STATE
@@ -443,11 +444,8 @@ class _ArmEnv(gym.Env):
 
     def _step_accel(self, accel: np.ndarray) -> str | None:
         """Integrate the reference under ``accel`` for the step, feeding pose, velocity and ``accel`` forward."""
-        n, dt = self._task_dim, CONTROL_DT
-        refs = [self._ref]
-        for _ in range(self.frame_skip):
-            p, v = refs[-1][:n], refs[-1][n:]
-            refs.append(np.concatenate([p + v * dt + 0.5 * accel * dt * dt, v + accel * dt]))
+        n = self._task_dim
+        refs = integrate_numpy(self._ref, np.tile(accel, (self.frame_skip, 1)), CONTROL_DT)
         end_pos, end_quat = self._planar_command(refs[-1][:n])
         if (problem := self._unreachable(end_pos, end_quat)) is not None:
             return problem
@@ -455,7 +453,7 @@ class _ArmEnv(gym.Env):
         for x in refs[:-1]:
             pos, quat = self._planar_command(x[:n])
             self.arm.step(pos, quat, self._lift(x[n:]), lifted)
-        self._ref = refs[-1]
+        self._ref = refs[-1].copy()
         self._pos, self._quat = end_pos, end_quat
         return None
 

@@ -136,20 +136,32 @@ def _accel_from_velocity(vel: np.ndarray, dt: float) -> np.ndarray:
     return acc
 
 
-def _tail(pos: np.ndarray, vel: np.ndarray, decel_time: float, hold_time: float, dt: float):
-    """Positions, velocities, accelerations of a constant deceleration from ``vel`` to rest, then a hold.
+def stop_accelerations(vel: np.ndarray, decel_time: float, hold_time: float, dt: float) -> np.ndarray:
+    """The robot's stop after a motion (§4.4.3): a constant deceleration from velocities ``vel`` ``(D,)`` to
+    rest over ``decel_time`` [s], then a hold for ``hold_time`` [s].
 
-    ``pos``, ``vel``: ``(D,)`` the last sample. Returns three ``(N_tail, D)`` arrays, sample i at
-    time ``(i + 1) dt`` after the last one, and the acceleration to use *at* the last sample.
+    Returns:
+        ``(N_dec + N_hold, D)`` accelerations, one per period ``dt`` from the motion's last sample on:
+        ``-vel / decel_time`` for the ``N_dec = round(decel_time / dt)`` first, 0 for the
+        ``N_hold = round(hold_time / dt)`` after them.
     """
-    n_dec = round(decel_time / dt)
-    n_hold = round(hold_time / dt)
+    n_dec, n_hold = round(decel_time / dt), round(hold_time / dt)
     decel = -vel / decel_time if n_dec > 0 else np.zeros_like(vel)
-    t = (np.arange(1, n_dec + n_hold + 1) * dt)[:, None]
+    return np.concatenate([np.broadcast_to(decel, (n_dec, len(vel))), np.zeros((n_hold, len(vel)))])
+
+
+def _tail(pos: np.ndarray, vel: np.ndarray, decel_time: float, hold_time: float, dt: float):
+    """Positions, velocities, accelerations of :func:`stop_accelerations` from the last sample ``pos``, ``vel``
+    ``(D,)``: three ``(N_tail, D)`` arrays, sample i at time ``(i + 1) dt`` after the last one, and the
+    acceleration to use *at* the last sample."""
+    accel = stop_accelerations(vel, decel_time, hold_time, dt)
+    n_dec = round(decel_time / dt)
+    decel = accel[0] if n_dec > 0 else np.zeros_like(vel)
+    t = (np.arange(1, len(accel) + 1) * dt)[:, None]
     t_dec = np.minimum(t, n_dec * dt)
     p = pos + vel * t_dec + 0.5 * decel * t_dec**2
     v = np.where(t < n_dec * dt - 1e-12, vel + decel * t, 0.0)
-    a = np.where(t < n_dec * dt - 1e-12, decel, 0.0)
+    a = np.concatenate([accel[1:], np.zeros((min(len(accel), 1), len(vel)))])  # sample i holds input i + 1
     return p, v, a, decel
 
 

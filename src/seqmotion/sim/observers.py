@@ -21,10 +21,12 @@ import math
 
 import numpy as np
 
+from ..errors import check_number
+
 
 def _check_cutoff(cutoff: float, dt: float) -> None:
-    if not cutoff > 0 or not dt > 0:
-        raise ValueError(f"cutoff and dt must be positive, got cutoff={cutoff}, dt={dt}")
+    check_number("cutoff [rad/s]", cutoff, minimum=0.0, strict_minimum=True)
+    check_number("dt [s]", dt, minimum=0.0, strict_minimum=True)
 
 
 class LowPass:

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from ..physics.pancake import MU, violation
+from ..data.trajectories import tracking_rmse
+from ..physics.pancake import MU, check_mu, violation
 from .arm import (
     ExecutionLog,
     Media,
@@ -32,7 +33,6 @@ from .arm import (
     execute,
     first_true,
     prepare_reference,
-    rmse,
     single_trajectory,
 )
 from .backend import GRAVITY
@@ -205,12 +205,6 @@ def run_pancake(
     return _pancake_metrics(ref, log, arr, mu)
 
 
-def check_mu(mu: float) -> None:
-    """``ValueError`` unless ``mu`` is a positive, finite friction coefficient."""
-    if isinstance(mu, bool) or not isinstance(mu, int | float | np.floating) or not (0 < mu < np.inf):
-        raise ValueError(f"mu must be a positive friction coefficient, got {mu!r}")
-
-
 def _planar_command(ref: Reference) -> np.ndarray:
     """The reference back in planar coordinates ``(N, 6)``."""
     theta = np.unwrap(planar_tilt(quat_to_matrix(ref.quat)))
@@ -263,8 +257,8 @@ def _pancake_metrics(ref: Reference, log: ExecutionLog, states: np.ndarray, mu: 
         slip=slip,
         gap=gap,
         tilt=obj.tilt,
-        position_rmse=rmse(pos_err),
-        attitude_rmse=float(np.sqrt(np.mean(att_err**2))) if att_err.size else float("nan"),
+        position_rmse=tracking_rmse(pos_err),
+        attitude_rmse=tracking_rmse(att_err[:, None]),
         max_slip=float(slip[:k_motion].max(initial=0.0)),
         max_gap=float(gap[:k_motion].max(initial=0.0)),
         contact_lost=first_lost is not None,

@@ -8,30 +8,17 @@ from typing import Any
 
 import numpy as np
 
-from ..physics.pancake import psi
-from .pancake import PancakeResult, check_mu
+from ..io import pyplot, save_figure
+from ..physics.integrator import implied_accel
+from ..physics.pancake import check_mu, cone_half_angle, psi
+from .pancake import PancakeResult
 from .sliding import SlidingResult
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(plt: Any, fig: Any, path: str | Path) -> Path:
-    """Lay out ``fig``, write it to ``path`` (PNG, 130 dpi; parent folders made) and close it."""
-    from ..training.checkpoint import atomic_path
-
+def _save(fig: Any, path: str | Path) -> Path:
+    """Lay out ``fig``, write it to ``path`` (130 dpi, the format of the suffix; parent folders made) and close it."""
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:  # a temporary beside it, renamed: never a half-written figure
-        fig.savefig(tmp, dpi=130)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, close=True, dpi=130)
 
 
 def plot_pancake_tracking(
@@ -44,7 +31,7 @@ def plot_pancake_tracking(
         result: what :func:`~seqmotion.sim.run_pancake` returned for ``states``.
         original: ``(K', 6)`` the undeformed input, if any.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(3, 1, figsize=(6.5, 6), sharex=True)
     t = result.time * 1e3
     for i, (ax, name, unit) in enumerate(zip(axes, ("y", "z", "θ"), ("m", "m", "rad"), strict=True)):
@@ -57,7 +44,7 @@ def plot_pancake_tracking(
     axes[0].legend(fontsize=8, loc="best")
     axes[-1].set_xlabel("time [ms] (grey: end of the input; then 0.1 s deceleration)")
     fig.suptitle(f"Tracking: {result.position_rmse * 1e3:.1f} mm, {math.degrees(result.attitude_rmse):.2f}° RMSE")
-    return _save(plt, fig, path)
+    return _save(fig, path)
 
 
 def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu: float | None = None) -> Path:
@@ -71,12 +58,12 @@ def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu:
         mu: friction coefficient of the shaded cone ``|ψ| ≤ atan μ``; default the μ the run
             was judged with (``result.mu``, the ``mu`` given to :func:`~seqmotion.sim.run_pancake`).
     """
-    plt = _pyplot()
+    plt = pyplot()
     if hasattr(deformed, "states"):
         states, accel = np.asarray(deformed.states), np.asarray(deformed.accel)
     else:
         states = np.asarray(deformed)
-        accel = np.diff(states[:, 3:], axis=0) / 1e-3
+        accel = implied_accel(states)
     k = result.n_motion
     resp = result.response[:k]
     if k >= 2:
@@ -89,20 +76,19 @@ def plot_pancake_psi(deformed: Any, result: PancakeResult, path: str | Path, mu:
     else:
         resp_psi = np.zeros(0)
     mu = result.mu if mu is None else mu
-    check_mu(mu)
-    cone = math.atan(mu)
+    cone = cone_half_angle(check_mu(mu))
     fig, ax = plt.subplots(figsize=(6.5, 3.2))
     ax.axhspan(-cone, cone, color="tab:blue", alpha=0.15, label="friction cone")
     ax.plot(np.arange(len(accel)), psi(states, accel), "--", color="tab:blue", label="command")
     ax.plot(np.arange(len(resp_psi)), resp_psi, "-", color="tab:red", lw=1.0, label="robot (5 ms mean)")
     ax.set(xlabel="time [ms]", ylabel="arg(g − u) − θ [rad]", ylim=(-math.pi, math.pi))
     ax.legend(fontsize=8, loc="best")
-    return _save(plt, fig, path)
+    return _save(fig, path)
 
 
 def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Path:
     """Fig. 3.8: the object's path in the pan frame against the command, and the pan's path."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(9, 4))
     k = result.n_motion
     if result.command is not None:
@@ -116,7 +102,7 @@ def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Pa
         ax.legend(fontsize=8)
     rmse = "" if result.rmse is None else f"object RMSE {result.rmse * 1e3:.1f} mm"
     fig.suptitle(f"{label} {rmse}".strip())
-    return _save(plt, fig, path)
+    return _save(fig, path)
 
 
 def snapshot_steps(result: PancakeResult, n_snapshots: int = 6) -> list[int]:
@@ -152,7 +138,7 @@ def plot_snapshot_rows(rows: list[tuple[str, list[str], np.ndarray]], path: str 
             :func:`~seqmotion.sim.render.write_strip` wrote (frames side by side, 6 px apart, one per label).
         path: the PNG to write.
     """
-    plt = _pyplot()
+    plt = pyplot()
     width = max(strip.shape[1] for _, _, strip in rows) / 100
     fig, axes = plt.subplots(len(rows), 1, figsize=(width, sum(s.shape[0] for _, _, s in rows) / 100 + 0.9 * len(rows)),
                              squeeze=False)
@@ -166,4 +152,4 @@ def plot_snapshot_rows(rows: list[tuple[str, list[str], np.ndarray]], path: str 
             colour = "tab:red" if ": off" in label else "tab:green"
             ax.text((i * (frame + 6) + frame / 2) / w, 0.97, label, transform=ax.transAxes, ha="center",
                     va="top", fontsize=13, color=colour, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
-    return _save(plt, fig, path)
+    return _save(fig, path)

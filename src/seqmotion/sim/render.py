@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ..io import atomic_path, pyplot, save_figure
 from .backend import import_mujoco
 
 
@@ -114,8 +115,6 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: float = 30.0) -
     """Encode ``frames`` (H, W, 3) uint8 as an H.264 MP4 at ``fps``."""
     import imageio.v2 as imageio
 
-    from ..training.checkpoint import atomic_path
-
     path = Path(path)
     if not frames:
         raise ValueError("no frames to write")
@@ -128,8 +127,6 @@ def write_video(frames: list[np.ndarray], path: str | Path, fps: float = 30.0) -
 
 def write_strip(frames: list[np.ndarray], path: str | Path, labels: list[str] | None = None) -> Path:
     """Save frames side by side as one PNG (a snapshot strip), optionally with a label under each."""
-    from ..training.checkpoint import atomic_path
-
     path = Path(path)
     if not frames:
         raise ValueError("no frames to write")
@@ -141,11 +138,7 @@ def write_strip(frames: list[np.ndarray], path: str | Path, labels: list[str] | 
         with atomic_path(path) as tmp:
             imageio.imwrite(tmp, strip)
         return path
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     h, w = strip.shape[:2]
     fig = plt.figure(figsize=(w / 100, h / 100 + 0.35), dpi=100)
     ax = fig.add_axes((0, 0.35 / (h / 100 + 0.35), 1, 1 - 0.35 / (h / 100 + 0.35)))
@@ -154,7 +147,4 @@ def write_strip(frames: list[np.ndarray], path: str | Path, labels: list[str] | 
     width = frames[0].shape[1] + gap.shape[1]
     for i, label in enumerate(labels):
         fig.text((i * width + frames[0].shape[1] / 2) / w, 0.02, label, ha="center", va="bottom", fontsize=10)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, close=True, dpi=100)

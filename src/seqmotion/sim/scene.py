@@ -29,7 +29,7 @@ inside the reach). Arm links do not collide with anything; only the tool surface
 and the manipulated objects do.
 
 Contact model (chosen so that MuJoCo's friction is the Coulomb friction of the 2-D models;
-the calibration is in ``tests/test_sim_physics.py`` and ``benchmarks/RESULTS_sim.md``):
+the calibration is in ``benchmarks/RESULTS_sim.md``):
 
 * ``cone="elliptic"``: an isotropic Coulomb cone ``|f_t| ≤ μ f_n``, the cone of eq. 2.6 and of
   the sliding model (a pyramidal cone would make friction direction dependent).

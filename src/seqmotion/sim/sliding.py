@@ -5,13 +5,12 @@ with PD + DOB (:func:`seqmotion.sim.arm.execute`); measures the object's path in
 against the command, the pan's excursion, and whether the object fell off or tipped.
 
 Two ways the arm differs from the 2-D model a plan is made in, and what to do about them
-(issue 32; measured in ``benchmarks/bench_refine_arm.py``):
+(``benchmarks/bench_refine_arm.py`` measures both):
 
-* **friction** — the simulated object–pan contact has μ = μ' = 0.5 (:data:`ARM_FRICTION`), the
-  planner's nominal physics μ = 1.0, μ' = 0.5. A plan refined at one friction exploits it: the
-  README's 5 cm line refined at μ = 1 tracks 1.7 mm in 2-D and 19 mm on the arm, refined at
-  :data:`ARM_FRICTION` 1.9 mm and 2.0 mm. Plan and refine for the arm at
-  ``**ARM_FRICTION`` (``seqmotion plan --mu 0.5 --mu-dyn 0.5``).
+* **friction** — the simulated object–pan contact has μ = μ' = 0.5 (:data:`ARM_PHYSICS`), the
+  planner's nominal physics μ = 1.0, μ' = 0.5. A plan refined at one friction exploits it, and
+  tracks an order of magnitude worse on the arm than in 2-D. Plan and refine for the arm at
+  :data:`ARM_PHYSICS` (``planner.plan(line, mu=0.5, mu_dyn=0.5)``, ``seqmotion plan --mu 0.5 --mu-dyn 0.5``).
 * **the pan's wall** — the 2-D object is a point on an unbounded pan; the arm's object is a
   cylinder of radius 3 cm in a pan of radius 12 cm, so its centre stays within
   :data:`WALL_CLEARANCE` (9 cm) of the pan's centre. The 2-D physics is the same wherever on the
@@ -31,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from ..data.trajectories import tracking_rmse
+from ..physics.sliding import SlidingPhysics
 from .arm import (
     ExecutionLog,
     Media,
@@ -38,7 +39,6 @@ from .arm import (
     execute,
     first_true,
     prepare_reference,
-    rmse,
     single_trajectory,
 )
 from .control import Gains, resolve_gains
@@ -47,9 +47,10 @@ from .scene import MU_OBJECT, OBJECT_HALF_HEIGHT, OBJECT_MASS, OBJECT_RADIUS, PA
 
 TIP_ANGLE = np.pi / 4
 """The object counts as tipped once its axis is further than this from the pan's normal [rad]."""
-ARM_FRICTION = {"mu": MU_OBJECT, "mu_dyn": MU_OBJECT}
-"""The friction of the simulated object–pan contact (μ = μ' = 0.5): give it to ``plan`` /
-``refine_plan`` (``**ARM_FRICTION``) for a plan that :func:`run_sliding` is to execute."""
+ARM_PHYSICS = SlidingPhysics(mu=MU_OBJECT, mu_dyn=MU_OBJECT)
+"""The friction of the simulated object–pan contact (μ = μ' = 0.5): plan and refine at it
+(``mu=ARM_PHYSICS.mu, mu_dyn=ARM_PHYSICS.mu_dyn``) a plan that :func:`run_sliding` is to execute."""
+ARM_FRICTION = ARM_PHYSICS.to_dict()  # the same as keywords: refine_plan(planner, command, **ARM_FRICTION)
 WALL_CLEARANCE = PAN_RADIUS - OBJECT_RADIUS
 """Farthest the object's centre gets from the pan's centre before its side touches the wall [m]."""
 
@@ -172,7 +173,7 @@ def run_sliding(
 
     The command is ``q = [x_p + 0.65, y_p, 0.3, 0, π/2, 0]`` (eq. 3.28), with the pan states'
     velocities and accelerations fed forward, then ``decel_time`` of constant deceleration and
-    ``hold_time`` at rest. The object (cylinder, μ = μ' = 0.5: plan at :data:`ARM_FRICTION`) starts
+    ``hold_time`` at rest. The object (cylinder, μ = μ' = 0.5: plan at :data:`ARM_PHYSICS`) starts
     at rest at the first commanded object position, placed on the pan at ``origin``.
 
     Args:
@@ -268,7 +269,7 @@ def _sliding_metrics(
         if target_xy is None:
             return None
         k = min(k_motion, target_xy.shape[0])
-        return rmse(path[:k] - target_xy[:k, :2])
+        return tracking_rmse(path[:k], target_xy[:k, :2])
 
     return SlidingResult(
         time=np.arange(n) * ref.dt,
@@ -281,7 +282,7 @@ def _sliding_metrics(
         origin=np.asarray(origin, dtype=np.float64),
         rmse=rmse_to(target),
         rmse_plan=rmse_to(plan_rel) if (plan_rel is not None) else None,
-        pan_rmse=rmse(pan_resp[:k_motion] - pan_cmd[:k_motion]),
+        pan_rmse=tracking_rmse(pan_resp[:k_motion], pan_cmd[:k_motion]),
         pan_excursion=float(np.linalg.norm(pan_resp - pan_resp[:1], axis=1).max(initial=0.0)),
         pan_range=np.abs(ref.pos[: ref.n_motion, :2] - PAN_ORIGIN[:2]).max(axis=0),
         fell_off=first_off is not None,

@@ -26,7 +26,7 @@ import torch
 
 from ..core.options import TaskOptions, check_count, check_length_range, check_positive
 from ..core.polish import ExactForm
-from ..core.results import FEASIBLE_TOLERANCE, Motion, TrustSignals, feasible_of
+from ..core.results import FEASIBLE_TOLERANCE, Motion
 from ..core.task import Task
 from ..core.trained import TrainedModel
 from ..data import pancake as inputs
@@ -42,6 +42,7 @@ from ..physics.pancake import (
     STATE_LAYOUT,
     PancakePhysics,
     cone_constraint,
+    cone_half_angle,
     violation_angle,
     violation_torch,
 )
@@ -63,26 +64,23 @@ THETA_WEIGHT = 0.1
 POLISH_NORMAL_FLOOR = 4.0
 """[m/s²] The exact polish keeps ``μ n ∓ t`` at least this, so the pancake is pressed on with ≥ 0.4 g.
 An exact motion that sits at the edge (free fall, ``n → 0``) holds in the model's physics but not on an
-arm that tracks it with any error: measured on 100 ``keep_end`` motions executed on the MuJoCo arm, a
-floor of 1e-3 m/s² kept the pancake on in 20, 4 m/s² with the smoothing below in 54."""
+arm that tracks it with any error (``benchmarks/RESULTS.md``: executed ``keep_end`` motions)."""
 POLISH_ACCEL_LIMITS = (30.0, 30.0, 300.0)
 """[m/s², m/s², rad/s²] The exact polish keeps the spatula's accelerations within these: what the MuJoCo
-arm under PD + DOB follows with the pancake on. Measured on 40 ``keep_end`` motions on the arm: those it
-lost peaked at a median 140 m/s² and 2000 rad/s², those it kept at 21 m/s² and 240 rad/s²; with limits of
-60 m/s² and 800 rad/s² it kept 30 of 40 (of 100: 80–90), with these 39 of 40. A sketch too short to end
-where it ends, at rest, within them (e.g. 0.3 m and 3 rad in 0.15 s) gets the time it needs
-(``keep_end``'s ``extend``)."""
+arm under PD + DOB follows with the pancake on (motions it lost peaked far above them; ``benchmarks/RESULTS.md``).
+A sketch too short to end where it ends, at rest, within them (e.g. 0.3 m and 3 rad in 0.15 s) gets the
+time it needs (``keep_end``'s ``extend``)."""
 POLISH_REACH = 0.40
 """[m] The exact polish keeps the spatula's (y, z) within this distance of the origin: inside the MuJoCo arm's
 workspace at every attitude (the nearest (y, z) out of reach at some θ lies 0.409 m out, on a 5 mm grid).
-Without it, 4 of 100 ``keep_end`` motions that turned the pancake over near the bottom of the workspace
-dropped the spatula below z = −0.37 m to keep the pancake pressed on, out of the arm's reach."""
+Without it, a polish that turns the pancake over near the bottom of the workspace may drop the spatula out
+of the arm's reach to keep the pancake pressed on."""
 POLISH_TRAVEL_ACCEL = (12.0, 15.0, 60.0)
 """[m/s², m/s², rad/s²] The accelerations ``keep_end`` plans a too-short sketch's time on (bang-bang, rest to
 rest): 40 %, 50 % and 20 % of the limits. The cone takes the rest — a level spatula can push the pancake
 sideways or drop it at only (9.8 − 4) m/s² — and turning over takes the most: the spatula's normal has to
-follow θ. Fitted on 300 sketches (seed 7), checked on 120 others (seed 2027): the first polish succeeds on
-~80 % (at half the limits on all three axes: 64 %), with motions no longer than after the failed tries."""
+follow θ. Fitted on sketches of one seed, checked on another's (``benchmarks/RESULTS.md``): most first
+polishes succeed, with motions no longer than after failed tries."""
 END_SPEED_TOLERANCE = 0.5
 """[m/s] The fastest |(v_y, v_z)| a motion may end with and still be executed as it is. The arm does not stop
 a motion that ends moving: ``seqmotion simulate pancake`` (:mod:`seqmotion.sim.kinematics`, §4.4.3) appends
@@ -142,10 +140,8 @@ class PancakeOptions(TaskOptions):
         alpha_shape_end: α1 on the last ``end_samples`` samples.
         end_samples: how many final samples get ``alpha_shape_end``.
         alpha_constraint: α2. The dissertation uses 10; with our likelihood (variance floor 1e-8,
-            per-sample σ) that balance leaves the constraint weak: measured on 200 held-out
-            position-type inputs, the α2 = 10 model kept 29 % of its outputs fully inside the cone,
-            and 200 fine-tuning steps at α2 = 100 / 300 / 1000 reached 74 / 90 / 95 %. A large
-            hinge weight acts as an exact penalty.
+            per-sample σ) that balance leaves the constraint weak (``benchmarks/RESULTS.md``: the share
+            of outputs inside the cone against α2). A large hinge weight acts as an exact penalty.
         variance_floor: added to every covariance before scoring (see :mod:`seqmotion.training.losses`).
         mu: the static friction coefficient μ of the cone (atan μ = 45° for μ = 1). The model is
             trained, judged, optimised and simulated at this μ.
@@ -189,13 +185,13 @@ class PancakeOptions(TaskOptions):
             check_positive(name, getattr(self, name), allow_zero=name.startswith("alpha"))
         check_count("end_samples", self.end_samples, minimum=0)
         check_positive("cone_margin", self.cone_margin, allow_zero=True)
-        if self.cone_margin >= math.atan(self.mu):
+        if self.cone_margin >= self.cone_half_angle:
             raise ValueError(f"option cone_margin ({self.cone_margin} rad) leaves no cone at mu = {self.mu}")
 
     @property
     def cone_half_angle(self) -> float:
         """atan μ [rad]: the largest |ψ| at which the pancake holds."""
-        return math.atan(self.mu)
+        return cone_half_angle(self.mu)
 
 
 @dataclass(frozen=True)
@@ -339,7 +335,7 @@ class PancakeTask(Task):
     def make_result(self, motion: Motion, model: TrainedModel) -> DeformResult:
         theta = torch.from_numpy(motion.states[:, :-1, 2])
         psi = violation_angle(theta, torch.from_numpy(motion.accel)).numpy()
-        return DeformResult(motion.states, motion.accel, motion.violation, psi, motion.latent, **motion.trust())
+        return DeformResult(motion.states, motion.accel, motion.latent, motion.violation, psi, **motion.trust())
 
     def errors(
         self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
@@ -369,31 +365,24 @@ TASK = PancakeTask()
 
 
 @dataclass
-class DeformResult(TrustSignals):
-    """A deformed trajectory (or a batch of them: a leading B axis on every field).
+class DeformResult(Motion):
+    """A deformed trajectory (or a batch of them: a leading B axis on every field): a
+    :class:`~seqmotion.core.results.Motion` with the cone angle.
 
     Attributes:
         states: ``(K, 6)`` deformed states; ``states[0]`` is the input's first state and
             ``states[k+1] = A states[k] + B accel[k]``.
         accel: ``(K-1, 3)`` the generated inputs ``u[0..K-2]`` [m/s², m/s², rad/s²].
-        violation: ``(K-1,)`` F_c per sample [rad] at the model's μ (0 where the pancake holds).
-        psi: ``(K-1,)`` the cone angle ψ per sample [rad] (Figs. 2.6, 4.3c).
         latent: ``(L·H,)`` the latent z the motion was decoded from.
-        (and :class:`~seqmotion.core.trained.TrustSignals`: ``uncertainty`` ``(K, 3)`` std of y, z, θ; ``errors``
+        violation: ``(K-1,)`` F_c per sample [rad] at the model's μ (0 where the pancake holds); ``feasible``:
+            whether max F_c ≤ 0.01 rad.
+        psi: ``(K-1,)`` the cone angle ψ per sample [rad] (Figs. 2.6, 4.3c).
+        (and :class:`~seqmotion.core.results.TrustSignals`: ``uncertainty`` ``(K, 3)`` std of y, z, θ; ``errors``
         ``shape_rmse_m``, ``end_position_error_m``, ``end_attitude_error_rad``, ``end_speed_m_s``,
         ``max_violation_rad``; ``out_of_distribution``, ``ood_reasons``; ``exact`` with ``keep_end``)
     """
 
-    states: np.ndarray
-    accel: np.ndarray
-    violation: np.ndarray
-    psi: np.ndarray
-    latent: np.ndarray
-
-    @property
-    def feasible(self) -> np.ndarray | bool:
-        """Whether max F_c ≤ 0.01 rad (per trajectory for a batch)."""
-        return feasible_of(self.violation)  # type: ignore[return-value]
+    psi: np.ndarray | None = None
 
 
 class Deformer(TrainedModel):

@@ -30,15 +30,15 @@ import numpy as np
 import torch
 
 from ..core.options import TaskOptions, check_choice, check_length_range, check_positive
-from ..core.results import Motion, TrustSignals
+from ..core.results import Motion, View
 from ..core.task import Task
 from ..core.trained import TrainedModel
 from ..data import sliding as commands
-from ..data.trajectories import TensorBatch, TrajectoryBatch
+from ..data.trajectories import TensorBatch, TrajectoryBatch, tracking_rmse
 from ..errors import as_trajectories
 from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from ..physics import sliding as contact
-from ..physics.integrator import DT
+from ..physics.integrator import DT, integrate_covariance
 from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, CurriculumParams, Stage
 from ..training.losses import encode_and_rollout, gaussian_nll_2d, masked_mean, per_trajectory, sample_mask
@@ -296,8 +296,7 @@ class SlidingTask(Task):
         return torch.cat([torch.zeros_like(inputs[:, 0]), inputs[:, 0]], dim=1)
 
     def make_result(self, motion: Motion, model: TrainedModel) -> SlidingPlan:
-        return SlidingPlan(motion.accel, motion.states[..., :4], motion.states[..., 4:], motion.latent,
-                           **motion.trust())
+        return SlidingPlan(motion.states, motion.accel, motion.latent, motion.violation, **motion.trust())
 
     def errors(
         self, inputs: np.ndarray, states: np.ndarray, accel: np.ndarray, violation: np.ndarray | None,
@@ -312,7 +311,7 @@ class SlidingTask(Task):
         command_travel = np.linalg.norm(inputs[..., :2] - inputs[:, :1, :2], axis=-1).max(axis=-1)
         travel = np.linalg.norm(rel - rel[:, :1], axis=-1).max(axis=-1)
         return {
-            "tracking_rmse_m": np.sqrt((gap**2).mean(axis=-1)),
+            "tracking_rmse_m": tracking_rmse(rel, inputs[..., :2]),
             "end_error_m": gap[:, -1],
             "end_speed_m_s": np.linalg.norm(states[:, -1, 6:8], axis=-1),
             "travel_share": travel / np.maximum(command_travel, 1e-9),
@@ -327,8 +326,6 @@ class SlidingTask(Task):
         model's ``J = ∂u_d/∂u_p`` per sample (−I sliding, 0 stuck or stopping, ``−I + μg (I − m mᵀ)/|u_p|``
         at breakaway; rebuilt from each sample's ``branch``), integrated in closed form — what
         :class:`~seqmotion.physics.sliding.SlidingDynamics` propagates chunk by chunk as ``pos_cov``."""
-        from ..core.trust import integrate_covariance
-
         branch = outputs["branch"]
         mu = torch.as_tensor(dynamics.mu, dtype=accel.dtype, device=accel.device).reshape(-1, 1, 1, 1)
         norm = accel.norm(dim=-1, keepdim=True).clamp_min(1e-12)
@@ -352,13 +349,14 @@ TASK = SlidingTask()
 
 
 @dataclass
-class SlidingPlan(TrustSignals):
-    """A planned pan motion (a leading B axis on every field for a batch).
+class SlidingPlan(Motion):
+    """A planned pan motion (a leading B axis on every field for a batch): a
+    :class:`~seqmotion.core.results.Motion` in ``PLAN_LAYOUT``, with the plan's names for its parts.
 
     Attributes:
-        pan_accel: ``(K-1, 2)`` the pan accelerations ``û_p[0..K-2]`` [m/s²].
-        pan_states: ``(K, 4)`` the pan ``[x, y, vx, vy]`` they produce, from rest at 0.
-        rel_states: ``(K, 4)`` the object relative to the pan, as the 2-D contact model predicts.
+        states: ``(K, 8)`` the pan ``[x, y, vx, vy]`` (from rest at 0) and the object relative to the pan
+            ``[x, y, vx, vy]`` as the 2-D contact model predicts; ``pan_states`` and ``rel_states`` are its halves.
+        accel: ``(K-1, 2)`` the pan accelerations ``û_p[0..K-2]`` [m/s²] (``pan_accel``).
         latent: ``(L·H,)`` the command's latent.
         uncertainty: ``(K, 2)`` the model's predicted std of the object's x, y [m] per sample (its Gaussian
             head's covariance propagated through the pan integrator and the contact model's Jacobian).
@@ -367,13 +365,11 @@ class SlidingPlan(TrustSignals):
         out_of_distribution: whether the command lies outside what the model was trained on
             (:mod:`seqmotion.core.trust`; ``(B,)`` for a batch).
         ood_reasons: which command features were out, e.g. ``["peak_speed_m_s 1.9 > 0.62"]``.
-        (the last four, and ``exact``, are :class:`~seqmotion.core.trained.TrustSignals`)
+        physics: the friction it was planned at (``SlidingPhysics``).
+        (the last five, and ``exact``, are :class:`~seqmotion.core.results.TrustSignals`)
     """
 
-    pan_accel: np.ndarray
-    pan_states: np.ndarray
-    rel_states: np.ndarray
-    latent: np.ndarray
+    views = {"pan_accel": View("accel"), "pan_states": View("states", 0, 4), "rel_states": View("states", 4, 8)}
 
 
 class SlidingPlanner(TrainedModel):

@@ -13,12 +13,9 @@ Nothing here unpickles: loading a model cannot run code. A model directory holds
 A training checkpoint adds ``optimizer.safetensors`` (Adam's moment tensors, flattened) and
 ``trainer_state.json`` (step, epoch, optimizer hyper-parameters).
 
-**Every file seqmotion writes goes through this module** (:func:`atomic_path`,
-:func:`atomic_write_bytes`, :func:`atomic_write_text`, :func:`atomic_write_json`): it is written
-to a temporary name in the same directory, flushed to disk and renamed into place, so a
-reader, or a process killed at any instant, sees the old file or the new one, never a part.
-Directories are made whole the same way: a new model directory or training checkpoint is
-written under a temporary name and renamed into place; in an existing model directory (a
+Every file is written through :mod:`seqmotion.io` (atomically: a reader, or a process killed at any
+instant, sees the old file or the new one, never a part). A new model directory or training checkpoint is
+written whole under a temporary name and renamed into place; in an existing model directory (a
 training run's top level) the weights are replaced first and the config, which names the
 weights' hash, last. A reader that meets the two in between (a run being trained) retries;
 one killed in between leaves a run whose top-level model does not verify, and
@@ -38,9 +35,6 @@ import os
 import shutil
 import stat
 import time
-import uuid
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +43,15 @@ from safetensors.torch import load as load_safetensors_bytes
 from safetensors.torch import save as save_safetensors_bytes
 
 from ..errors import CheckpointError, RunInUseError
+from ..io import (
+    TEMP_MARK,
+    atomic_path,
+    atomic_write_bytes,
+    json_bytes,
+    remove_path,
+    temp_sibling,
+    write_durable,
+)
 
 try:  # POSIX advisory locks; elsewhere a run directory is not locked
     import fcntl
@@ -67,241 +70,7 @@ HASH_FIELDS = ("format", "weights_sha256", "config_sha256")
 """Keys :func:`write_model` adds to a config (a model's own ``config_json`` leaves them out)."""
 MAX_CONFIG_BYTES = 16 * 2**20
 """A ``config.json`` larger than this is refused before it is parsed."""
-TEMP_MARK = ".tmp-"
-"""Temporary names are ``.<stem>.tmp-<pid>-<random><suffix>`` (a leading dot, so listings skip them)."""
 
-
-# --- atomic writes ----------------------------------------------------------------------------
-
-
-def temp_sibling(path: str | Path) -> Path:
-    """A fresh temporary name beside ``path`` that keeps its suffix (matplotlib and imageio pick the
-    format from it): ``dir/.<stem>.tmp-<pid>-<random><suffix>``."""
-    path = Path(path)
-    return path.with_name(f".{path.stem}{TEMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}")
-
-
-def _fsync_path(path: Path) -> None:
-    """Flush a file (or a directory tree's files) to disk. A failure (EIO, a full disk) is an error: the
-    write did not happen, and the old file stays."""
-    if path.is_dir():
-        for child in path.iterdir():
-            _fsync_path(child)
-        _fsync_dir(path)
-        return
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: Path) -> None:
-    """Flush a directory's entries (a rename) to disk; best effort (not every file system allows it)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        try:
-            path.unlink()
-        except FileNotFoundError:
-            pass
-
-
-@contextmanager
-def atomic_path(path: str | Path, *, directory: bool = False) -> Iterator[Path]:
-    """Write ``path`` atomically through a temporary path: ``with atomic_path(p) as tmp: fig.savefig(tmp)``.
-
-    Yields a temporary path in ``path``'s directory (with ``path``'s suffix). When the block
-    ends without an exception, the temporary is flushed to disk and renamed to ``path``
-    (replacing a file there); when it raises, the temporary is removed and ``path`` is left as
-    it was. Parent folders are created.
-
-    Args:
-        directory: the temporary is a directory (created for the block) that replaces ``path``,
-            which must not exist or be an empty directory.
-
-    Raises:
-        ValueError: ``path`` is an existing directory (files), or a non-empty directory (directories).
-    """
-    path = Path(path)
-    if not directory and path.is_dir():
-        raise ValueError(f"cannot write {path}: it is a directory")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_sibling(path)
-    if directory:
-        tmp.mkdir()
-    try:
-        yield tmp
-        if not tmp.exists():
-            raise FileNotFoundError(f"nothing was written to the temporary {tmp} of {path}")
-        _fsync_path(tmp)
-        try:
-            os.replace(tmp, path)
-        except OSError as exc:
-            if directory and path.is_dir() and any(path.iterdir()):
-                raise ValueError(f"cannot write the directory {path}: it exists and is not empty") from None
-            raise exc
-    except BaseException:
-        _remove(tmp)
-        raise
-    _fsync_dir(path.parent)
-    _remove_orphans(path)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # exists, but not ours to signal
-        return True
-    return True
-
-
-def _remove_orphans(path: Path) -> None:
-    """Remove temporaries of ``path`` that killed writers left (their process is gone)."""
-    prefix = f".{path.stem}{TEMP_MARK}"
-    try:
-        entries = [e for e in path.parent.iterdir() if e.name.startswith(prefix) and e.name.endswith(path.suffix)]
-    except OSError:
-        return
-    for entry in entries:
-        pid = entry.name[len(prefix) :].split("-", 1)[0]
-        if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
-            _remove(entry)
-
-
-def _retire(target: Path, aside: Path) -> None:
-    """Remove the set-aside old folder: renamed to a temporary name first, so that a kill during the removal
-    leaves a temporary (removed by the next call), never a half-deleted folder under the aside name."""
-    doomed = temp_sibling(target)
-    try:
-        os.replace(aside, doomed)
-    except OSError:  # the new bundle is in place: removing the old one is best effort
-        doomed = aside
-    _remove(doomed)
-
-
-def replace_directory(target: Path, files: dict[str, bytes], aside: Path) -> None:
-    """Replace the folder ``target`` by one holding ``files`` (name → bytes), whole: a kill at any point leaves
-    the old folder or the new one (between the two renames, the old one at ``aside``, which a reader may look
-    for; the next call puts it back first). Whatever ``target`` held is removed: the caller checks it may be.
-
-    Steps: (0) a kill of an earlier call is repaired (the old folder at ``aside`` goes back into place if
-    ``target`` is missing, or is removed if ``target`` is the complete new one; temporaries are removed);
-    (1) the files are written into a temporary sibling and flushed; (2) ``target`` is renamed to ``aside``;
-    (3) the temporary is renamed to ``target``; (4) the old folder is removed. An exception in (1)-(3)
-    restores the old folder.
-
-    Raises:
-        OSError: a write, flush or rename failed (the old folder is left as it was).
-    """
-    target = Path(target)
-    if aside.is_dir():
-        if target.exists():
-            _retire(target, aside)  # killed after the new bundle was in place
-        else:
-            os.replace(aside, target)  # killed between the renames: the old bundle goes back first
-    _remove_orphans(target)
-    tmp = temp_sibling(target)
-    tmp.mkdir(parents=True)
-    try:
-        for name, data in files.items():
-            _write_durable(tmp / name, data)
-        _fsync_path(tmp)
-        if target.exists():
-            os.replace(target, aside)
-        try:
-            os.replace(tmp, target)
-        except BaseException:
-            if aside.exists() and not target.exists():
-                os.replace(aside, target)
-            raise
-    except BaseException:
-        _remove(tmp)
-        raise
-    _fsync_dir(target.parent)
-    if aside.exists():
-        _retire(target, aside)
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` so readers see the old file or the new one, never a mix."""
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(data)
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """:func:`atomic_write_bytes` for UTF-8 text (reports, tables, cards)."""
-    atomic_write_bytes(path, text.encode())
-
-
-def atomic_write_json(path: str | Path, data: Any) -> None:
-    atomic_write_bytes(path, (json.dumps(data, indent=2, sort_keys=True) + "\n").encode())
-
-
-def save_figure(figure: Any, path: str | Path, **savefig: Any) -> Path:
-    """Save a matplotlib figure to ``path`` atomically (matplotlib picks the format from the suffix)."""
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, **savefig)
-    return path
-
-
-def check_writable(path: str | Path, suffixes: tuple[str, ...] | None = None, what: str = "output") -> Path:
-    """Refuse, before any work, an output path that cannot be written (``ValueError`` naming it).
-
-    Checks the suffix (if ``suffixes``), that ``path`` is not a directory, and that the nearest
-    existing folder above it is a writable folder (by creating and removing a temporary file
-    there: permissions, read-only file systems and a file in the way all show). Nothing is
-    created.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{what} {path} is a directory, not a file")
-    if suffixes is not None and path.suffix.lower() not in suffixes:
-        kind = path.suffix or "(none)"
-        raise ValueError(f"{what} {path}: unsupported file type {kind!r} (use {', '.join(suffixes)})")
-    return check_writable_dir(path.parent, what, path)
-
-
-def check_writable_dir(directory: str | Path, what: str = "output directory", shown: str | Path | None = None) -> Path:
-    """Refuse a folder that cannot be created or written into (``ValueError``); nothing is created."""
-    directory = Path(directory) if str(directory) else Path(".")
-    shown = directory if shown is None else shown
-    existing = directory
-    while not existing.exists():
-        if existing.parent == existing:
-            break
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"cannot write {what} {shown}: {existing} is not a directory")
-    probe = existing / f".seqmotion-write-test{TEMP_MARK}{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
-        with open(probe, "xb"):
-            pass
-    except OSError as exc:
-        raise ValueError(f"cannot write {what} {shown}: {existing} is not writable ({exc.strerror})") from None
-    finally:
-        try:
-            probe.unlink()
-        except OSError:
-            pass
-    return Path(shown)
 
 
 def remove_stale_temporaries(directory: str | Path) -> list[Path]:
@@ -315,7 +84,7 @@ def remove_stale_temporaries(directory: str | Path) -> list[Path]:
             continue
         for entry in folder.iterdir():
             if entry.name.startswith(".") and TEMP_MARK in entry.name:
-                _remove(entry)
+                remove_path(entry)
                 removed.append(entry)
     return removed
 
@@ -443,17 +212,6 @@ def seal_config(config: dict, weights: bytes) -> dict:
     return sealed
 
 
-def _write_durable(path: Path, data: bytes) -> None:
-    """Write a file inside a temporary directory of :func:`atomic_path` (which flushes it to disk before
-    renaming the directory whole)."""
-    with open(path, "wb") as f:
-        f.write(data)
-
-
-def _json_bytes(data: Any) -> bytes:
-    return (json.dumps(data, indent=2, sort_keys=True) + "\n").encode()
-
-
 def write_model(directory: str | Path, state_dict: dict[str, torch.Tensor], config: dict) -> None:
     """Write ``model.safetensors`` and ``config.json`` (sealed with both hashes) into ``directory``.
 
@@ -463,12 +221,12 @@ def write_model(directory: str | Path, state_dict: dict[str, torch.Tensor], conf
     """
     directory = Path(directory)
     blob = _tensors_bytes(state_dict)
-    config_bytes = _json_bytes(seal_config(config, blob))
+    config_bytes = json_bytes(seal_config(config, blob))
     if not directory.exists():
         try:
             with atomic_path(directory, directory=True) as tmp:
-                _write_durable(tmp / WEIGHTS, blob)
-                _write_durable(tmp / CONFIG, config_bytes)
+                write_durable(tmp / WEIGHTS, blob)
+                write_durable(tmp / CONFIG, config_bytes)
             return
         except ValueError:  # another writer made the directory meanwhile: fall through
             if not directory.is_dir():
@@ -663,10 +421,10 @@ def write_training_checkpoint(
     opt_tensors, opt_meta = _flatten_optimizer(optimizer_state)
     stale = None
     with atomic_path(final, directory=True) as tmp:
-        _write_durable(tmp / WEIGHTS, blob)
-        _write_durable(tmp / CONFIG, _json_bytes(seal_config(config, blob)))
-        _write_durable(tmp / OPTIMIZER, _tensors_bytes(opt_tensors))
-        _write_durable(tmp / TRAINER_STATE, _json_bytes({**trainer_state, "optimizer": opt_meta}))
+        write_durable(tmp / WEIGHTS, blob)
+        write_durable(tmp / CONFIG, json_bytes(seal_config(config, blob)))
+        write_durable(tmp / OPTIMIZER, _tensors_bytes(opt_tensors))
+        write_durable(tmp / TRAINER_STATE, json_bytes({**trainer_state, "optimizer": opt_meta}))
         if final.exists():  # the same step written again: move the old one aside just before the new one goes in
             stale = temp_sibling(final)
             os.replace(final, stale)

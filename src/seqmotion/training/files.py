@@ -26,7 +26,7 @@ from typing import IO
 import numpy as np
 
 from ..errors import MAX_LENGTH
-from .checkpoint import atomic_write_bytes, check_writable
+from ..io import atomic_write_bytes, atomic_write_npz, check_writable
 
 TRAJECTORY_SUFFIXES = (".npz", ".csv")
 """File types :func:`read_trajectory` reads and :func:`write_arrays` writes."""
@@ -334,11 +334,8 @@ def write_arrays(
     path = Path(path)
     if path.suffix.lower() not in TRAJECTORY_SUFFIXES:
         raise ValueError(f"unsupported output {path} (use .npz or .csv)")
-    buffer = io.BytesIO()
     if path.suffix.lower() == ".npz":
-        np.savez(buffer, **columns)
-        atomic_write_bytes(path, buffer.getvalue())
-        return path
+        return atomic_write_npz(path, columns)
     names = names or {}
     lengths = [len(v) for v in columns.values() if np.ndim(v) >= 1]
     if not lengths:
@@ -358,6 +355,7 @@ def write_arrays(
             header += given
         else:
             header += [f"{name}{i}" if value.shape[1] > 1 else name for i in range(value.shape[1])]
+    buffer = io.BytesIO()
     np.savetxt(buffer, np.hstack(blocks), delimiter=",", header=",".join(header), comments="")
     atomic_write_bytes(path, buffer.getvalue())
     return path

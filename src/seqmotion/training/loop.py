@@ -47,6 +47,7 @@ from typing import Any
 import torch
 
 from ..errors import CheckpointError
+from ..io import atomic_write_bytes
 from . import checkpoint as ckpt
 
 METRICS = "metrics.csv"
@@ -97,7 +98,7 @@ class MetricsLog:
             writer.writeheader()
             writer.writerows(rows)
         # a fresh run replaces what an earlier run left there, like opening with "w" did
-        ckpt.atomic_write_bytes(self.path, buffer.getvalue().encode())
+        atomic_write_bytes(self.path, buffer.getvalue().encode())
         self._file = open(self.path, "a", newline="")
         self._writer: csv.DictWriter | None = None
         if self._fields:

@@ -23,6 +23,7 @@ from typing import Any, ClassVar, TypeVar
 
 import torch
 
+from ..io import atomic_path, atomic_write_bytes, check_writable_dir
 from . import checkpoint as ckpt
 
 M = TypeVar("M", bound="PretrainedModel")
@@ -162,14 +163,12 @@ def export_pretrained(
         ValueError: ``name`` is not one plain folder name (``"../x"``, ``".hidden"``, ``"a/b"``),
             ``source`` is not a model directory, or ``root`` cannot be written.
     """
-    from .checkpoint import atomic_path, atomic_write_bytes
-
     check_pretrained_name(name)
     source, target = Path(source), Path(root) / name
     for file in (ckpt.WEIGHTS, ckpt.CONFIG):
         if not (source / file).is_file():
             raise ValueError(f"{source} has no {file}: not a model directory")
-    ckpt.check_writable_dir(Path(root), "pretrained folder")
+    check_writable_dir(Path(root), "pretrained folder")
     card = model.model_card(name, metrics, notes, (source / ckpt.WEIGHTS).stat().st_size / 1e6, measured)
     if not target.exists():  # a new model appears whole (weights, config and card) or not at all
         with atomic_path(target, directory=True) as tmp:

@@ -26,14 +26,13 @@ losses of the single-process run of the same command. What differs is floating-p
 rounding only: the gradient is the mean of N per-rank means summed by the all-reduce
 instead of one mean over the batch, and the kernels run on N-times smaller batches, which
 may round differently; weights agree to float32 rounding after a step and drift apart
-slowly over many steps (``tests/test_training.py`` checks a 2-rank run against one process:
-~6e-8 apart after an epoch of the tiny preset). The logged terms are means of the per-rank
-means. Other draws from the coins generator (``bernoulli``, ``Tensor.uniform_``) are per rank.
+slowly over many steps. The logged terms are means of the per-rank means. Other draws from the
+coins generator (``bernoulli``, ``Tensor.uniform_``) are per rank.
 Rank 0 writes checkpoints and logs.
 
 **Run directories.** A training locks its run directory while it writes there (a second
 training into it is refused by name), and removes what a killed run left half-written.
-Every write is atomic (:mod:`.checkpoint`): a kill at any instant leaves the previous
+Every write is atomic (:mod:`seqmotion.io`, :mod:`.checkpoint`): a kill at any instant leaves the previous
 checkpoint, ``latest`` and ``metrics.csv`` intact, ``sm.load(run)`` always loads a complete
 model (the run's latest checkpoint when the top-level model was being replaced), and
 rerunning the command resumes bit for bit and rewrites a top-level model the kill left stale.
@@ -53,6 +52,7 @@ from torch.overrides import TorchFunctionMode
 from tqdm import tqdm
 
 from ..errors import check_number
+from ..io import check_writable_dir
 from . import checkpoint as ckpt
 from .config import TrainConfig
 from .device import backend_for, process_device, resolve_device
@@ -168,7 +168,7 @@ def train(
         raise ValueError(f"batch_size {config.batch_size} is not divisible by {world} processes")
     run_dir = Path(run_dir)
     if rank == 0:
-        ckpt.check_writable_dir(run_dir, "run directory")
+        check_writable_dir(run_dir, "run directory")
 
     torch.manual_seed(config.seed)
     model = task.build_model(config)
@@ -177,8 +177,7 @@ def train(
     curriculum = task.curriculum(config)
     total = curriculum.epochs * config.batches_per_epoch
     loop = TrainingLoop(
-        model, list(model.parameters()), lr=config.lr, total_steps=total,
-        lr_final_fraction=config.lr_final_fraction, grad_clip=config.grad_clip, run_dir=run_dir,
+        model, list(model.parameters()), **config.loop_settings(), total_steps=total, run_dir=run_dir,
         identity={"training": config.to_dict(), **({"init_from": start} if start else {})},
         ignore=CADENCE + ("init_from.path",), keep_checkpoints=config.keep_checkpoints,
         writer=rank == 0, reduce_gradients=(lambda params: _average_gradients(params, world)) if world > 1 else None,

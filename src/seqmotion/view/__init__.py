@@ -5,7 +5,9 @@ friction-cone band, the trust signals, ``keep_end``, latent adjustment toward a 
 replay of the MuJoCo arm, export as CSV/NPZ or MP4), **Sliding** (a command path → the planned pan
 motion and the object's path under chosen friction), **Latent space** (sliders over the main PCA
 directions of a model's latents, decoded live; the pushing model's images and ẑ clusters), and for
-any other task (a plug-in) a generic panel built from its state layout.
+any other registered task (a plug-in with its own physics too) a panel built from its layouts: its
+example inputs (``Task.example_inputs``), every state and output field over time, its constraint, the
+path of its first two metre fields where it has them, and export. Only the built-in tasks have a 3-D scene.
 
 What is drawn is computed by plain classes in :mod:`.sessions` (testable without a browser); the
 viser layer (:mod:`.app`, imported only when the server starts) only moves their arrays to the page.

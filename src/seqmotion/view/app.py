@@ -28,6 +28,7 @@ from .sessions import (
     SlidingControls,
     SlidingFrame,
     SlidingSession,
+    TaskFrame,
     TaskSession,
 )
 
@@ -631,7 +632,8 @@ class SlidingPanel:
                                              ("·2σ y [mm]", "#c6dbef")]),
                 title="tracking error and predicted std", aspect=1.6, scales=NUMERIC_X)
             self.accel_plot = gui.add_uplot(
-                (k, k, k), _uplot_series([("pan u_x [m/s²]", "#ff7f0e"), ("pan u_y [m/s²]", "#9467bd")]),
+                (k, k, k), _uplot_series(list(zip(session.model.accel_layout.labels(), ("#ff7f0e", "#9467bd"),
+                                                  strict=True))),
                 title="planned pan acceleration", aspect=1.6, scales=NUMERIC_X)
             _replay_and_export(self, gui, app, speed=0.5, export="Export plan", video=False)
         self.root = self.server.scene.add_frame("/sliding", show_axes=False)
@@ -744,45 +746,72 @@ class SlidingPanel:
 
 
 class TaskPanel:
-    """Any task: inputs from its generator, the generated motion field by field (layout names), its path."""
+    """Any task (a plug-in with its own physics too): its example inputs, the generated motion field by field (the
+    layouts' names and units, the decoder's outputs too), the path of its first two metre fields where it has
+    them, its constraint and trust signals, and export. No 3-D scene: only the built-in tasks have one."""
 
     def __init__(self, app: ViewerApp, tab: Any, session: TaskSession) -> None:
         self.app, self.session, self.server = app, session, app.server
         self.worker = Worker("task", app.error)
         self.root = None
         self.arm = None
-        gui = self.server.gui
+        self.frame: TaskFrame | None = None
+        gui, declare = self.server.gui, app.controls.declare
         fields = session.fields
+        name = session.model.task_def.name
         with tab:
-            gui.add_markdown(f"Task `{session.model.task_def.name}`: inputs drawn from its own training generator, "
-                             "and what the model generates from each (fields by the task's state layout).")
-            self.index = app.controls.declare(gui.add_slider("input #", 0, len(session.inputs) - 1, 1, 0))
-            self.field = app.controls.declare(gui.add_dropdown("field", fields, initial_value=fields[0]))
+            gui.add_markdown(f"Task `{name}`: inputs like those it trains on (its `example_inputs`), and what the "
+                             "model generates from each, field by field as the task's layouts name them.")
+            self.index = declare(gui.add_slider("input #", 0, len(session.inputs) - 1, 1, 0))
+            self.field = declare(gui.add_dropdown("field", fields, initial_value=fields[0]))
             self.readout = gui.add_markdown("computing…")
-            self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="path", format="png")
+            self.path_image = gui.add_image(np.full((330, 440, 3), 255, np.uint8), label="path", format="png",
+                                            visible=session.path is not None)
             k = np.arange(2, dtype=float)
             self.plot = gui.add_uplot((k, k, k), _uplot_series([("input", "#8c8c8c"), ("generated", "#1f77b4")]),
                                       title="the chosen field over time", aspect=1.6, scales=NUMERIC_X)
+            self.violation_plot = gui.add_uplot(
+                (k, k, k), _uplot_series([("violation", "#d62728"), ("·limit", "#2ca02c")]),
+                title="the task's constraint violation", aspect=1.6, scales=NUMERIC_X, visible=False)
+            with gui.add_folder("Export"):
+                self.format = declare(gui.add_dropdown("format", ("csv", "npz"), initial_value="csv"))
+                self.export_button = gui.add_button("Export motion")
+                self.export_readout = gui.add_markdown("")
         for control in (self.index, self.field):
             control.on_update(lambda e: self.worker.submit(self._redraw, e.client_id))
+        self.export_button.on_click(lambda e: self.worker.submit(self._export, e.client_id))
         self.worker.submit(self._redraw)
 
     def _redraw(self) -> None:
         start = time.perf_counter()
-        frame = self.session.update(self.app.controls.read(self.index))
+        frame = self.frame = self.session.update(self.app.controls.read(self.index))
         name = self.app.controls.read(self.field)
         gen, inp = frame.series(name)
-        unit = frame.state_units[frame.state_names.index(name)]
+        t = frame.time[: len(gen)]
         with self.server.atomic():
-            self.readout.content = frame.readout() + f"\n\nplotted: **{name}** [{unit}]"
-            self.plot.data = (frame.time, gen if inp is None else inp, gen)
-            if frame.state_path is not None:
+            self.readout.content = frame.readout() + f"\n\nplotted: **{name}** [{frame.unit(name)}]"
+            self.plot.data = (t, gen if inp is None else inp, gen)
+            if frame.state_path is not None and frame.path_names is not None:
                 lines = [figures.Line(frame.state_path, figures.BLUE, "generated")]
                 if frame.input_path is not None:
                     lines.insert(0, figures.Line(frame.input_path, figures.GREY, "input", dashed=True))
-                self.path_image.image = figures.path_figure(lines, "first metre field", "second")
+                self.path_image.image = figures.path_figure(lines, *frame.path_names)
             self.path_image.visible = frame.state_path is not None
+            if frame.violation is not None:
+                # no tolerance named: the second series repeats the violation (uPlot draws no NaN line)
+                limit = frame.violation if frame.violation_limit is None else np.full(len(frame.violation),
+                                                                                      frame.violation_limit)
+                self.violation_plot.data = (frame.time[: len(frame.violation)], frame.violation, limit)
+            self.violation_plot.visible = frame.violation is not None
         self.app.record("task.redraw", time.perf_counter() - start)
+
+    def _export(self) -> None:
+        if self.frame is None:
+            return
+        frame, fmt = self.frame, self.app.controls.read(self.format)
+        name = f"{self.session.model.task_def.name}-input{frame.index}.{fmt}"
+        path = self.app.export_file(name, lambda p: self.session.export(frame, p))
+        self.export_readout.content = f"wrote `{path}` ({len(frame.states)} samples; also sent to the browser)"
 
 
 class LatentPanel:
@@ -860,25 +889,22 @@ class LatentPanel:
         point = np.array(coords[:2])
         lines = []
         if frame.path is not None:
-            near = session.inputs[frame.nearest, : session.lengths[frame.nearest]]
-            pf = [session.model.input_layout.names.index(n) for n in ("y", "z", "x")
-                  if n in session.model.input_layout.names][:2]
-            if len(pf) == 2:
-                lines.append(figures.Line(near[:, pf], figures.GREY, f"nearest encoded input #{frame.nearest}",
-                                          dashed=True))
+            near = session.input_path(frame.nearest)
+            if near is not None:
+                lines.append(figures.Line(near, figures.GREY, f"nearest encoded input #{frame.nearest}", dashed=True))
             lines.append(figures.Line(frame.path, figures.BLUE, "decoded"))
         names = frame.state_names[:3]
         with self.server.atomic():
             for i, s in enumerate(self.sliders):
                 s.visible = i < len(session.pca.std)
             self.readout.content = frame.readout(session.pca) + f" Fields 1–3: {', '.join(names)}."
-            if lines:
-                self.path_image.image = figures.path_figure(lines, "x" if "x" in names else "y",
-                                                            "y" if "x" in names else "z")
+            if lines and frame.path_names is not None:
+                self.path_image.image = figures.path_figure(lines, *frame.path_names)
             self.path_image.visible = bool(lines)
             self.scatter.image = scatter_figure(scores[:, :2], None, point)
             self.webcam.visible = False
-            self.plot.data = (frame.time, *(frame.states[:, i] for i in range(3)))
+            self.plot.data = (frame.time, *(frame.states[:, i] if i < frame.states.shape[1] else
+                                            np.zeros(len(frame.time)) for i in range(3)))
             if not self.plot.visible:
                 self.plot.visible = True
 

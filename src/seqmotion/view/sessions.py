@@ -12,10 +12,13 @@ moving a slider back to where it was costs nothing.
   one update at a time so the page shows each); export as CSV or NPZ.
 * :class:`SlidingSession` — a command path (:mod:`.commands`) and friction (μ, μ') → the planned pan
   motion, the object's path and the tracking error over time.
-* :class:`TaskSession` — any task (a plug-in too): inputs from the task's own generator, the generated
-  motion, every state field's time series and the path of its first two metre fields, by layout name.
-* :class:`LatentSession` — the main PCA directions of the latents of a data set; a point in them
-  decodes live. :class:`PushingLatentSession` does the same for the pushing model's 8-number ẑ.
+* :class:`TaskSession` — any task (a plug-in with its own physics too): inputs like those it trains on
+  (``Task.example_inputs``), the generated motion, every state and output field's time series and the
+  path of its first two metre fields, its constraint and trust signals, by the layouts' names; export.
+* :class:`LatentSession` — the main PCA directions of the latents of a task's example inputs; a point in
+  them decodes live. :class:`PushingLatentSession` does the same for the pushing model's 8-number ẑ.
+
+Every array a frame exports is named by the task's layouts (:func:`seqmotion.core.results.columns_of`).
 """
 
 from __future__ import annotations
@@ -31,7 +34,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.trust import training_inputs
+from ..core.results import columns_of
+from ..physics.integrator import DT
+from ..physics.layout import StateLayout
 from ..physics.pancake import violation_angle
 from . import commands
 
@@ -65,22 +70,34 @@ def _float_errors(errors: dict[str, Any] | None) -> dict[str, float]:
     return {k: float(np.asarray(v)) for k, v in (errors or {}).items()}
 
 
-def format_trust(errors: dict[str, float], ood: bool | None, reasons: list | None, std_end: dict[str, float],
-                 tolerances: dict[str, float] | None = None) -> list[str]:
+ERROR_UNITS = (("_m_s", 1000.0, "mm/s"), ("_m", 1000.0, "mm"), ("_rad_s", 1.0, "rad/s"), ("_rad", 1.0, "rad"))
+"""How an error's name ends → the factor and unit it is shown in (``Task.errors`` names carry their SI unit)."""
+
+
+def std_at_end(std: np.ndarray | None, model: Any) -> dict[str, tuple[float, str]]:
+    """The predicted std of the last sample by field: name → (value, unit) (:attr:`TrainedModel.uncertainty_names`)."""
+    if std is None:
+        return {}
+    return {name: (float(v), unit) for name, unit, v in zip(model.uncertainty_names, model.uncertainty_units,
+                                                             std[-1], strict=False)}
+
+
+def format_trust(errors: dict[str, float], ood: bool | None, reasons: list | None,
+                 std_end: dict[str, tuple[float, str]], tolerances: dict[str, float] | None = None) -> list[str]:
     """Markdown lines for the trust signals: each error (⚠ beyond its tolerance), the predicted std at the
-    end, and the out-of-distribution flag with its reasons."""
+    end (``std_end``: field → (value, unit); metres shown in mm), and the out-of-distribution flag with its
+    reasons."""
     tolerances = tolerances or {}
     lines = []
     for name, value in errors.items():
-        unit = "mm" if name.endswith("_m") else ("mm/s" if name.endswith("_m_s") else "")
-        shown = f"{1000 * value:.1f} {unit}" if unit else (f"{value:.4f} rad" if name.endswith("_rad") else
-                                                            f"{value:.3g}")
+        suffix, scale, unit = next((u for u in ERROR_UNITS if name.endswith(u[0])), ("", 1.0, ""))
+        shown = f"{scale * value:.{1 if scale > 1 else 4}f} {unit}" if unit else f"{value:.3g}"
         flag = " ⚠" if name in tolerances and value > tolerances[name] else ""
-        label = name.removesuffix("_m_s").removesuffix("_m").removesuffix("_rad").replace("_", " ")
+        label = name.removesuffix(suffix).replace("_", " ")
         lines.append(f"- {label}: **{shown}**{flag}")
     if std_end:
         lines.append("- predicted std at the end: " + ", ".join(
-            f"{k} {1000 * v:.1f} mm" if k not in ("theta",) else f"{k} {v:.3f} rad" for k, v in std_end.items()))
+            f"{k} {1000 * v:.1f} mm" if unit == "m" else f"{k} {v:.3g} {unit}" for k, (v, unit) in std_end.items()))
     if ood is None:
         lines.append("- out of distribution: not judged")
     elif ood:
@@ -146,6 +163,8 @@ class PancakeFrame:
     tolerances: dict[str, float] = field(default_factory=dict)
     objective: float | None = None
     """With a target: the objective J1 (end error² + the cone's penalty) of this motion."""
+    std_end: dict[str, tuple[float, str]] = field(default_factory=dict)
+    """The predicted std at the last sample by field (:func:`std_at_end`)."""
 
     @property
     def feasible(self) -> bool:
@@ -179,21 +198,21 @@ class PancakeFrame:
             head += f" — target y = {self.target[0]:.3f}, z = {self.target[1]:.3f}, θ = {self.target[2]:.2f}: " + (
                 "reached ✓" if self.target_error <= TARGET_TOLERANCE else
                 f"⚠ not reached ({1000 * self.target_error:.0f} mm off, D-weighted)")
-        std_end = {} if self.std is None else dict(zip(("y", "z", "theta"), self.std[-1], strict=False))
-        lines = format_trust(self.errors, self.out_of_distribution, self.ood_reasons, std_end, self.tolerances)
+        lines = format_trust(self.errors, self.out_of_distribution, self.ood_reasons, self.std_end, self.tolerances)
         if self.target is not None:
             head += "\n\nerrors against the sketch (the target moves the end away from it):"
         return "\n".join([head, *lines])
 
-    def columns(self) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
-        """Named per-sample arrays for export (``seqmotion.training.files.write_arrays``)."""
-        names = ["y", "z", "theta", "v_y", "v_z", "v_theta"]
+    def columns(self, model: Any) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+        """Named per-sample arrays for export (``seqmotion.training.files.write_arrays``), each column named by
+        ``model``'s layouts: states, accel (``a_y, …``), ψ, the sketch (``sketch.<field>``), the predicted std
+        (``std.<field>``) and the latent."""
         cols: dict[str, np.ndarray] = {"states": self.states, "accel": self.accel, "psi": self.psi,
                                        "sketch": self.sketch}
-        heads = {"states": names, "accel": ["u_y", "u_z", "u_theta"], "psi": ["psi"],
-                 "sketch": [f"sketch.{n}" for n in names]}
+        heads = {"states": list(model.state_layout.names), "accel": list(model.accel_layout.names), "psi": ["psi"],
+                 "sketch": [f"sketch.{n}" for n in model.input_layout.names]}
         if self.std is not None:
-            cols["uncertainty"], heads["uncertainty"] = self.std, ["std.y", "std.z", "std.theta"]
+            cols["uncertainty"], heads["uncertainty"] = self.std, [f"std.{n}" for n in model.uncertainty_names]
         if self.latent is not None:
             cols["latent"] = self.latent
         return cols, heads
@@ -204,7 +223,7 @@ class PancakeSession:
 
     def __init__(self, model: Any) -> None:
         self.model = model
-        self.cone = math.atan(float(model.options.mu))
+        self.cone = model.physics.cone_half_angle
         self.cache = FrameCache()
         self.tolerances = model.task_def.tolerances(model.options)
 
@@ -243,7 +262,7 @@ class PancakeSession:
             out_of_distribution=None if ood is None else bool(ood), ood_reasons=list(reasons or []),
             exact=None if exact is None else bool(exact), latent=None if latent is None else np.asarray(latent),
             source=source, seconds=seconds, target=None if target is None else tuple(float(v) for v in target),
-            tolerances=self.tolerances,
+            tolerances=self.tolerances, std_end=std_at_end(std, self.model),
         )
 
     def adjust(self, c: PancakeControls, target: tuple[float, float, float], updates: int = 6,
@@ -291,7 +310,7 @@ class PancakeSession:
         """Write the frame's motion as ``.csv`` or ``.npz`` (atomically)."""
         from ..training.files import write_arrays
 
-        cols, heads = frame.columns()
+        cols, heads = frame.columns(self.model)
         return write_arrays(path, cols, heads)
 
 
@@ -322,6 +341,7 @@ class SlidingFrame:
         pan: ``(K, 4)`` the planned pan motion ``[x, y, vx, vy]``; ``pan_accel``: ``(K-1, 2)``.
         tracking: ``(K,)`` |object − command| [m].
         std: ``(K, 2)`` predicted std of the object's x, y, or None.
+        plan: the :class:`~seqmotion.tasks.sliding.SlidingPlan` itself (what an export writes).
     """
 
     controls: SlidingControls
@@ -337,22 +357,26 @@ class SlidingFrame:
     ood_reasons: list
     seconds: float = 0.0
     tolerances: dict[str, float] = field(default_factory=dict)
+    plan: Any = None
+    std_end: dict[str, tuple[float, str]] = field(default_factory=dict)
 
     def readout(self) -> str:
         c = self.controls
         head = (f"**plan** for a {c.shape} command, K = {len(self.command)} ({1000 * self.seconds:.0f} ms), "
                 f"μ = {c.mu:g}, μ' = {c.mu_dyn:g}: object RMSE **{1000 * self.errors.get('tracking_rmse_m', 0):.1f} "
                 f"mm**, pan within {1000 * np.linalg.norm(self.pan[:, :2], axis=1).max():.0f} mm of home")
-        std_end = {} if self.std is None else dict(zip(("x", "y"), self.std[-1], strict=False))
-        return "\n".join([head, *format_trust(self.errors, self.out_of_distribution, self.ood_reasons, std_end,
+        return "\n".join([head, *format_trust(self.errors, self.out_of_distribution, self.ood_reasons, self.std_end,
                                              self.tolerances)])
 
-    def columns(self) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
-        return ({"command": self.command, "rel_states": self.obj, "pan_states": self.pan, "pan_accel": self.pan_accel,
-                 "tracking_error": self.tracking},
-                {"command": ["command.x", "command.y", "command.vx", "command.vy"],
-                 "rel_states": ["x", "y", "vx", "vy"], "pan_states": ["pan.x", "pan.y", "pan.vx", "pan.vy"],
-                 "pan_accel": ["pan.ux", "pan.uy"], "tracking_error": ["tracking_error_m"]})
+    def columns(self, model: Any) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+        """The command (``command.<field>``), the plan by its views of ``model``'s layouts (``pan_states``:
+        ``pan_x, …``, ``rel_states``: ``x, …``, ``pan_accel``: ``pan_a_x, pan_a_y``; its std and trust signals)
+        and the tracking error per sample."""
+        cols, heads = columns_of(self.plan, model.state_layout, model.accel_layout, model.uncertainty_names)
+        cols = {"command": self.command, **cols, "tracking_error": self.tracking}
+        heads = {"command": [f"command.{n}" for n in model.input_layout.names], **heads,
+                 "tracking_error": ["tracking_error_m"]}
+        return cols, heads
 
 
 class SlidingSession:
@@ -380,27 +404,71 @@ class SlidingSession:
         return SlidingFrame(c, np.arange(len(cmd)) * 1e-3, cmd, plan.rel_states, plan.pan_states, plan.pan_accel,
                             tracking, plan.uncertainty, _float_errors(plan.errors),
                             None if plan.out_of_distribution is None else bool(plan.out_of_distribution),
-                            list(plan.ood_reasons or []), time.perf_counter() - start, self.tolerances)
+                            list(plan.ood_reasons or []), time.perf_counter() - start, self.tolerances, plan,
+                            std_at_end(plan.uncertainty, self.model))
 
     def export(self, frame: SlidingFrame, path: str | Path) -> Path:
+        """Write the frame's command, plan and tracking error as ``.csv`` or ``.npz`` (atomically)."""
         from ..training.files import write_arrays
 
-        cols, heads = frame.columns()
+        cols, heads = frame.columns(self.model)
         return write_arrays(path, cols, heads)
 
 
 # --- any task (plug-ins) ---------------------------------------------------------------------------
 
 
-def path_fields(layout: Any) -> tuple[int, int] | None:
+def path_fields(layout: StateLayout) -> tuple[int, int] | None:
     """The columns of the first two metre fields of a layout (the path the viewer draws), or None."""
     metres = [i for i, u in enumerate(layout.units) if u == "m"]
     return (metres[0], metres[1]) if len(metres) >= 2 else None
 
 
+def path_names(model: Any) -> tuple[str, str] | None:
+    """The two fields whose path in their plane the viewer draws for ``model``: the first two metre fields of
+    what the encoder reads that the generated states hold too (the object on the pan for the sliding planner, the
+    spatula's y, z for the pancake), else the states' own first two metre fields; None for a task with none (e.g.
+    joint angles only)."""
+    ins, outs = model.input_layout, model.state_layout
+    shared = [n for n, u in zip(ins.names, ins.units, strict=True) if u == "m" and n in outs.names]
+    if len(shared) >= 2:
+        return shared[0], shared[1]
+    own = path_fields(outs)
+    return None if own is None else (outs.names[own[0]], outs.names[own[1]])
+
+
+def example_motions(model: Any, n: int, seed: int = 0) -> list[np.ndarray]:
+    """``n`` inputs like those ``model``'s task trains on, each ``(K_i, input_dim)`` of its own length: one
+    ``Task.example_inputs(1, seed + i)`` each (a draw of several is cut to its shortest)."""
+    out = []
+    for i in range(n):
+        x = np.asarray(model.task_def.example_inputs(1, seed + i), dtype=np.float64)
+        if x.ndim != 3 or x.shape[0] != 1 or x.shape[1] < 2 or x.shape[2] != model.input_layout.dim:
+            raise ValueError(f"task {model.task_def.name!r}: example_inputs(1, {seed + i}) gave {x.shape}, not "
+                             f"(1, K, {model.input_layout.dim})")
+        out.append(x[0])
+    return out
+
+
+def _dt(model: Any) -> float:
+    """The model's sample time [s] (its dynamics'; 1 ms where the dynamics do not say)."""
+    return float(getattr(model.dynamics(), "dt", DT))
+
+
 @dataclass
 class TaskFrame:
-    """A generic task's input and generated motion, by its layouts' names."""
+    """A task's input and the motion generated from it, named by the task's layouts.
+
+    Attributes:
+        index: which example input.
+        time: ``(K,)`` [s].
+        inputs: ``(K, input_dim)`` the input motion; ``states`` ``(K, S)``, ``accel`` ``(K-1, d)`` the generated
+            motion and the decoder's outputs (accelerations, torques, …); ``violation`` ``(K-1,)`` or None.
+        input_names, state_names, state_units, accel_names, accel_units: the layouts' names and units.
+        input_path, state_path: ``(K, 2)`` the path of :func:`path_names` (``path_names``), or None.
+        std, errors, out_of_distribution, ood_reasons: the trust signals; ``std_end`` by field.
+        result: the task's result (what an export writes, :func:`~seqmotion.core.results.columns_of`).
+    """
 
     index: int
     time: np.ndarray
@@ -416,30 +484,67 @@ class TaskFrame:
     out_of_distribution: bool | None
     ood_reasons: list
     seconds: float = 0.0
+    accel: np.ndarray | None = None
+    accel_names: tuple[str, ...] = ()
+    accel_units: tuple[str, ...] = ()
+    violation: np.ndarray | None = None
+    violation_limit: float | None = None
+    path_names: tuple[str, str] | None = None
+    std_end: dict[str, tuple[float, str]] = field(default_factory=dict)
+    tolerances: dict[str, float] = field(default_factory=dict)
+    result: Any = None
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """Every field the panel can plot: the state fields, then the decoder's outputs (an output named like a
+        state field is listed as ``accel.<name>``)."""
+        return self.state_names + tuple(f"accel.{n}" if n in self.state_names else n for n in self.accel_names)
+
+    def unit(self, name: str) -> str:
+        """The unit of field ``name`` (:attr:`fields`)."""
+        if name in self.state_names:
+            return self.state_units[self.state_names.index(name)]
+        return self.accel_units[self.accel_names.index(name.removeprefix("accel."))]
 
     def series(self, name: str) -> tuple[np.ndarray, np.ndarray | None]:
-        """The generated values of state field ``name`` ``(K,)`` and the input's, if the input has that field."""
-        gen = self.states[:, self.state_names.index(name)]
-        inp = self.inputs[:, self.input_names.index(name)] if name in self.input_names else None
-        return gen, inp
+        """The generated values of field ``name`` (``(K,)`` a state field, ``(K-1,)`` an output) and the input's,
+        if the input has that field; ``ValueError`` naming the fields for another name."""
+        if name in self.state_names:
+            gen = self.states[:, self.state_names.index(name)]
+            inp = self.inputs[:, self.input_names.index(name)] if name in self.input_names else None
+            return gen, inp
+        if self.accel is not None and name in self.fields:
+            return self.accel[:, self.accel_names.index(name.removeprefix("accel."))], None
+        raise ValueError(f"no field {name!r}; the fields: {list(self.fields)}")
 
     def readout(self) -> str:
         head = f"**input {self.index}**, K = {len(self.states)} ({1000 * self.seconds:.0f} ms)"
-        return "\n".join([head, *format_trust(self.errors, self.out_of_distribution, self.ood_reasons, {})])
+        if self.violation is not None:
+            worst = float(np.max(self.violation, initial=0.0))
+            ok = self.violation_limit is None or worst <= self.violation_limit
+            head += f"; max constraint violation {worst:.4g} " + ("✓" if ok else "⚠")
+        lines = format_trust(self.errors, self.out_of_distribution, self.ood_reasons, self.std_end, self.tolerances)
+        return "\n".join([head, *lines])
 
 
 class TaskSession:
-    """Any trained seq2seq model: draws inputs from its task's training generator and shows the generated
-    motion field by field (the state layout's names and units)."""
+    """Any trained seq2seq model: the generated motion for each of its task's example inputs
+    (``Task.example_inputs``), field by field by the task's layouts, with its constraint and trust signals."""
 
     def __init__(self, model: Any, n: int = 32, seed: int = 0) -> None:
         self.model = model
-        self.inputs, self.lengths = training_inputs(model, n, seed=seed)
+        self.inputs = example_motions(model, n, seed)
+        self.tolerances = model.task_def.tolerances(model.options)
+        self.limit = next((v for k, v in self.tolerances.items() if k.startswith("max_violation")), None)
+        self.path = path_names(model)
+        self.dt = _dt(model)
         self.cache = FrameCache()
 
     @property
     def fields(self) -> tuple[str, ...]:
-        return tuple(self.model.state_layout.names)
+        """The state fields, then the decoder's outputs (:attr:`TaskFrame.fields`)."""
+        states, accel = self.model.state_layout.names, self.model.accel_layout.names
+        return tuple(states) + tuple(f"accel.{n}" if n in states else n for n in accel)
 
     def update(self, index: int) -> TaskFrame:
         index = int(np.clip(index, 0, len(self.inputs) - 1))
@@ -447,19 +552,32 @@ class TaskSession:
 
     def _compute(self, index: int) -> TaskFrame:
         start = time.perf_counter()
-        x = self.inputs[index, : self.lengths[index]]
+        x = self.inputs[index]
         r = self.model.generate(x)
-        states = getattr(r, "states", None)
-        if states is None:  # a task's own result type: rebuild the states from its arrays
-            states = np.concatenate([np.asarray(getattr(r, f)) for f in ("pan_states", "rel_states")], axis=-1)
-        ins, outs = self.model.input_layout, self.model.state_layout
-        ip, sp = path_fields(ins), path_fields(outs)
-        return TaskFrame(index, np.arange(len(x)) * 1e-3, x, states, tuple(ins.names), tuple(outs.names),
-                         tuple(outs.units), None if ip is None else x[:, list(ip)],
-                         None if sp is None else states[:, list(sp)], getattr(r, "uncertainty", None),
-                         _float_errors(getattr(r, "errors", None)),
-                         None if getattr(r, "out_of_distribution", None) is None else bool(r.out_of_distribution),
-                         list(getattr(r, "ood_reasons", None) or []), time.perf_counter() - start)
+        motion = r.motion()
+        ins, outs, acc = self.model.input_layout, self.model.state_layout, self.model.accel_layout
+        ip = sp = None
+        if self.path is not None:
+            sp = motion.states[:, [outs.index(n) for n in self.path]]
+            if all(n in ins.names for n in self.path):
+                ip = x[:, [ins.index(n) for n in self.path]]
+        return TaskFrame(
+            index, np.arange(len(motion.states)) * self.dt, x, motion.states, tuple(ins.names), tuple(outs.names),
+            tuple(outs.units), ip, sp, r.uncertainty, _float_errors(r.errors),
+            None if r.out_of_distribution is None else bool(r.out_of_distribution), list(r.ood_reasons or []),
+            time.perf_counter() - start, motion.accel, tuple(acc.names), tuple(acc.units), motion.violation,
+            self.limit, self.path, std_at_end(r.uncertainty, self.model), self.tolerances, r)
+
+    def export(self, frame: TaskFrame, path: str | Path) -> Path:
+        """Write the frame's input (``input.<field>``) and result (:func:`~seqmotion.core.results.columns_of`: the
+        layouts' names) as ``.csv`` or ``.npz`` (atomically)."""
+        from ..training.files import write_arrays
+
+        m = self.model
+        cols, heads = columns_of(frame.result, m.state_layout, m.accel_layout, m.uncertainty_names)
+        cols = {"input": frame.inputs, **cols}
+        heads = {"input": [f"input.{n}" for n in m.input_layout.names], **heads}
+        return write_arrays(path, cols, heads)
 
 
 # --- latent space ----------------------------------------------------------------------------------
@@ -502,6 +620,7 @@ class LatentFrame:
     path: np.ndarray | None
     nearest: int
     seconds: float = 0.0
+    path_names: tuple[str, str] | None = None
 
     def readout(self, pca: Pca) -> str:
         shares = ", ".join(f"PC{i + 1} {100 * e:.0f} %" for i, e in enumerate(pca.explained))
@@ -510,22 +629,31 @@ class LatentFrame:
 
 
 class LatentSession:
-    """The latent space of a seq2seq model: encodings of ``n`` inputs from its task's generator, their PCA,
-    and live decoding of a point in the main directions (from the inputs' typical start, at their median
-    length)."""
+    """The latent space of a seq2seq model: encodings of ``n`` of its task's example inputs
+    (:func:`example_motions`), their PCA, and live decoding of a point in the main directions (from the inputs'
+    typical start, at their median length)."""
 
     def __init__(self, model: Any, n: int = 96, seed: int = 0, directions: int = 5) -> None:
         self.model = model
-        inputs, lengths = training_inputs(model, n, seed=seed)
+        inputs = example_motions(model, n, seed)
         with torch.inference_mode():
-            z = np.stack([model.encode_torch(torch.from_numpy(inputs[i : i + 1, : lengths[i]])).numpy()[0]
-                          for i in range(n)])
-            x0 = model.start_state(torch.from_numpy(inputs[:, :2])).double().numpy()
-        self.inputs, self.lengths, self.z = inputs, lengths, z
+            z = np.stack([model.encode_torch(torch.from_numpy(x[None])).cpu().numpy()[0] for x in inputs])
+            x0 = model.start_state(torch.from_numpy(np.stack([x[:2] for x in inputs]))).double().numpy()
+        self.inputs, self.z = inputs, z
+        self.lengths = np.array([len(x) for x in inputs])
         self.x0 = np.median(x0, axis=0)
-        self.length = int(np.median(lengths))
+        self.length = int(np.median(self.lengths))
+        self.dt = _dt(model)
+        self.path = path_names(model)
         self.pca = Pca.fit(z, directions)
         self.cache = FrameCache()
+
+    def input_path(self, index: int) -> np.ndarray | None:
+        """``(K, 2)`` the path of example input ``index`` in the fields of :func:`path_names`, if it has them."""
+        names = self.model.input_layout.names
+        if self.path is None or not all(n in names for n in self.path):
+            return None
+        return self.inputs[index][:, [names.index(n) for n in self.path]]
 
     def update(self, coords: tuple[float, ...]) -> LatentFrame:
         coords = tuple(round(float(v), 3) for v in coords)
@@ -534,18 +662,13 @@ class LatentSession:
     def _compute(self, coords: tuple[float, ...]) -> LatentFrame:
         start = time.perf_counter()
         z = self.pca.latent(np.array(coords))
-        out = self.model.decode(z.astype(np.float32), self.x0, self.length)
-        states = getattr(out, "states", None)
-        if states is None:
-            states = np.concatenate([out.pan_states, out.rel_states], axis=-1)
+        states = self.model.decode(z.astype(np.float32), self.x0, self.length).motion().states
         layout = self.model.state_layout
-        pf = path_fields(layout)
-        if self.model.task_def.name == "sliding":  # the object relative to the pan is the path that matters
-            pf = (layout.index("x"), layout.index("y"))
+        path = None if self.path is None else states[:, [layout.index(n) for n in self.path]]
         scores = (z - self.pca.mean) @ self.pca.components.T
         nearest = int(np.argmin(np.linalg.norm(self.pca.scores - scores, axis=1)))
-        return LatentFrame(coords, z, np.arange(self.length) * 1e-3, states, tuple(layout.names),
-                           None if pf is None else states[:, list(pf)], nearest, time.perf_counter() - start)
+        return LatentFrame(coords, z, np.arange(self.length) * self.dt, states, tuple(layout.names), path, nearest,
+                           time.perf_counter() - start, self.path)
 
 
 POSITIONS = 6

@@ -1,4 +1,4 @@
-"""Refining a sliding plan so the object tracks its command (issue 17).
+"""Latent adjustment beside the sliding task: refining a plan so the object tracks its command.
 
 The sliding planner (``sm.load_pretrained("sliding")``) plans in one forward pass; on commands
 unlike its training commands (a 5 cm circle, a slow line) the object lags and stops short. The
@@ -7,7 +7,7 @@ differentiable contact physics, at the friction the user gives (ch. 4's procedur
 tracking objective)::
 
     import seqmotion as sm
-    from seqmotion.latent.tracking import Tracking, refine_plan
+    from seqmotion.latent.sliding import Tracking, refine_plan
 
     planner = sm.load_pretrained("sliding")
     command = sm.data.sliding.circle(0.05, 1200)
@@ -29,14 +29,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.results import first_of
+from ..core.results import Motion, first_of
 from ..errors import as_trajectories
 from ..physics.integrator import DT
 from ..physics.parameters import Physics
 from ..physics.sliding import GRAVITY, PLAN_LAYOUT
-from ..tasks.sliding import SlidingPlan
-from .objectives import Objective, _check_weight
+from ..tasks.sliding import PAN_LIMIT, SlidingPlan
 from .optimize import optimize_latent
+from .terms import Objective, _check_weight
 
 MM2 = 1e6
 """m² → mm²: the objective is in mm² so its values read as a squared RMSE in millimetres."""
@@ -57,7 +57,7 @@ class Tracking(Objective):
             [m, m/s] — the command being planned for.
         alpha_range: α_r, the weight of the pan's excursion beyond ``pan_limit`` (≥ 0).
         pan_limit: p_lim [m]; default (None): the model's training option ``pan_limit``, set by
-            :meth:`bind`; unbound, 0.2 m.
+            :meth:`bind`; unbound, the task's default (0.2 m).
         alpha_velocity: α_v, the weight of the relative-velocity error (≥ 0; 0 by default).
         alpha_end: α_e, the weight of the end-position error ``|p̂_d[K-1] − p_d[K-1]|²`` (≥ 0;
             0 by default): makes the object arrive where the command ends instead of stopping short.
@@ -118,7 +118,7 @@ class Tracking(Objective):
         if self.alpha_jerk > 0 and accel.shape[1] > 1:
             value = value + self.alpha_jerk * (accel[:, 1:] - accel[:, :-1]).norm(dim=-1).mean(-1)
         if self.alpha_range > 0:
-            limit = 0.2 if self.pan_limit is None else self.pan_limit
+            limit = PAN_LIMIT if self.pan_limit is None else self.pan_limit
             over = torch.relu(states[..., :2].norm(dim=-1) - limit)
             value = value + self.alpha_range * MM2 * (over**2).mean(-1)
         return value
@@ -185,7 +185,7 @@ def refine_plan(
 
     Returns:
         the :class:`~seqmotion.tasks.sliding.SlidingPlan` (``(K, ...)`` or ``(B, K, ...)`` like
-        ``command``), rolled out at ``mu``, ``mu_dyn``.
+        ``command``), rolled out at ``mu``, ``mu_dyn`` (``plan.physics``).
     """
     physics = planner.physics.replace(mu=mu, mu_dyn=mu_dyn)  # checked once; the plan records it
     batch, single = as_trajectories(command, 4, "command")
@@ -234,13 +234,12 @@ def refine_plan(
     if accel_steps > 0:  # 3. the accelerations
         vibration = None
         if dither > 0:
-            mu_value = float(planner.options.mu if mu is None else mu)
+            mu_value = float(physics.mu)
             t = np.arange(batch.shape[1] - 1) * DT
             phase = 2 * math.pi * float(dither_hz) * t
             vibration = dither * mu_value * GRAVITY * np.stack([np.cos(phase), np.sin(phase)], axis=1)
         plan = _polish(planner, plan, torch.from_numpy(x0), bound, accel_steps, accel_lr, physics, vibration)
-    states = np.concatenate([plan.pan_states, plan.rel_states], axis=-1)  # the trust signals of the refined plan
-    trust = planner.assess(batch, states, plan.pan_accel, best_z, physics=physics)
+    trust = planner.assess(batch, plan.motion().states, plan.motion().accel, best_z, physics=physics)
     plan.errors, plan.out_of_distribution, plan.ood_reasons, plan.uncertainty = trust
     if single:
         return first_of(plan)
@@ -281,4 +280,5 @@ def _polish(
             opt.step()
     with torch.no_grad():
         states = planner.integrate_torch(x0, best_u, physics).numpy()
-    return SlidingPlan(best_u.numpy(), states[..., :4], states[..., 4:], plan.latent)
+    motion = Motion(states, best_u.numpy(), plan.latent, task=planner.task_def.name, physics=physics)
+    return planner.task_def.make_result(motion, planner)
