@@ -133,14 +133,18 @@ def test_the_allowed_origins_follow_the_host_and_the_address_served():
 
 def test_an_export_format_outside_the_options_writes_nothing(app):
     pancake, sliding = app.panels["pancake"], app.panels["sliding"]
+    for exported in Path(app.out).glob("*.csv"):
+        exported.unlink()
     with client(app) as ws:
-        for panel in (pancake, sliding):
+        for count, panel in enumerate((pancake, sliding), start=1):
             errors = len(app.errors)
             send(ws, panel.format, "x/../../../victim.csv")
             wait_for(lambda n=errors: len(app.errors) > n, what="a refusal")  # on arrival: never stored
             assert "'format'" in app.errors[-1] and "not one of csv, npz" in app.errors[-1]
             assert panel.format.value == "csv"
             send(ws, panel.export_button, True)  # exports with what the server holds: inside --out
+            # the click is a message in flight: wait for its file, not only for an idle worker
+            wait_for(lambda n=count: len(list(Path(app.out).glob("*.csv"))) >= n, what="the export")
             assert app.wait_idle(60)
     for exported in Path(app.out).glob("*.csv"):
         exported.unlink()
