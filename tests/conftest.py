@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -29,3 +35,21 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def install_example(name: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, dict]]:
+    """Install ``examples/<name>`` into a fresh folder the way a user would (pip) and put it on the path, in this
+    process and for subprocesses; yields ``(folder, env)`` and takes it off again (a module fixture's body)."""
+    example = Path(__file__).resolve().parents[1] / "examples" / name
+    target, build = tmp_path_factory.mktemp("site"), tmp_path_factory.mktemp("build")
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target",
+                    str(target), str(example)], check=True, cwd=build, capture_output=True)
+    sys.path.insert(0, str(target))
+    sm.tasks.refresh()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")])}
+    yield target, env
+    sys.path.remove(str(target))
+    package = f"seqmotion_{name}"
+    for module in [m for m in sys.modules if m == package or m.startswith(package + ".")]:
+        del sys.modules[module]
+    sm.tasks.refresh()

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import install_example
 
 import seqmotion as sm
 from seqmotion import tasks
@@ -27,22 +28,8 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "cup_arm"
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
-    """Install the example package into a fresh folder and put it on the path (in-process and for subprocesses)."""
-    target = tmp_path_factory.mktemp("site")
-    build = tmp_path_factory.mktemp("build")
-    subprocess.run(
-        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target", str(target),
-         str(EXAMPLE)],
-        check=True, cwd=build, capture_output=True,
-    )
-    sys.path.insert(0, str(target))
-    tasks.refresh()
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")])}
-    yield target, env
-    sys.path.remove(str(target))
-    for name in [m for m in sys.modules if m.startswith("seqmotion_cup_arm")]:
-        del sys.modules[name]
-    tasks.refresh()
+    """The example package installed into a fresh folder and put on the path (in-process and for subprocesses)."""
+    yield from install_example("cup_arm", tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ through ``seqmotion deform`` / ``seqmotion optimize``.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,31 +16,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import install_example
 
 import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.physics.integrator import integrate_numpy
 from seqmotion.physics.sliding import SlidingPhysics
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "tray"
-
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
-    """Install the example package into a fresh folder and put it on the path (in-process and for subprocesses)."""
-    target = tmp_path_factory.mktemp("site")
-    build = tmp_path_factory.mktemp("build")
-    subprocess.run(
-        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target", str(target),
-         str(EXAMPLE)],
-        check=True, cwd=build, capture_output=True,
-    )
-    sys.path.insert(0, str(target))
-    tasks.refresh()
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")])}
-    yield target, env
-    sys.path.remove(str(target))
-    tasks.refresh()
+    """The example package installed into a fresh folder and put on the path (in-process and for subprocesses)."""
+    yield from install_example("tray", tmp_path_factory)
 
 
 def seqmotion(env: dict, *args: str, cwd: Path) -> subprocess.CompletedProcess:
