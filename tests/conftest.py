@@ -53,3 +53,9 @@ def install_example(name: str, tmp_path_factory: pytest.TempPathFactory) -> Iter
     for module in [m for m in sys.modules if m == package or m.startswith(package + ".")]:
         del sys.modules[module]
     sm.tasks.refresh()
+
+
+def seqmotion_cli(env: dict, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """``python -m seqmotion.cli ARGS`` in ``cwd`` with ``env`` (an installed example's path), output captured."""
+    return subprocess.run([sys.executable, "-m", "seqmotion.cli", *args], env=env, cwd=cwd, capture_output=True,
+                          text=True)

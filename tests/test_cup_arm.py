@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import install_example
+from conftest import seqmotion_cli as seqmotion
 
 import seqmotion as sm
 from seqmotion import tasks
@@ -37,11 +38,6 @@ def arm(installed):
     import seqmotion_cup_arm.arm as module
 
     return module
-
-
-def seqmotion(env: dict, *args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "seqmotion.cli", *args], env=env, cwd=cwd, capture_output=True,
-                          text=True)
 
 
 @pytest.fixture(scope="module")

@@ -9,14 +9,13 @@ through ``seqmotion deform`` / ``seqmotion optimize``.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from conftest import install_example
+from conftest import seqmotion_cli as seqmotion
 
 import seqmotion as sm
 from seqmotion import tasks
@@ -28,11 +27,6 @@ from seqmotion.physics.sliding import SlidingPhysics
 def installed(tmp_path_factory):
     """The example package installed into a fresh folder and put on the path (in-process and for subprocesses)."""
     yield from install_example("tray", tmp_path_factory)
-
-
-def seqmotion(env: dict, *args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "seqmotion.cli", *args], env=env, cwd=cwd, capture_output=True,
-                          text=True)
 
 
 @pytest.fixture(scope="module")
