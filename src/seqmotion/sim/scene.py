@@ -79,11 +79,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from ..physics.pancake import MU as MU_PANCAKE
 from .backend import CONTROL_DT, GRAVITY, import_mujoco
+from .robot_models import Robot, resolve_robot, tool_mount
 
 # CONTROL_DT (from .backend): the control period [s], 1 ms everywhere (SPEC §2).
 PHYSICS_DT = 5e-4
@@ -325,23 +327,58 @@ def _pairs_xml(objects: list[str], surface: str, mu: float, friction_damping: fl
     return "  <contact>\n" + "\n".join(rows) + "\n  </contact>"
 
 
-def scene_xml(kind: str) -> str:
-    """The full MJCF text of the ``"pancake"`` or ``"sliding"`` scene."""
+def _riser_xml(base: np.ndarray | None) -> str:
+    """The riser the arm's base stands on (under the built-in arm at the origin, or under ``base`` [m])."""
+    if base is None:
+        return (f'<geom name="riser" type="box" size="0.13 0.13 {-TABLE_TOP / 2}" pos="0 0 {TABLE_TOP / 2}" '
+                f'rgba="0.35 0.35 0.38 1"\n          {_VISUAL}/>')
+    height = float(base[2]) - TABLE_TOP
+    if height <= 1e-6:  # the base stands on the table
+        return ""
+    return (f'<geom name="riser" type="box" size="0.13 0.13 {height / 2:.6g}" '
+            f'pos="{base[0]:.6g} {base[1]:.6g} {TABLE_TOP + height / 2:.6g}" rgba="0.35 0.35 0.38 1"\n          '
+            f'{_VISUAL}/>')
+
+
+def _tool_and_object(kind: str) -> tuple[str, str, str]:
+    """The tool (MJCF of the tool body's children), the object body and the contact pairs of scene ``kind``."""
     if kind == "pancake":
-        tool, obj = _spatula_xml(), _pancake_xml()
         pairs = _pairs_xml([f"pancake_{i}" for i in range(PANCAKE_RING + 1)], "blade", MU_PANCAKE,
                            FRICTION_DAMPING)
-        cameras = """
-    <camera name="front" pos="1.4 0 0.4" xyaxes="0 1 0 0 0 1" fovy="42"/>
-    <camera name="oblique" pos="1.25 -0.75 0.75" xyaxes="0.64 0.77 0 -0.3 0.25 0.92" fovy="45"/>"""
-    elif kind == "sliding":
-        tool, obj = _pan_xml(), _object_xml()
+        return _spatula_xml(), _pancake_xml(), pairs
+    if kind == "sliding":
         pairs = _pairs_xml([f"foot_{i}" for i in range(OBJECT_FEET)], "pan", MU_OBJECT, OBJECT_FRICTION_DAMPING)
-        cameras = """
+        return _pan_xml(), _object_xml(), pairs
+    raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
+
+
+CAMERAS = {
+    "pancake": """
+    <camera name="front" pos="1.4 0 0.4" xyaxes="0 1 0 0 0 1" fovy="42"/>
+    <camera name="oblique" pos="1.25 -0.75 0.75" xyaxes="0.64 0.77 0 -0.3 0.25 0.92" fovy="45"/>""",
+    "sliding": """
     <camera name="front" pos="1.5 -0.75 0.95" xyaxes="0.45 0.89 0 -0.45 0.23 0.86" fovy="45"/>
-    <camera name="top" pos="0.65 0 0.95" xyaxes="0 1 0 -1 0 0" fovy="40"/>"""
+    <camera name="top" pos="0.65 0 0.95" xyaxes="0 1 0 -1 0 0" fovy="40"/>""",
+}
+"""The named cameras of each scene (MJCF); the same names and views on every robot."""
+
+
+def scene_xml(kind: str, robot: Robot | None = None) -> str:
+    """The full MJCF text of the ``"pancake"`` or ``"sliding"`` scene on the built-in arm (``robot=None``).
+
+    With a :class:`~seqmotion.sim.robot_models.Robot`: the same world (options, table, lights, cameras, the
+    object, the contact pairs) without the built-in arm and its actuators, the riser under the
+    robot's base; :func:`build_scene` adds the robot and the tool with ``MjSpec``.
+    """
+    tool, obj, pairs = _tool_and_object(kind)
+    cameras = CAMERAS[kind]
+    if robot is None:
+        riser, arm = _riser_xml(None), _arm_xml(tool)
+        actuators = ("\n  <actuator>\n"
+                     + "".join(f'    <motor name="{j}" joint="{j}" gear="1"/>{chr(10)}' for j in ARM_JOINTS)
+                     + "  </actuator>")
     else:
-        raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
+        riser, arm, actuators = _riser_xml(robot.base_pos), "", ""
     return f"""<mujoco model="seqmotion-{kind}">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{PHYSICS_DT}" gravity="0 0 {-GRAVITY}" integrator="implicitfast" cone="elliptic"
@@ -363,17 +400,22 @@ def scene_xml(kind: str) -> str:
     <light name="fill" pos="1.5 1.0 1.5" dir="-1 -0.6 -0.8" diffuse="0.35 0.35 0.35" castshadow="false"/>
     <geom name="table" type="box" size="1.0 0.9 0.02" pos="0.35 0 {TABLE_TOP - 0.02}" material="table"
           friction="1 0.005 0.0001" {CONTACT_DEFAULTS}/>
-    <geom name="riser" type="box" size="0.13 0.13 {-TABLE_TOP / 2}" pos="0 0 {TABLE_TOP / 2}" rgba="0.35 0.35 0.38 1"
-          {_VISUAL}/>
+    {riser}
 {cameras}
-{_arm_xml(tool)}
+{arm}
 {obj}
   </worldbody>
-{pairs}
-  <actuator>
-{"".join(f'    <motor name="{j}" joint="{j}" gear="1"/>{chr(10)}' for j in ARM_JOINTS)}  </actuator>
+{pairs}{actuators}
 </mujoco>
 """
+
+
+SITE_IN_TOOL = {
+    # The control site in the tool frame (z along the tool, x the surface's down normal) [m].
+    "pancake": np.array([-BLADE_HALF[0] - PANCAKE_HALF_THICKNESS, 0.0, BLADE_CENTRE]),
+    "sliding": np.array([0.0, 0.0, PAN_CENTRE]),
+}
+"""Where each tool's control site (``"tool"``) sits in the tool frame [m] (the same on every arm)."""
 
 
 @dataclass(frozen=True)
@@ -384,11 +426,16 @@ class Scene:
         kind: ``"pancake"`` or ``"sliding"``.
         model: the compiled ``mujoco.MjModel``.
         site: id of the tool control site.
-        arm_qpos: ``(6,)`` qpos addresses of the arm joints (base to flange).
-        arm_dof: ``(6,)`` dof addresses of the arm joints.
+        arm_qpos: ``(n,)`` qpos addresses of the arm joints (base to flange; n = 6 on the built-in arm).
+        arm_dof: ``(n,)`` dof addresses of the arm joints.
         body: id of the manipulated body (pancake or object).
         body_qpos: qpos address of its free joint (position 3, then quaternion 4).
         body_dof: dof address of its free joint (linear 3, then angular 3).
+        robot: the standard arm the scene is built on, or ``None`` for the built-in arm (its limits,
+            home posture and placement are the robot's fields).
+        arm_joints: ``(n,)`` the arm joints' names in ``model`` (a robot's carry its name as a
+            prefix, ``"panda/joint1"``; :attr:`Robot.joints` has them as in its file).
+        flange: id of the site at the tool mount (``"flange"``; the robot's prefixed on a robot).
     """
 
     kind: str
@@ -399,13 +446,122 @@ class Scene:
     body: int
     body_qpos: int
     body_dof: int
+    robot: Robot | None = None
+    arm_joints: tuple[str, ...] = ARM_JOINTS
+    flange: int = -1
 
 
-def build_scene(kind: str) -> Scene:
-    """Compile the ``"pancake"`` (spatula) or ``"sliding"`` (frying pan) scene."""
+def robot_prefix(robot: Robot) -> str:
+    """The prefix a robot's element names carry in a scene (``"panda/"``): MuJoCo attaches a model under one."""
+    return f"{robot.name}/"
+
+
+def tool_site_in_flange(kind: str, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """The tool control site of scene ``kind`` in the robot's flange body: position ``(3,)`` [m], quaternion
+    ``(4,)``."""
+    if kind not in SITE_IN_TOOL:
+        raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
     mujoco = import_mujoco()
-    model = mujoco.MjModel.from_xml_string(scene_xml(kind))
-    joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in ARM_JOINTS]
+    pos, quat = tool_mount(robot)
+    site = np.zeros(3)
+    mujoco.mju_rotVecQuat(site, SITE_IN_TOOL[kind], quat)
+    return pos + site, quat
+
+
+# What the tool's geoms and site carry over from their MJCF into the robot's flange (every attribute the
+# tool MJCF sets; the others keep MuJoCo's defaults, as in the built-in scene).
+_GEOM_FIELDS = ("name", "type", "size", "pos", "quat", "fromto", "rgba", "contype", "conaffinity", "condim", "group",
+                "mass", "density", "friction", "solref", "solimp", "solmix", "margin", "gap", "priority",
+                "typeinertia", "material")
+_SITE_FIELDS = ("name", "type", "size", "pos", "quat", "fromto", "rgba", "group")
+
+
+def _add_tool(body: object, kind: str) -> None:
+    """Build the tool of scene ``kind`` (the same MJCF as on the built-in arm) as children of ``body`` (an MjsBody).
+
+    The tool's geoms and site are copied element by element rather than attached: MuJoCo's attach
+    would prefix their names (the contact pairs and the runners refer to ``"blade"``, ``"pan"``,
+    ``"tool"``).
+    """
+    mujoco = import_mujoco()
+    tool_xml, _, _ = _tool_and_object(kind)
+    source = mujoco.MjSpec.from_string(
+        f'<mujoco><compiler angle="radian" autolimits="true"/><worldbody><body name="tool">{tool_xml}'
+        "</body></worldbody></mujoco>"
+    ).body("tool")
+    for geom in source.geoms:
+        copy = body.add_geom()
+        for name in _GEOM_FIELDS:
+            setattr(copy, name, getattr(geom, name))
+    for site in source.sites:
+        copy = body.add_site()
+        for name in _SITE_FIELDS:
+            setattr(copy, name, getattr(site, name))
+
+
+_SIZE_FIELDS = ("memory", "nstack", "njmax", "nconmax", "nemax", "nuserdata")
+
+
+def _adopt_settings(child: object, parent: object) -> None:
+    """Give ``child`` (a robot's MjSpec) ``parent``'s physics options and sizes before it is attached.
+
+    The scene keeps its own options either way (the world is the root), but MuJoCo reports every
+    difference as an attach conflict (a Python warning and a line in ``MUJOCO_LOG.TXT``); a robot file's
+    own options (e.g. Menagerie's ``integrator="implicit"``) are meant for its own scenes, not ours.
+    """
+    for name in dir(parent.option):
+        if not name.startswith("_") and not callable(getattr(parent.option, name)):
+            setattr(child.option, name, getattr(parent.option, name))
+    for name in _SIZE_FIELDS:
+        setattr(child, name, getattr(parent, name))
+
+
+def _robot_model(kind: str, robot: Robot) -> object:
+    """Compile scene ``kind`` on ``robot``: our world (options, table, cameras, object, pairs) as the root, the
+    robot's arm attached at its base, the tool built on its flange."""
+    mujoco = import_mujoco()
+    world = mujoco.MjSpec.from_string(scene_xml(kind, robot))
+    yaw = float(robot.base_yaw)
+    frame = world.worldbody.add_frame(pos=np.asarray(robot.base_pos, dtype=np.float64).tolist(),
+                                      quat=[math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    arm = robot.spec()
+    _adopt_settings(arm, world)
+    world.attach(arm, prefix=robot_prefix(robot), frame=frame)
+    flange = world.body(robot_prefix(robot) + robot.flange)
+    pos, quat = tool_mount(robot)
+    _add_tool(flange.add_body(name="tool", pos=pos.tolist(), quat=quat.tolist()), kind)
+    try:
+        return world.compile()
+    except Exception as exc:  # MuJoCo's compiler errors name the element
+        raise ValueError(f"the {kind} scene on {robot.label} does not compile: {exc}") from exc
+
+
+def build_scene(kind: str, robot: str | Robot | None = None) -> Scene:
+    """Compile the ``"pancake"`` (spatula) or ``"sliding"`` (frying pan) scene.
+
+    Args:
+        kind: ``"pancake"`` or ``"sliding"``.
+        robot: ``None`` (or ``"mh3f"``) for the built-in arm, exactly as it always was; a standard
+            arm's name (``"panda"``, ``"menagerie:universal_robots_ur5e"``; see
+            :func:`seqmotion.sim.robot_models.robots`) or a :class:`~seqmotion.sim.robot_models.Robot`: the same
+            world and options with that robot at its ``base_pos`` and the tool on its flange.
+
+    Raises:
+        ValueError: an unknown kind, an unknown or unavailable robot.
+    """
+    mujoco = import_mujoco()
+    if kind not in SITE_IN_TOOL:
+        raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
+    arm = resolve_robot(robot)
+    if arm is None:
+        model = mujoco.MjModel.from_xml_string(scene_xml(kind))
+        joints: tuple[str, ...] = ARM_JOINTS
+        flange = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "flange")
+    else:
+        model = _robot_model(kind, arm)
+        joints = tuple(robot_prefix(arm) + j for j in arm.joints)
+        flange = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, robot_prefix(arm) + "flange")
+    joint_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
     body_name = "pancake" if kind == "pancake" else "object"
     body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body_name)
     free = model.body_jntadr[body]
@@ -418,4 +574,17 @@ def build_scene(kind: str) -> Scene:
         body=body,
         body_qpos=int(model.jnt_qposadr[free]),
         body_dof=int(model.jnt_dofadr[free]),
+        robot=arm,
+        arm_joints=joints,
+        flange=flange,
     )
+
+
+def get_scene(kind: str, robot: str | Robot | None = None) -> Scene:
+    """:func:`build_scene`, compiled once per process per (kind, robot); runs never modify the model."""
+    return _cached_scene(kind, resolve_robot(robot))
+
+
+@lru_cache(maxsize=8)
+def _cached_scene(kind: str, robot: Robot | None) -> Scene:
+    return build_scene(kind, robot)
