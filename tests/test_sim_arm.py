@@ -115,7 +115,8 @@ def test_only_the_backend_imports_mujoco_and_steps_it():
     for path in SIM.glob("*.py"):
         text = path.read_text()
         if path.name != "backend.py":
-            assert "import mujoco" not in text, path.name
+            # (mujoco_menagerie, the robot models' source, is another package)
+            assert re.search(r"import mujoco\b(?!_)", text) is None, path.name
             assert re.search(r"\bmj_step\d?\(", text) is None, path.name
         if path.name != "render.py":
             assert ".Renderer(" not in text, path.name

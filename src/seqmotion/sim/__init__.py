@@ -6,6 +6,9 @@ Entry points (MuJoCo is imported on first use, so ``import seqmotion.sim`` stays
 * :func:`run_sliding` — shake the frying pan along planned pan states (ch. 3).
 * :data:`GAINS` — the experiments' PD/DOB gain presets ``"ch2"``, ``"ch3"``, ``"ch4"``.
 * :mod:`seqmotion.sim.pushing` — the chapter-5 pushing scene (Touch-like arm, block, webcam).
+* :func:`robots` — the standard arm models available here (robosuite's bundled arms, MuJoCo Menagerie's);
+  ``robot="panda"`` on the runners, the Gym envs and ``seqmotion simulate --robot`` runs a motion on one
+  (:mod:`~seqmotion.sim.robot_models`), tracked by differential IK + joint-space PD + DOB.
 * Gymnasium environments ``seqmotion/PancakeArm-v0`` and ``seqmotion/SlidingArm-v0``: registered
   by ``import seqmotion.sim.envs`` (or ``gymnasium.make("seqmotion.sim.envs:seqmotion/PancakeArm-v0")``).
 
@@ -44,6 +47,9 @@ _LAZY = {
     "ClosedLoopResult": ("closed_loop", "ClosedLoopResult"),
     "PANCAKE_NOISE": ("closed_loop", "PANCAKE_NOISE"),
     "register_envs": ("registration", "register_envs"),
+    "robots": ("robot_models", "robots"),
+    "get_robot": ("robot_models", "get_robot"),
+    "JointReport": ("arm", "JointReport"),
 }
 
 __all__ = sorted(_LAZY)

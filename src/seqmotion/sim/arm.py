@@ -20,7 +20,6 @@ from __future__ import annotations
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -28,22 +27,19 @@ import numpy as np
 
 from ..errors import as_trajectories, check_number
 from .backend import CONTROL_DT, GRAVITY, control_period, import_mujoco
-from .control import Gains, TaskSpaceController, solve_ik
+from .control import Gains, JointSpaceController, TaskSpaceController, make_controller, solve_ik
 from .kinematics import Reference, quat_to_matrix
 from .scene import (
-    BLADE_CENTRE,
-    BLADE_HALF,
     FOREARM,
-    PAN_CENTRE,
-    PANCAKE_HALF_THICKNESS,
     SHOULDER_HEIGHT,
     SHOULDER_OFFSET,
+    SITE_IN_TOOL,
     SUBSTEPS,
     TABLE_TOP,
     UPPER_ARM,
     WRIST_TO_FLANGE,
     Scene,
-    build_scene,
+    get_scene,
 )
 
 TRACKING_LIMIT = 0.1
@@ -51,20 +47,9 @@ TRACKING_LIMIT = 0.1
 REACH_MARGIN = 0.02
 """The wrist centre must stay this far inside the arm's full extension [m] (elbow singularity)."""
 
-_SITE_IN_TOOL = {
-    # The control site in the tool frame (z along the tool, x the surface's down normal) [m].
-    "pancake": np.array([-BLADE_HALF[0] - PANCAKE_HALF_THICKNESS, 0.0, BLADE_CENTRE]),
-    "sliding": np.array([0.0, 0.0, PAN_CENTRE]),
-}
 
 Place = Callable[[Any], None]
 """``place(data)``: puts the object at rest on the tool of a scene's ``mujoco.MjData``."""
-
-
-@lru_cache(maxsize=2)
-def get_scene(kind: str) -> Scene:
-    """The compiled ``"pancake"`` or ``"sliding"`` scene (compiled once per process; runs never modify the model)."""
-    return build_scene(kind)
 
 
 def weight(mass: float) -> np.ndarray:
@@ -116,7 +101,7 @@ class Arm:
         self._mj = import_mujoco()
         self.scene, self.gains, self.model_bias = scene, gains, model_bias
         self.data = self._mj.MjData(scene.model)
-        self.controller: TaskSpaceController | None = None
+        self.controller: TaskSpaceController | JointSpaceController | None = None
 
     def reset(self, pos: np.ndarray, quat: np.ndarray, place: Place, load: np.ndarray) -> None:
         """Start at rest with the tool site at ``pos`` ``(3,)`` [m] and attitude ``quat`` ``(4,)``.
@@ -131,7 +116,7 @@ class Arm:
         mj.mj_forward(m, d)
         place(d)
         mj.mj_forward(m, d)
-        self.controller = TaskSpaceController(self.scene, self.gains, model_bias=self.model_bias)
+        self.controller = make_controller(self.scene, self.gains, model_bias=self.model_bias)
         self.controller.reset(d, load)
 
     def step(
@@ -145,7 +130,7 @@ class Arm:
         """One control period toward the commanded tool state (arguments of
         :meth:`~seqmotion.sim.control.TaskSpaceController.torque`).
 
-        ``inspect(tau)``, if given, is called with the torque ``(6,)`` [N m] while ``data`` still
+        ``inspect(tau)``, if given, is called with the torque ``(n,)`` [N m] while ``data`` still
         holds the kinematics of the state it was computed from (a logger reads the tool and the
         object there); returning ``False`` stops before the state is advanced.
 
@@ -167,16 +152,18 @@ class Arm:
         return bool(self.data.warning[self._mj.mjtWarning.mjWARN_BADQACC].number)
 
 
-def workspace_problem(reference: Reference, kind: str) -> str | None:
+def workspace_problem(reference: Reference, kind: str, robot: str | None = None) -> str | None:
     """Why the commanded tool path cannot be executed by the arm, or ``None`` if it can.
 
-    Checks, per sample, that the wrist centre stays within the arm's reach (minus
+    Checks, per sample, that the wrist centre stays within the built-in arm's reach (minus
     :data:`REACH_MARGIN`), away from the base axis (shoulder singularity) and that the tool
     stays above the table. The arm's own wrist singularity is not predicted here; the run
-    reports it as lost tracking if it happens.
+    reports it as lost tracking if it happens. On a standard ``robot`` only the table is checked
+    here: its reach and joint limits are judged during the run, by the IK that tracks the path
+    (:class:`JointReport` names the first pose out of reach or limit broken).
     """
     rot = quat_to_matrix(reference.quat)
-    flange = reference.pos - rot @ _SITE_IN_TOOL[kind]
+    flange = reference.pos - rot @ SITE_IN_TOOL[kind]
     wrist = flange - WRIST_TO_FLANGE * rot[:, :, 2]
     heading = np.arctan2(wrist[:, 1], wrist[:, 0])
     shoulder = np.stack(
@@ -185,12 +172,13 @@ def workspace_problem(reference: Reference, kind: str) -> str | None:
     )
     dist = np.linalg.norm(wrist - shoulder, axis=1)
     reach = UPPER_ARM + FOREARM - REACH_MARGIN
-    checks = [
+    table = (reference.pos[:, 2] < TABLE_TOP + 0.11,
+             lambda k: f"the tool is down at the table (z = {reference.pos[k, 2]:.3f} m)")
+    checks = [table] if robot is not None else [
         (dist > reach, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder (reach {reach:.3f} m)"),
         (dist < abs(UPPER_ARM - FOREARM) + 0.05, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder"),
         (np.hypot(wrist[:, 0], wrist[:, 1]) < 0.05, lambda k: "the wrist centre is over the base axis"),
-        (reference.pos[:, 2] < TABLE_TOP + 0.11,
-         lambda k: f"the tool is down at the table (z = {reference.pos[k, 2]:.3f} m)"),
+        table,
     ]
     first = None
     for bad, why in checks:
@@ -203,7 +191,9 @@ def workspace_problem(reference: Reference, kind: str) -> str | None:
     return f"sample {k} (t = {k * reference.dt:.3f} s, tool at {np.round(reference.pos[k], 3).tolist()}): {why(k)}"
 
 
-def prepare_reference(ref: Reference, kind: str, *, accel_feedforward: bool, check_workspace: bool) -> Reference:
+def prepare_reference(
+    ref: Reference, kind: str, *, accel_feedforward: bool, check_workspace: bool, robot: str | None = None
+) -> Reference:
     """Drop the reference's acceleration feedforward unless asked for; refuse paths out of reach.
 
     Modifies ``ref`` in place (and returns it). Raises ``ValueError`` naming the first sample
@@ -211,10 +201,119 @@ def prepare_reference(ref: Reference, kind: str, *, accel_feedforward: bool, che
     """
     if not accel_feedforward:
         ref.acc[:], ref.alpha[:] = 0.0, 0.0
-    if check_workspace and (problem := workspace_problem(ref, kind)) is not None:
+    if check_workspace and (problem := workspace_problem(ref, kind, robot)) is not None:
         tool = "spatula" if kind == "pancake" else "pan"
         raise ValueError(f"the {tool} command leaves the arm's workspace at {problem}")
     return ref
+
+
+class RobotFlags:
+    """What a run's result says of the robot (for results with a ``joints: JointReport`` field)."""
+
+    joints: JointReport | None
+
+    @property
+    def robot(self) -> str:
+        """The robot that ran it, ``"name (source)"``."""
+        return BUILT_IN_ARM if self.joints is None else self.joints.robot
+
+    @property
+    def joint_limits_ok(self) -> bool | None:
+        return None if self.joints is None else self.joints.joint_limits_ok
+
+    @property
+    def torque_limits_ok(self) -> bool | None:
+        return None if self.joints is None else self.joints.torque_limits_ok
+
+    @property
+    def velocity_limits_ok(self) -> bool | None:
+        return None if self.joints is None else self.joints.velocity_limits_ok
+
+
+IK_TOLERANCE = (2e-3, np.radians(1.0))
+"""IK residual [m, rad] beyond which a commanded pose counts as out of the robot's reach (its limits or its
+workspace forbid it)."""
+
+
+@dataclass(frozen=True)
+class JointReport:
+    """What the robot's joints did during a run: its limits kept or not, each named.
+
+    Attributes:
+        robot: the robot, ``"name (source)"`` (e.g. ``"panda (robosuite)"``, ``"mh3f (seqmotion)"``).
+        joints: the joint names, base to flange.
+        joint_limits_ok: every joint stayed within its range (``None``: the model has no ranges).
+        velocity_limits_ok: every joint speed stayed within the published limit (``None``: none known).
+        torque_limits_ok: no torque command reached the model's limit (``None``: no limits modelled).
+        torque_share: ``(n,)`` peak |torque| / limit per joint (``None`` without limits).
+        ik_error: largest residual of the IK reference ``(position [m], attitude [rad])`` (0 without IK).
+        problem: the first limit broken or pose out of reach, by joint and time, or ``None``.
+    """
+
+    robot: str
+    joints: tuple[str, ...]
+    joint_limits_ok: bool | None
+    velocity_limits_ok: bool | None
+    torque_limits_ok: bool | None
+    torque_share: np.ndarray | None
+    ik_error: tuple[float, float]
+    problem: str | None
+
+    @property
+    def ok(self) -> bool:
+        """No limit broken and every pose reached."""
+        return self.problem is None
+
+    def summary(self) -> dict[str, Any]:
+        share = None if self.torque_share is None else [round(float(x), 4) for x in self.torque_share]
+        return {"robot": self.robot, "joint_limits_ok": self.joint_limits_ok,
+                "velocity_limits_ok": self.velocity_limits_ok, "torque_limits_ok": self.torque_limits_ok,
+                "torque_share": share, "ik_error_m": self.ik_error[0], "ik_error_rad": self.ik_error[1],
+                "limits_problem": self.problem}
+
+
+BUILT_IN_ARM = "mh3f (seqmotion)"
+"""The label of the built-in MH3F-like arm (no joint ranges, speed or torque limits modelled)."""
+
+
+def joint_report(scene: Scene, log: ExecutionLog, dt: float) -> JointReport:
+    """Judge a run's joints against the scene robot's limits (:class:`JointReport`)."""
+    m = scene.model
+    names = tuple(m.joint(int(m.dof_jntid[i])).name for i in scene.arm_dof)
+    robot = getattr(scene, "robot", None)
+    if robot is None:
+        return JointReport(BUILT_IN_ARM, names, None, None, None, None, (0.0, 0.0), None)
+    problems: list[tuple[int, str]] = []  # (period, what)
+
+    def first(bad: np.ndarray, what: Callable[[int, int], str]) -> bool:
+        if not bad.any():
+            return True
+        k, j = np.argwhere(bad)[0]
+        problems.append((int(k), what(int(k), int(j))))
+        return False
+
+    q, qd, tau = log.joint_pos, log.joint_vel, log.torque
+    lo, hi = np.asarray(robot.joint_range, dtype=float).T
+    joints_ok = first((q < lo) | (q > hi), lambda k, j: f"joint {names[j]!r} left its range "
+                      f"[{lo[j]:.3f}, {hi[j]:.3f}] rad (at {q[k, j]:.3f})")
+    speed_ok = None
+    if robot.velocity_limit is not None:
+        vmax = np.asarray(robot.velocity_limit, dtype=float)
+        speed_ok = first(np.abs(qd) > vmax, lambda k, j: f"joint {names[j]!r} moved at {abs(qd[k, j]):.2f} rad/s "
+                         f"(limit {vmax[j]:.2f})")
+    limit = np.asarray(robot.torque_limit, dtype=float)
+    torque_ok = first(log.saturated[:, None] & (np.abs(tau) >= limit * (1 - 1e-9)),
+                      lambda k, j: f"joint {names[j]!r} needed more than its {limit[j]:.0f} N m")
+    ik = log.ik_error.max(axis=0) if log.steps else np.zeros(2)
+    first(log.ik_error > np.array(IK_TOLERANCE), lambda k, j: "the commanded tool pose is out of the robot's reach "
+          f"(IK residual {log.ik_error[k, 0] * 1e3:.1f} mm, {np.degrees(log.ik_error[k, 1]):.1f}°)")
+    share = np.abs(tau).max(axis=0) / limit if log.steps else np.zeros(limit.size)
+    problem = None
+    if problems:
+        k, what = min(problems)
+        problem = f"at t = {k * dt:.3f} s: {what}"
+    return JointReport(robot.label, names, joints_ok, speed_ok, torque_ok, share,
+                       (float(ik[0]), float(ik[1])), problem)
 
 
 class ObjectInTool(NamedTuple):
@@ -237,8 +336,10 @@ class ExecutionLog:
     Arrays have one row per executed period (``steps`` of them; fewer than the reference if
     the run was cut short): tool site position ``(N, 3)`` [m], quaternion ``(N, 4)``, measured
     twist ``(N, 6)`` [m/s, rad/s]; object position ``(N, 3)`` [m] and quaternion ``(N, 4)``;
-    joint torque ``(N, 6)`` [N m]. ``body_rel_placed`` ``(3,)`` is where the object was put, in
-    the tool site's frame [m]. ``frames`` are rendered at the periods ``frame_steps``.
+    joint torque ``(N, n)`` [N m], joint positions ``(N, n)`` [rad] and velocities ``(N, n)`` [rad/s] of the
+    arm's n joints; the IK reference's residual ``(N, 2)`` [m, rad] (zeros on the built-in arm, which has
+    no IK in its loop) and whether the torque hit a limit ``(N,)``. ``body_rel_placed`` ``(3,)`` is where
+    the object was put, in the tool site's frame [m]. ``frames`` are rendered at the periods ``frame_steps``.
     """
 
     tool_pos: np.ndarray
@@ -247,6 +348,10 @@ class ExecutionLog:
     body_pos: np.ndarray
     body_quat: np.ndarray
     torque: np.ndarray
+    joint_pos: np.ndarray
+    joint_vel: np.ndarray
+    ik_error: np.ndarray
+    saturated: np.ndarray
     body_rel_placed: np.ndarray
     steps: int
     diverged: str | None
@@ -254,11 +359,12 @@ class ExecutionLog:
     simulated_time: float
     frames: list = field(default_factory=list)
     frame_steps: list = field(default_factory=list)
+    joints: JointReport | None = None
 
     @property
     def torque_peak(self) -> np.ndarray:
-        """``(6,)`` largest |joint torque| [N m] (zeros if nothing was executed)."""
-        return np.abs(self.torque).max(axis=0) if self.steps else np.zeros(6)
+        """``(n,)`` largest |joint torque| [N m] (zeros if nothing was executed)."""
+        return np.abs(self.torque).max(axis=0) if self.steps else np.zeros(self.torque.shape[1])
 
     @property
     def realtime_factor(self) -> float:
@@ -344,8 +450,11 @@ def execute(
     object_mass: float,
     settle_time: float,
     media: Media | None = None,
+    robot: str | None = None,
 ) -> ExecutionLog:
     """Run the reference on the arm of scene ``kind`` and log every control period.
+
+    ``robot`` names a standard arm (:func:`seqmotion.sim.robot_models.robots`); ``None`` is the built-in arm.
 
     The arm starts at the reference's first pose with the object placed at rest on the tool
     (:func:`place_on_tool` with ``object_height`` [m] and ``object_offset`` ``(2,)`` [m]; the
@@ -355,7 +464,7 @@ def execute(
     torque is not finite, or MuJoCo flags the simulation unstable. ``media`` (if any) says which
     periods to render; its files are written at the end.
     """
-    scene = get_scene(kind)
+    scene = get_scene(kind, robot)
     arm = Arm(scene, gains, model_bias=model_bias)
     arm.reset(ref.pos[0], ref.quat[0], place_on_tool(scene, object_height, object_offset), weight(object_mass))
     d, ctl = arm.data, arm.controller
@@ -374,8 +483,12 @@ def execute(
     twist = np.concatenate([ref.vel, ref.omega], axis=1)
     accel = np.concatenate([ref.acc, ref.alpha], axis=1)
     still = np.zeros(6)
+    joints = len(scene.arm_dof)
+    qadr, vadr = scene.arm_qpos, scene.arm_dof
     log = {name: np.zeros((n, dim)) for name, dim in
-           [("tool_pos", 3), ("tool_quat", 4), ("tool_twist", 6), ("body_pos", 3), ("body_quat", 4), ("torque", 6)]}
+           [("tool_pos", 3), ("tool_quat", 4), ("tool_twist", 6), ("body_pos", 3), ("body_quat", 4),
+            ("torque", joints), ("joint_pos", joints), ("joint_vel", joints), ("ik_error", 2), ("saturated", 1)]}
+    standard = isinstance(ctl, JointSpaceController)
     n_settle = round(settle_time / ref.dt)
     frame_steps_done: list[int] = []
     limit2 = TRACKING_LIMIT**2
@@ -393,6 +506,11 @@ def execute(
             log["body_pos"][k] = d.qpos[bq : bq + 3]
             log["body_quat"][k] = d.qpos[bq + 3 : bq + 7]
             log["torque"][k] = tau
+            log["joint_pos"][k] = d.qpos[qadr]
+            log["joint_vel"][k] = d.qvel[vadr]
+            if standard:
+                log["ik_error"][k] = ctl.ik_error
+                log["saturated"][k] = ctl.saturated
             if recorder is not None and k in frame_steps:
                 recorder.capture(d, k * ref.dt)
                 frame_steps_done.append(k)
@@ -422,6 +540,7 @@ def execute(
         wall = _time.perf_counter() - start
         if recorder is not None:
             recorder.close()
+    log["saturated"] = log["saturated"][:, 0] > 0
     result = ExecutionLog(
         **{name: arr[:steps] for name, arr in log.items()},
         body_rel_placed=body_rel_placed,
@@ -432,6 +551,7 @@ def execute(
         frames=[] if recorder is None else recorder.frames,
         frame_steps=frame_steps_done,
     )
+    result.joints = joint_report(scene, result, ref.dt)
     if media is not None:
         media.write(result)
     return result

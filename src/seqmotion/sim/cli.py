@@ -1,7 +1,8 @@
 """``seqmotion simulate pancake|sliding --trajectory FILE [--video out.mp4]``.
 
 ``add_parser(subparsers)`` registers the ``simulate`` command on the main parser and
-``run(args)`` executes it. ``--video``, ``--snapshots`` and ``--json`` are checked before the
+``run(args)`` executes it (``seqmotion robots`` lists the arms ``--robot`` takes: standard arm models,
+:mod:`seqmotion.sim.robot_models`). ``--video``, ``--snapshots`` and ``--json`` are checked before the
 simulation starts and written atomically. MuJoCo is imported only when a simulation runs. ``--mu`` sets the
 friction coefficient a pancake run's executed friction cone is judged with
 (:func:`~seqmotion.sim.pancake.run_pancake`'s ``mu``).
@@ -45,9 +46,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                              "(default: --model's μ, else 1; the simulated contact keeps μ = 1)")
     parser.add_argument("--model", help="the model (shipped name or directory) that generated the motion: its "
                                         "options (μ) judge the execution")
+    parser.add_argument("--robot", help="run on a standard arm model (panda, ur5e, robosuite:<name>, menagerie:<name>; "
+                                        "list: seqmotion robots) instead of the built-in MH3F-like arm")
     parser.add_argument("--json", help="also write the metrics (and the logged paths) here as JSON")
     parser.set_defaults(func=run)
+    listing = subparsers.add_parser("robots", help="list the robot arms available here (for simulate --robot NAME)")
+    listing.add_argument("--json", action="store_true", help="print the list as JSON")
+    listing.set_defaults(func=list_robots)
     return parser
+
+
+def list_robots(args: argparse.Namespace) -> int:
+    """Print the robots :func:`seqmotion.sim.robots` finds here (no download)."""
+    from .robot_models import robots
+
+    found = robots()
+    if args.json:
+        print(json.dumps([{"name": r.name, "source": r.source, "dof": r.dof,
+                           "path": None if r.path is None else str(r.path)} for r in found]))
+        return 0
+    width = max(len(r.name) for r in found)
+    for r in found:
+        print(f"{r.name:<{width}}  {r.source:<9}  {r.dof} joints  {r.path or 'built in (the default arm)'}")
+    if not any(r.source != "seqmotion" for r in found):
+        print("no standard arms here: pip install 'seqmotion[robots]' && pip install --no-deps 'robosuite>=1.5,<1.6'")
+    return 0
 
 
 def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
@@ -92,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scene is None:
         raise ValueError(f"name the scene ({' | '.join(SCENES)}) or give --model")
     path = Path(args.trajectory)
-    common = {"video": args.video, "snapshots": args.snapshots}
+    common = {"video": args.video, "snapshots": args.snapshots, "robot": args.robot}
     if args.camera:
         common["camera"] = args.camera
     if args.scene == "pancake":
@@ -124,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
             result = run_sliding(pan, arrays.get("command"), gains=args.gains or "ch3", **common)
         logged = {"time": result.time, "pan_command": result.pan_command, "pan_response": result.pan_response,
                   "object_path": result.object_path}
-    print(f"{args.scene}: {result.describe()}")
+    print(f"{args.scene} on {result.robot}: {result.describe()}")
     print(f"simulated {result.time[-1] if len(result.time) else 0:.3f} s at {result.realtime_factor:.1f}x real time")
     for name in ("video", "snapshots"):
         if getattr(args, name):

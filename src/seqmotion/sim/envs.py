@@ -95,7 +95,7 @@ from ..physics.sliding import ACCEL_LAYOUT as PAN_ACCEL
 from ..physics.sliding import PLAN_LAYOUT as SLIDING_STATE
 from .arm import Arm, Place, get_scene, place_on_tool, weight, workspace_problem
 from .backend import CONTROL_DT, import_mujoco
-from .control import TaskSpaceController, resolve_gains
+from .control import JointSpaceController, TaskSpaceController, resolve_gains
 from .kinematics import Reference, attitude_matrix, matrix_to_quat, planar_tilt, quat_to_matrix
 from .pancake import GAP_LIMIT, SLIP_LIMIT
 from .render import Renderer
@@ -225,7 +225,8 @@ class _ArmEnv(gym.Env):
     _options: tuple[str, ...] = ()
 
     def __init__(self, *, gains: str, frame_skip: int, action: str, normalize_actions: bool,
-                 time_limit: float | None, render_mode: str | None, camera: str, width: int, height: int) -> None:
+                 time_limit: float | None, render_mode: str | None, camera: str, width: int, height: int,
+                 robot: str | None = None) -> None:
         if isinstance(frame_skip, bool) or not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
             raise ValueError(f"frame_skip must be a positive integer, got {frame_skip!r}")
         if action not in ACTIONS:
@@ -235,7 +236,8 @@ class _ArmEnv(gym.Env):
         if time_limit is not None and not (np.isfinite(time_limit) and time_limit > 0):
             raise ValueError(f"time_limit must be a positive number of seconds or None, got {time_limit!r}")
         self._mj = import_mujoco()
-        self.scene = get_scene(self.kind)
+        self.scene = get_scene(self.kind, robot)
+        self.robot = robot
         self.gains = resolve_gains(gains)
         self.frame_skip = int(frame_skip)
         self.action_mode = action
@@ -344,8 +346,9 @@ class _ArmEnv(gym.Env):
         return self._ref.copy() if self.action_mode == "accel" else None
 
     @property
-    def controller(self) -> TaskSpaceController | None:
-        """The arm's task-space controller (``None`` before the first :meth:`reset`)."""
+    def controller(self) -> TaskSpaceController | JointSpaceController | None:
+        """The arm's controller (``None`` before the first :meth:`reset`): task space on the built-in arm,
+        differential IK + joint space on a standard ``robot``."""
         return self.arm.controller
 
     # -- gymnasium API -------------------------------------------------------------------------
@@ -399,6 +402,8 @@ class _ArmEnv(gym.Env):
         self._steps += 1
         obs = self._observation()
         reward, terminated, info = self._reward(obs[self.fields["object_pos"].slice])
+        if isinstance(self.controller, JointSpaceController):  # what the robot's IK and torque limits allowed
+            info["ik_error"], info["torque_saturated"] = self.controller.ik_error.copy(), self.controller.saturated
         if problem is not None:
             terminated, info["out_of_workspace"] = True, problem
             self._not_ready = f"the episode ended: the command left the arm's workspace ({problem})"
@@ -425,7 +430,7 @@ class _ArmEnv(gym.Env):
         """Why the arm cannot reach the tool pose ``pos`` ``(3,)``, ``quat`` ``(4,)``, or ``None``."""
         zero = np.zeros((1, 3))
         ref = Reference(pos=pos[None], quat=quat[None], vel=zero, omega=zero, acc=zero, alpha=zero, n_motion=1)
-        problem = workspace_problem(ref, self.kind)
+        problem = workspace_problem(ref, self.kind, self.robot)
         return None if problem is None else problem.split(": ", 1)[-1]
 
     def _step_pose(self, pose: np.ndarray) -> str | None:
@@ -502,6 +507,9 @@ class PancakeArmEnv(_ArmEnv):
         normalize_actions: ``Box(-1, 1)`` actions mapped onto the physical bounds.
         jitter: [m]. time_limit: episode length [s] (``None``: none).
         render_mode: ``None`` or ``"rgb_array"``; camera, width, height: of the rendered frames.
+        robot: a standard arm (``"panda"``, ``"ur5e"``, ``"menagerie:<name>"``, …: :func:`seqmotion.sim.robots`)
+            driven by differential IK + joint-space PD + DOB (``info`` then holds ``ik_error`` [m, rad] and
+            ``torque_saturated``); ``None`` (default): the built-in arm.
     """
 
     kind = "pancake"
@@ -514,11 +522,12 @@ class PancakeArmEnv(_ArmEnv):
     def __init__(self, *, gains: str = "ch2", frame_skip: int = 10, action: str = "planar",
                  normalize_actions: bool = False, jitter: float = 0.005, time_limit: float | None = TIME_LIMIT,
                  render_mode: str | None = None, camera: str = "oblique", width: int = 480,
-                 height: int = 360, **unknown: Any) -> None:
+                 height: int = 360, robot: str | None = None, **unknown: Any) -> None:
         _refuse_unknown(type(self), unknown)
         self.jitter = float(jitter)
         super().__init__(gains=gains, frame_skip=frame_skip, action=action, normalize_actions=normalize_actions,
-                         time_limit=time_limit, render_mode=render_mode, camera=camera, width=width, height=height)
+                         time_limit=time_limit, render_mode=render_mode, camera=camera, width=width, height=height,
+                         robot=robot)
 
     def _physical_action_space(self) -> tuple[np.ndarray, np.ndarray, StateLayout]:
         if self.action_mode == "planar":
@@ -585,12 +594,13 @@ class SlidingArmEnv(_ArmEnv):
     def __init__(self, *, gains: str = "ch3", frame_skip: int = 10, action: str = "planar",
                  normalize_actions: bool = False, goal_radius: float = 0.06, time_limit: float | None = TIME_LIMIT,
                  render_mode: str | None = None, camera: str = "front", width: int = 480,
-                 height: int = 360, **unknown: Any) -> None:
+                 height: int = 360, robot: str | None = None, **unknown: Any) -> None:
         _refuse_unknown(type(self), unknown)
         self.goal_radius = float(goal_radius)
         self.goal = np.zeros(2)
         super().__init__(gains=gains, frame_skip=frame_skip, action=action, normalize_actions=normalize_actions,
-                         time_limit=time_limit, render_mode=render_mode, camera=camera, width=width, height=height)
+                         time_limit=time_limit, render_mode=render_mode, camera=camera, width=width, height=height,
+                         robot=robot)
 
     def _physical_action_space(self) -> tuple[np.ndarray, np.ndarray, StateLayout]:
         if self.action_mode == "planar":

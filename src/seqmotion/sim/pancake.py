@@ -28,7 +28,9 @@ from ..data.trajectories import tracking_rmse
 from ..physics.pancake import MU, check_mu, violation
 from .arm import (
     ExecutionLog,
+    JointReport,
     Media,
+    RobotFlags,
     check_times,
     execute,
     first_true,
@@ -49,7 +51,7 @@ FREE_FALL = 1.0
 
 
 @dataclass
-class PancakeResult:
+class PancakeResult(RobotFlags):
     """What happened when the arm executed a planar spatula trajectory.
 
     Time ``time[k] = k dt`` with k = 0 the first input sample; samples ``[0, n_motion)`` are the
@@ -73,11 +75,13 @@ class PancakeResult:
         executed_violation: ``(n_motion - 1,)`` F_c of the executed spatula motion (eq. 2.18) for
             friction coefficient ``mu`` [rad]; 0 where its specific force is below
             :data:`FREE_FALL` (direction undefined).
-        torque_peak: ``(6,)`` largest |joint torque| [N m].
+        torque_peak: ``(n,)`` largest |joint torque| [N m] of the arm's n joints.
         realtime_factor: simulated time / wall-clock time of the control loop.
         diverged: ``None``, or why the run was cut short (then arrays end there).
         n_motion: number of input samples.
         mu: the friction coefficient ``executed_violation`` was judged with.
+        joints: what the robot's joints did against its limits (:class:`~seqmotion.sim.arm.JointReport`);
+            ``result.robot``, ``result.joint_limits_ok``, ``result.torque_limits_ok`` read it.
     """
 
     time: np.ndarray
@@ -101,6 +105,7 @@ class PancakeResult:
     diverged: str | None
     n_motion: int
     mu: float = MU
+    joints: JointReport | None = None
 
     def summary(self) -> dict[str, Any]:
         """The scalar metrics as a JSON-friendly dict."""
@@ -118,11 +123,14 @@ class PancakeResult:
             "mu": self.mu,  # the friction coefficient the executed cone was judged with
             "realtime_factor": self.realtime_factor,
             "diverged": self.diverged,
+            **({"robot": self.robot} if self.joints is None else self.joints.summary()),
         }
 
     def describe(self) -> str:
         """One line for people: tracking, and what the pancake did."""
         track = f"tracking {self.position_rmse * 1e3:.1f} mm / {np.degrees(self.attitude_rmse):.2f}° RMSE"
+        if self.joints is not None and self.joints.problem:
+            track += f"; {self.joints.robot}: {self.joints.problem}"
         if self.diverged:
             return f"{track}; run cut short: {self.diverged}"
         if self.contact_lost:
@@ -157,6 +165,7 @@ def run_pancake(
     fps: float = 30.0,
     slow_motion: float = 4.0,
     mu: float = MU,
+    robot: str | None = None,
 ) -> PancakeResult:
     """Execute planar spatula states on the simulated MH3F-like arm with a pancake on the blade.
 
@@ -184,6 +193,9 @@ def run_pancake(
             (``executed_violation``, eq. 2.18; default the 2-D model's μ = 1). It does not change
             the simulation: the simulated pancake–blade contact has μ = 1
             (:data:`~seqmotion.sim.scene.MU_PANCAKE`). Judge a motion planned for a lower μ with it.
+        robot: a standard arm to run it on (``"panda"``, ``"ur5e"``, ``"menagerie:<name>"``, …; see
+            :func:`seqmotion.sim.robot_models.robots`), tracked by differential IK + joint-space PD + DOB;
+            ``None`` (default): the built-in MH3F-like arm.
 
     Returns:
         A :class:`PancakeResult`.
@@ -197,11 +209,12 @@ def run_pancake(
     check_mu(mu)
     gains = resolve_gains(gains)
     ref = planar_reference(arr, decel_time=decel_time, hold_time=hold_time)
-    prepare_reference(ref, "pancake", accel_feedforward=accel_feedforward, check_workspace=check_workspace)
+    prepare_reference(ref, "pancake", accel_feedforward=accel_feedforward, check_workspace=check_workspace,
+                      robot=robot)
     media = Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion, camera)
     # The pancake is placed on the blade's centre, resting on the site (its resting centre).
     log = execute("pancake", ref, gains, model_bias=model_bias, object_height=0.0, object_offset=np.zeros(2),
-                  object_mass=PANCAKE_MASS, settle_time=settle_time, media=media)
+                  object_mass=PANCAKE_MASS, settle_time=settle_time, media=media, robot=robot)
     return _pancake_metrics(ref, log, arr, mu)
 
 
@@ -272,5 +285,6 @@ def _pancake_metrics(ref: Reference, log: ExecutionLog, states: np.ndarray, mu: 
         diverged=log.diverged,
         n_motion=ref.n_motion,
         mu=mu,
+        joints=log.joints,
     )
 

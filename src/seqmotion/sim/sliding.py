@@ -34,7 +34,9 @@ from ..data.trajectories import tracking_rmse
 from ..physics.sliding import SlidingPhysics
 from .arm import (
     ExecutionLog,
+    JointReport,
     Media,
+    RobotFlags,
     check_times,
     execute,
     first_true,
@@ -69,7 +71,7 @@ def object_origin(command_xy: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class SlidingResult:
+class SlidingResult(RobotFlags):
     """What happened when the arm shook the pan.
 
     Positions in metres, in the 2-D model's axes (x forward, y left); the object's path is in
@@ -95,7 +97,7 @@ class SlidingResult:
         fell_off: the object left the pan (beyond its wall, or below its surface).
         fell_off_time: when it first did [s], or ``None``.
         tipped: the object's axis tilted more than :data:`TIP_ANGLE` (45°) from the pan's normal at some time.
-        torque_peak, realtime_factor, diverged, n_motion: as in :class:`PancakeResult`.
+        torque_peak, realtime_factor, diverged, n_motion, joints: as in :class:`PancakeResult`.
     """
 
     time: np.ndarray
@@ -118,6 +120,7 @@ class SlidingResult:
     realtime_factor: float
     diverged: str | None
     n_motion: int
+    joints: JointReport | None = None
 
     def summary(self) -> dict[str, Any]:
         """The scalar metrics as a JSON-friendly dict."""
@@ -133,6 +136,7 @@ class SlidingResult:
             "tipped": self.tipped,
             "realtime_factor": self.realtime_factor,
             "diverged": self.diverged,
+            **({"robot": self.robot} if self.joints is None else self.joints.summary()),
         }
 
     def describe(self) -> str:
@@ -145,6 +149,8 @@ class SlidingResult:
             parts.append(f"command placed at ({x:.0f}, {y:.0f}) mm from the pan's centre to clear its wall")
         parts.append(f"pan within {self.pan_excursion * 1e3:.0f} mm of its start")
         parts.append("object fell off" if self.fell_off else ("object tipped" if self.tipped else "object stayed on"))
+        if self.joints is not None and self.joints.problem:
+            parts.append(f"{self.joints.robot}: {self.joints.problem}")
         if self.diverged:
             parts.append(f"run cut short: {self.diverged}")
         return "; ".join(parts)
@@ -168,6 +174,7 @@ def run_sliding(
     check_workspace: bool = True,
     fps: float = 30.0,
     slow_motion: float = 2.0,
+    robot: str | None = None,
 ) -> SlidingResult:
     """Shake the frying pan along planned pan states and watch the object (§3.5).
 
@@ -187,7 +194,7 @@ def run_sliding(
             pan, ``(2,)`` [m] from its centre; ``"auto"`` (default): :func:`object_origin` of the
             command (or of the plan's path), i.e. the centre unless the path would reach the wall.
         video, snapshots, n_snapshots, camera (``"front"`` or ``"top"``), decel_time, hold_time,
-        settle_time, model_bias, accel_feedforward, check_workspace, fps, slow_motion: as in
+        settle_time, model_bias, accel_feedforward, check_workspace, fps, slow_motion, robot: as in
         :func:`~seqmotion.sim.pancake.run_pancake`.
 
     Returns:
@@ -234,7 +241,8 @@ def run_sliding(
         plan_rel[:, :2] += shift
     gains = resolve_gains(gains)
     ref = pan_reference(pan, decel_time=decel_time, hold_time=hold_time)
-    prepare_reference(ref, "sliding", accel_feedforward=accel_feedforward, check_workspace=check_workspace)
+    prepare_reference(ref, "sliding", accel_feedforward=accel_feedforward, check_workspace=check_workspace,
+                      robot=robot)
     if np.hypot(*(start + shift)) > PAN_RADIUS - 0.04:
         raise ValueError(f"the object's start {start.tolist()} m, with the command's origin at {shift.tolist()} m, "
                          f"is not on the pan (radius {PAN_RADIUS} m)")
@@ -242,7 +250,7 @@ def run_sliding(
     media = Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion, camera)
     # Planar (x, y) on the pan = the tool's (z, y) axes; the object stands on the pan's surface.
     log = execute("sliding", ref, gains, model_bias=model_bias, object_height=OBJECT_HALF_HEIGHT, object_offset=start,
-                  object_mass=OBJECT_MASS, settle_time=settle_time, media=media)
+                  object_mass=OBJECT_MASS, settle_time=settle_time, media=media, robot=robot)
     return _sliding_metrics(ref, log, cmd if cmd is not None else plan_rel, plan_rel, shift)
 
 
@@ -292,4 +300,5 @@ def _sliding_metrics(
         realtime_factor=log.realtime_factor,
         diverged=log.diverged,
         n_motion=ref.n_motion,
+        joints=log.joints,
     )
