@@ -401,6 +401,119 @@ def test_scene_meshes_and_a_replay():
     assert np.linalg.norm(replay.pos[-1, blade] - replay.pos[0, blade]) > 0.01  # the arm moved
 
 
+MESH_SCENE = """<mujoco>
+  <compiler angle="radian"/>
+  <asset>
+    <mesh name="tet" vertex="0 0 0  0.1 0 0  0 0.2 0  0 0 0.3" face="0 2 1  0 1 3  0 3 2  1 2 3"/>
+    <material name="green" rgba="0 1 0 1"/>
+  </asset>
+  <worldbody>
+    <body name="link" pos="0.3 -0.2 0.5" euler="0.4 -0.7 1.1">
+      <geom name="painted" type="mesh" mesh="tet" pos="0.05 0.02 -0.01" euler="1.0 0.3 -0.5" material="green"/>
+      <geom name="red" type="mesh" mesh="tet" material="green" rgba="1 0 0 1"/>
+      <geom name="collision" type="mesh" mesh="tet" group="3"/>
+    </body>
+  </worldbody>
+</mujoco>"""
+
+
+def _euler_matrix(x: float, y: float, z: float) -> np.ndarray:
+    """MJCF's default ``euler`` (intrinsic x, then y, then z)."""
+    cx, sx, cy, sy, cz, sz = np.cos(x), np.sin(x), np.cos(y), np.sin(y), np.cos(z), np.sin(z)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rx @ ry @ rz
+
+
+def test_mesh_geoms_are_drawn_where_the_file_puts_them():
+    """MuJoCo recentres a mesh at its centroid and turns it to its principal axes; the drawn vertices must
+    still be the file's vertices through the geom's and the body's poses as the file wrote them."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(MESH_SCENE)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    geoms = {g.name: g for g in scene3d.scene_geoms(model)}
+    assert set(geoms) == {"painted", "red"}  # the group-3 collision mesh is not drawn
+    assert geoms["painted"].rgb == (0, 255, 0) and geoms["red"].rgb == (255, 0, 0)  # material, then own rgba
+    tet = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0], [0, 0, 0.3]])
+    body_rot, body_pos = _euler_matrix(0.4, -0.7, 1.1), np.array([0.3, -0.2, 0.5])
+    for name, rot, pos in [("painted", _euler_matrix(1.0, 0.3, -0.5), np.array([0.05, 0.02, -0.01])),
+                           ("red", np.eye(3), np.zeros(3))]:
+        g = geoms[name]
+        drawn = data.xpos[g.body] + g.vertices.astype(np.float64) @ data.xmat[g.body].reshape(3, 3).T
+        expected = body_pos + (pos + tet @ rot.T) @ body_rot.T
+        assert len(drawn) == 4 and len(g.faces) == 4
+        assert np.abs(np.sort(drawn, axis=0) - np.sort(expected, axis=0)).max() < 1e-6
+        corners = drawn[g.faces]  # every face's normal points out of the tetrahedron, as in the file
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        assert np.all(np.einsum("ij,ij->i", normals, corners.mean(1) - drawn.mean(0)) > 0)
+
+
+def test_a_fine_mesh_is_simplified_to_its_budget_and_keeps_its_shape():
+    verts, faces = scene3d._capsule(0.1, 0.0, 80)  # a sphere of 0.1 m, ~12 800 triangles
+    assert len(faces) > 10_000
+    v, f = scene3d.decimate(verts, faces, 600)
+    assert 300 <= len(f) <= 600 and f.max() < len(v) and np.all(np.isfinite(v))
+    radius = np.linalg.norm(v, axis=1)
+    assert np.abs(radius - 0.1).max() < 0.012  # still the sphere, within about a grid cell
+    assert np.abs(v.max(0) - verts.max(0)).max() < 0.015 and np.abs(v.min(0) - verts.min(0)).max() < 0.015
+    same_v, same_f = scene3d.decimate(verts, faces, len(faces))  # within its cap: untouched
+    assert same_v is verts and same_f is faces
+    # water filling: small meshes stay whole, the large ones share what is left of the budget
+    assert scene3d.fit_budget([100, 1000, 5000], 2100) == 1000
+    assert scene3d.fit_budget([100, 3000, 5000], 2100) == 1000
+    assert scene3d.fit_budget([100, 200], 2100) == 200
+    with pytest.raises(ValueError, match="max_faces"):
+        scene3d.decimate(verts, faces, 0)
+
+
+def _standard_arm_here(name: str) -> None:
+    """Skip, by name, where the standard arm ``name`` or the IK library its controller needs is absent."""
+    if importlib.util.find_spec("mink") is None:
+        pytest.skip("mink is not installed (pip install 'seqmotion[robots]')")
+    from seqmotion.sim.robot_models import robots
+
+    if name not in {r.name for r in robots()}:
+        pytest.skip(f"robot {name!r} is not available here (robosuite's model files are not installed)")
+
+
+def test_a_replay_on_the_panda_moves_its_meshes_and_says_what_its_joints_did():
+    _standard_arm_here("panda")
+    from seqmotion.sim.arm import get_scene
+
+    model = get_scene("pancake", "panda").model
+    geoms = scene3d.scene_geoms(model)
+    links = {model.geom_bodyid[i] for i in range(model.ngeom) if model.geom_type[i] == scene3d.GEOM_MESH}
+    assert links <= {g.body for g in geoms}  # every link with a mesh is drawn
+    mesh_faces = sum(len(g.faces) for g in geoms if g.body in links)
+    assert 10_000 < mesh_faces <= scene3d.MESH_FACE_BUDGET  # the links' meshes, simplified to the budget
+    motion = sm.data.pancake.straight((0.05, 0.02, 0.5), 200)
+    replay = scene3d.replay("pancake", motion, stride=20, tail=0.2, robot="panda")
+    assert replay.pos.shape[1:] == (model.nbody, 3) and replay.quat.shape[1:] == (model.nbody, 4)
+    assert len(replay.time) == replay.pos.shape[0] >= 10 and np.all(np.isfinite(replay.pos))
+    assert "tracking" in replay.summary and replay.robot == "panda (robosuite)"
+    blade = next(g for g in geoms if g.name == "blade").body
+    assert np.linalg.norm(replay.pos[-1, blade] - replay.pos[0, blade]) > 0.01  # the arm moved
+    rest_pos, _ = scene3d.rest_poses("pancake", robot="panda")
+    assert np.abs(rest_pos - replay.pos[0]).max() < 0.01  # the replay starts from the scene's rest pose
+    if importlib.util.find_spec("viser") is None:
+        return
+    import viser
+
+    from seqmotion.view.app import ArmView
+
+    server = viser.ViserServer(port=0, verbose=False)
+    try:  # the page's scene: a frame per drawn body, moved by the replay's poses
+        arm = ArmView(server, "/pancake", "pancake", "panda")
+        assert set(arm.frames) == {g.body for g in geoms} and arm.triangles == sum(len(g.faces) for g in geoms)
+        arm.pose(replay.pos[-1], replay.quat[-1])
+        assert np.allclose(arm.frames[blade].position, replay.pos[-1, blade], atol=1e-6)
+    finally:
+        server.stop()
+
+
 # --- the command line --------------------------------------------------------------------------------
 
 
@@ -415,6 +528,10 @@ def test_cli_registers_view_and_refuses_a_bad_port(capsys):
     assert "--port" in capsys.readouterr().err
     assert main(["view", "no-such-model", "--port", "0"]) == 2
     assert "no-such-model" in capsys.readouterr().err
+    assert main(["view", "--robot", "no-such-robot", "--port", "0"]) == 2  # refused before any server starts
+    assert "no-such-robot" in capsys.readouterr().err
+    assert main(["view", "--robot", "menagerie:ur5e", "--no-sim", "--port", "0"]) == 2
+    assert "--no-sim" in capsys.readouterr().err
 
 
 def test_cli_warns_that_a_public_host_has_no_authentication(capsys):

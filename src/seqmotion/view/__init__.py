@@ -2,7 +2,8 @@
 
 Panels: **Pancake** (a sketch from end-pose sliders, the deformed motion, θ(t) and ψ(t) against the
 friction-cone band, the trust signals, ``keep_end``, latent adjustment toward a dragged end pose, a 3-D
-replay of the MuJoCo arm, export as CSV/NPZ or MP4), **Sliding** (a command path → the planned pan
+replay of the MuJoCo arm — the built-in one, or a standard robot's published model with its meshes
+(``--robot panda``) — export as CSV/NPZ or MP4), **Sliding** (a command path → the planned pan
 motion and the object's path under chosen friction), **Latent space** (sliders over the main PCA
 directions of a model's latents, decoded live; the pushing model's images and ẑ clusters), and for
 any other registered task (a plug-in with its own physics too) a panel built from its layouts: its

@@ -157,25 +157,33 @@ def about_x(theta: float) -> tuple[float, float, float, float]:
 
 class ArmView:
     """The MuJoCo arm of one scene in viser: a frame per body, the body's geoms as meshes under it; replays
-    move the frames."""
+    move the frames. ``robot``: a standard arm's name (its link meshes, simplified to
+    :data:`.scene3d.MESH_FACE_BUDGET` triangles), ``None`` the built-in arm."""
 
-    def __init__(self, server: Any, root: str, kind: str) -> None:
+    def __init__(self, server: Any, root: str, kind: str, robot: str | None = None) -> None:
         from ..sim.arm import get_scene
 
-        self.server, self.root, self.kind = server, root, kind
-        model = get_scene(kind).model
+        self.server, self.root, self.kind, self.robot = server, root, kind, robot
+        model = get_scene(kind, robot).model
         self.frames = {}
-        pos, quat = scene3d.rest_poses(kind)
-        for geom in scene3d.scene_geoms(model):
+        pos, quat = scene3d.rest_poses(kind, robot=robot)
+        self.geoms = scene3d.scene_geoms(model)
+        for geom in self.geoms:
             b = geom.body
             if b not in self.frames:
                 self.frames[b] = server.scene.add_frame(f"{root}/arm/body{b}", show_axes=False, position=pos[b],
                                                         wxyz=quat[b])
-            server.scene.add_mesh_simple(f"{root}/arm/body{b}/{geom.name}", geom.vertices, geom.faces,
-                                         color=geom.rgb, flat_shading=False, cast_shadow=False,
+            # a robot's names carry its prefix ("panda/link1"): a '/' would nest a scene node under it
+            server.scene.add_mesh_simple(f"{root}/arm/body{b}/{geom.name.replace('/', '__')}", geom.vertices,
+                                         geom.faces, color=geom.rgb, flat_shading=False, cast_shadow=False,
                                          receive_shadow=False)  # no shadow pass: cheap redraws
         self.playing = False
         self.replay: scene3d.Replay | None = None
+
+    @property
+    def triangles(self) -> int:
+        """Triangles this arm's scene sends to the page."""
+        return sum(len(g.faces) for g in self.geoms)
 
     def pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
         with self.server.atomic():
@@ -185,7 +193,23 @@ class ArmView:
                 frame.position, frame.wxyz = pos[b], quat[b]
 
     def rest(self, start: np.ndarray | None = None) -> None:
-        self.pose(*scene3d.rest_poses(self.kind, start))
+        self.pose(*scene3d.rest_poses(self.kind, start, robot=self.robot))
+
+
+def check_robot(robot: str | None, simulate: bool = True) -> str | None:
+    """The viewer's ``robot`` argument checked: ``None`` for the built-in arm (``None`` or ``"mh3f"``), else the
+    name, once :func:`seqmotion.sim.robot_models.resolve_robot` has found the robot here. ``ValueError`` (its message
+    names what is available) for an unknown or unavailable robot, or a robot without the 3-D arm."""
+    from ..sim.robot_models import BUILT_IN, resolve_robot
+
+    if robot is None or robot == BUILT_IN:
+        return None
+    if not isinstance(robot, str):
+        raise ValueError(f"robot must be a robot's name (see seqmotion.sim.robots()), got {robot!r}")
+    if not simulate:
+        raise ValueError(f"robot {robot!r} needs the MuJoCo arm: this viewer runs with --no-sim")
+    resolve_robot(robot)
+    return robot
 
 
 class ViewerApp:
@@ -199,11 +223,15 @@ class ViewerApp:
         out: where exports go (created on the first export); nothing is written outside it.
         latent_n: encodings behind the latent panel's PCA.
         simulate: show the 3-D arm (False: no MuJoCo, no scene).
+        robot: the arm of the 3-D scene, its replays and videos: a standard arm's name (``"panda"``,
+            ``"ur5e"``, ``"menagerie:<name>"``, …; :func:`seqmotion.sim.robot_models.robots`), or ``None`` /
+            ``"mh3f"`` for the built-in arm. An unknown or unavailable robot is refused (``ValueError``)
+            before the server starts.
     """
 
     def __init__(self, model: str = "pancake", *, sliding_model: str | None = "sliding", host: str = "127.0.0.1",
                  port: int = 8080, out: str | Path = "seqmotion-view", latent_n: int = 96,
-                 simulate: bool = True) -> None:
+                 simulate: bool = True, robot: str | None = None) -> None:
         from ..api import resolve_model
 
         self.out = Path(out)
@@ -213,6 +241,7 @@ class ViewerApp:
         self.timings: dict[str, list[float]] = {}
         self.marks: dict[str, float] = {}
         self.errors: list[str] = []
+        self.robot = check_robot(robot, simulate)  # like the models: a bad robot starts nothing
         main = resolve_model(model)  # every model is loaded before the server starts: a bad name starts nothing
         task = getattr(getattr(main, "task_def", None), "name", None)
         if sliding_model is not None and sliding_model.lower() == "none":
@@ -276,6 +305,11 @@ class ViewerApp:
     def paths_in_3d(self) -> bool:
         box = getattr(self, "paths_box", None)
         return True if box is None else self.controls.read(box)
+
+    @property
+    def arm_label(self) -> str:
+        """The 3-D scene's arm for people: ``"the arm"`` (built-in) or ``"panda"``."""
+        return "the arm" if self.robot is None else self.robot
 
     @property
     def url(self) -> str:
@@ -423,7 +457,7 @@ class PancakePanel:
         self.root = self.server.scene.add_frame("/pancake", show_axes=False)
         self.lines = {"sketch": SceneLine(self.server, "/pancake/sketch", (140, 140, 140), 2.0),
                       "deformed": SceneLine(self.server, "/pancake/deformed", (31, 119, 180), 4.0)}
-        self.arm = ArmView(self.server, "/pancake", "pancake") if app.simulate else None
+        self.arm = ArmView(self.server, "/pancake", "pancake", app.robot) if app.simulate else None
         self.gizmo = self.server.scene.add_transform_controls(
             "/pancake/target", scale=0.2, active_axes=(False, True, True), depth_test=False,
             position=scene3d.planar_to_world(np.array([self.target[:2]]))[0], wxyz=about_x(self.target[2]))
@@ -529,15 +563,15 @@ class PancakePanel:
         if self.frame is None or self.arm is None:
             return
         self.app.show_scene("pancake")
-        self.sim_readout.content = "simulating on the arm…"
+        self.sim_readout.content = f"simulating on {self.app.arm_label}…"
         start = time.perf_counter()
         try:
-            self.arm.replay = scene3d.replay("pancake", self.frame.states)
+            self.arm.replay = scene3d.replay("pancake", self.frame.states, robot=self.app.robot)
         except ValueError as exc:
             self.sim_readout.content = f"⚠ {exc}"
             return
         self.app.record("pancake.simulate", time.perf_counter() - start)
-        self.sim_readout.content = f"{self.arm.replay.summary} (simulated {self.arm.replay.realtime:.1f}× real time)"
+        self.sim_readout.content = replay_line(self.arm.replay)
         self._play()
 
     def _play(self) -> None:
@@ -560,11 +594,18 @@ class PancakePanel:
         self.export_readout.content = "rendering the video…"
         states = self.frame.states
         try:
-            path = self.app.export_file("pancake.mp4", lambda p: (run_pancake(states, video=p), Path(p))[1])
+            path = self.app.export_file(
+                "pancake.mp4", lambda p: (run_pancake(states, video=p, robot=self.app.robot), Path(p))[1])
         except ValueError as exc:  # e.g. a motion that leaves the arm's workspace
             self.export_readout.content = f"⚠ no video: {exc}"
             return
-        self.export_readout.content = f"wrote `{path}` (MuJoCo render, 4× slowed; also sent to the browser)"
+        self.export_readout.content = (f"wrote `{path}` (MuJoCo render of {self.app.arm_label}, 4× slowed; also "
+                                       "sent to the browser)")
+
+
+def replay_line(replay: scene3d.Replay) -> str:
+    """The replay's readout: the runner's verdict, the arm that ran it, how fast it simulated."""
+    return f"{replay.summary} — on {replay.robot}, simulated {replay.realtime:.1f}× real time"
 
 
 def play(app: ViewerApp, arm: ArmView | None, speed: Any) -> None:
@@ -640,7 +681,7 @@ class SlidingPanel:
         self.lines = {"command": SceneLine(self.server, "/sliding/command", (140, 140, 140), 2.0),
                       "object": SceneLine(self.server, "/sliding/object", (31, 119, 180), 4.0),
                       "pan": SceneLine(self.server, "/sliding/pan", (255, 127, 14), 2.0)}
-        self.arm = ArmView(self.server, "/sliding", "sliding") if app.simulate else None
+        self.arm = ArmView(self.server, "/sliding", "sliding", app.robot) if app.simulate else None
         for control in (self.shape, self.size, self.angle, self.length, self.points, self.mu, self.mu_dyn):
             control.on_update(lambda e: self.request(e.client_id))
         self.clear_button.on_click(lambda _: self._clear())
@@ -728,13 +769,13 @@ class SlidingPanel:
         if self.frame is None or self.arm is None:
             return
         self.app.show_scene("sliding")
-        self.sim_readout.content = "simulating on the arm…"
+        self.sim_readout.content = f"simulating on {self.app.arm_label}…"
         try:
-            self.arm.replay = scene3d.replay("sliding", self.frame.pan, self.frame.command)
+            self.arm.replay = scene3d.replay("sliding", self.frame.pan, self.frame.command, robot=self.app.robot)
         except ValueError as exc:
             self.sim_readout.content = f"⚠ {exc}"
             return
-        self.sim_readout.content = f"{self.arm.replay.summary} (simulated {self.arm.replay.realtime:.1f}× real time)"
+        self.sim_readout.content = replay_line(self.arm.replay)
         play(self.app, self.arm, self.speed)
 
     def _export(self) -> None:

@@ -25,6 +25,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--port", type=int, default=8080, help="port (0: any free one)")
     p.add_argument("--out", default="seqmotion-view", help="folder for exported motions and videos")
     p.add_argument("--no-sim", action="store_true", help="no MuJoCo arm in the 3-D scene (and no replay/video)")
+    p.add_argument("--robot", default=None,
+                   help="the arm of the 3-D scene, its replays and videos: a standard arm ('panda', 'ur5e', "
+                        "'robosuite:<name>', 'menagerie:<name>'; seqmotion.sim.robots() lists those here) "
+                        "(default: the built-in arm, 'mh3f')")
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads (default 1: on a small machine the server's own threads need the rest)")
     p.add_argument("--seconds", type=float, help="stop after this many seconds (default: until Ctrl-C)")
@@ -43,8 +47,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--threads must be at least 1, got {args.threads}")
     if not 0 <= args.port <= 65535:
         raise ValueError(f"--port must be in 0..65535, got {args.port}")
+    from .app import ViewerApp, check_robot
+
+    robot = check_robot(args.robot, not args.no_sim)  # an unknown robot: refused before anything starts
     torch.set_num_threads(args.threads)
-    from .app import ViewerApp
 
     sliding = None if args.sliding_model.lower() == "none" else args.sliding_model
     if args.host not in ("127.0.0.1", "localhost", "::1"):
@@ -52,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
               "the page has no authentication: anyone who can reach the port can use every control and write "
               f"exports into {args.out}", file=sys.stderr, flush=True)
     app = ViewerApp(args.model, sliding_model=sliding, host=args.host, port=args.port, out=args.out,
-                    simulate=not args.no_sim)
+                    simulate=not args.no_sim, robot=robot)
     print(f"seqmotion view: open {app.url} in a browser (Ctrl-C stops)", flush=True)
     try:
         end = None if args.seconds is None else time.monotonic() + args.seconds

@@ -1,11 +1,13 @@
 """The MuJoCo arm as triangle meshes, and replays of it executing a motion — no browser needed.
 
 :func:`scene_geoms` reads every visible geom of a scene (:func:`seqmotion.sim.scene.build_scene`:
-boxes, spheres, capsules, cylinders) into a mesh in its body's frame; :func:`replay` runs the same
-controller the simulation runners use (:class:`seqmotion.sim.arm.Arm`: PD + disturbance observer at
-1 ms, the object placed at rest on the tool) and records every body's pose every ``stride`` periods,
-so the page only moves a few body frames per displayed frame. The metrics come from the runners
-themselves (:func:`seqmotion.sim.run_pancake` / :func:`~seqmotion.sim.run_sliding`).
+boxes, spheres, capsules, cylinders, and the meshes of a standard robot's links) into a mesh in its
+body's frame; :func:`replay` runs the same controller the simulation runners use
+(:class:`seqmotion.sim.arm.Arm`: PD + disturbance observer at 1 ms — in joint space behind a
+differential IK on a standard robot — the object placed at rest on the tool) and records every body's
+pose every ``stride`` periods, so the page only moves a few body frames per displayed frame. The
+metrics come from the runners themselves (:func:`seqmotion.sim.run_pancake` /
+:func:`~seqmotion.sim.run_sliding`, on the same ``robot``).
 """
 
 from __future__ import annotations
@@ -15,10 +17,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GEOM_SPHERE, GEOM_CAPSULE, GEOM_ELLIPSOID, GEOM_CYLINDER, GEOM_BOX = 2, 3, 4, 5, 6
+GEOM_SPHERE, GEOM_CAPSULE, GEOM_ELLIPSOID, GEOM_CYLINDER, GEOM_BOX, GEOM_MESH = 2, 3, 4, 5, 6, 7
 HIDDEN_GROUP = 3
 """MuJoCo's convention (and the scenes'): geoms of group 3 are collision shapes, not drawn."""
-TABLE_RGB = (205, 195, 175)
+MESH_FACE_BUDGET = 40_000
+"""Triangles all of a scene's mesh geoms may send to the page together. A robot's published visual meshes
+are far finer than a browser view needs (robosuite's Panda: ~127 000 triangles; its iiwa: ~250 000), and
+software WebGL redraws every triangle on every camera move; the largest meshes are simplified until the
+scene fits (:func:`fit_budget`), small ones stay exact."""
+DECIMATE_TRIES = 8
+"""Clusterings :func:`decimate` tries per mesh before it keeps the finest that fit."""
+DEFAULT_RGBA = (0.5, 0.5, 0.5, 1.0)
+"""MuJoCo's default geom colour: a geom left at it shows its material's colour instead."""
+TEXTURE_RGB_ROLE = 1
+"""Index of the colour (RGB) texture in ``model.mat_texid``'s roles (``mjTEXROLE_RGB``)."""
 
 
 @dataclass
@@ -76,16 +88,143 @@ def quat_matrix(q: np.ndarray) -> np.ndarray:
                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
-def scene_geoms(model: object) -> list[GeomMesh]:
+def geom_rgb(model: object, g: int) -> tuple[tuple[int, int, int], float]:
+    """Geom ``g``'s colour as MuJoCo draws it: 0–255 RGB and alpha.
+
+    Its material's colour where it has a material and its own ``rgba`` is left at :data:`DEFAULT_RGBA`
+    (MuJoCo's rule), else its ``rgba``; a material's colour texture is drawn as its mean texel colour (the
+    page gets plain colours, no textures)."""
+    rgba = np.asarray(model.geom_rgba[g], dtype=np.float64)
+    mat = int(model.geom_matid[g])
+    if mat >= 0 and np.allclose(rgba, DEFAULT_RGBA):
+        rgba = np.asarray(model.mat_rgba[mat], dtype=np.float64).copy()
+        texid = np.atleast_1d(model.mat_texid[mat])
+        tex = int(texid[TEXTURE_RGB_ROLE] if len(texid) > TEXTURE_RGB_ROLE else texid[0])
+        if tex >= 0:
+            rgba[:3] *= _mean_texel(model, tex)
+    rgb = tuple(int(255 * float(np.clip(c, 0.0, 1.0))) for c in rgba[:3])
+    return rgb, float(rgba[3])
+
+
+def _mean_texel(model: object, tex: int) -> np.ndarray:
+    """``(3,)`` mean colour of texture ``tex`` in [0, 1] (white if it has fewer than 3 channels)."""
+    channels = int(model.tex_nchannel[tex])
+    if channels < 3:
+        return np.ones(3)
+    size = int(model.tex_width[tex]) * int(model.tex_height[tex]) * channels
+    adr = int(model.tex_adr[tex])
+    texels = np.asarray(model.tex_data[adr : adr + size], dtype=np.float64).reshape(-1, channels)
+    return texels[:, :3].mean(axis=0) / 255.0
+
+
+def mesh_of(model: object, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh of mesh geom ``g`` in the geom's frame: vertices ``(V, 3)`` [m], faces ``(F, 3)`` (indices into
+    them). MuJoCo stores a mesh recentred at its centroid and turned to its principal axes; the compiled geom
+    pose (``geom_pos``, ``geom_quat``) already includes that shift, so these vertices go through it unchanged."""
+    mesh = int(model.geom_dataid[g])
+    if int(model.geom_type[g]) != GEOM_MESH or mesh < 0:
+        raise ValueError(f"geom {g} is not a mesh geom")
+    vadr, nv = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    fadr, nf = int(model.mesh_faceadr[mesh]), int(model.mesh_facenum[mesh])
+    return (np.asarray(model.mesh_vert[vadr : vadr + nv], dtype=np.float64),
+            np.asarray(model.mesh_face[fadr : fadr + nf], dtype=np.int64))
+
+
+def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_faces`` triangles approximating the mesh ``vertices`` ``(V, 3)``, ``faces`` ``(F, 3)``.
+
+    Vertex clustering on a uniform grid: vertices in one cell merge into their mean, triangles whose
+    corners merge collapse and go, duplicates go. The cell is searched (at most :data:`DECIMATE_TRIES`
+    clusterings) from a surface's law, triangles ∝ cell⁻², for the finest that leaves at most
+    ``max_faces``. Crude next to quadric simplification, but with no dependency and a few milliseconds
+    per link; at the budget's resolution (millimetres on an arm's link) the shape a viewer shows is kept.
+    A mesh already within ``max_faces`` is returned as is.
+    """
+    if max_faces < 1:
+        raise ValueError(f"max_faces must be at least 1, got {max_faces}")
+    if len(faces) <= max_faces:
+        return vertices, faces
+    lo = vertices.min(axis=0)
+    extent = float((vertices.max(axis=0) - lo).max())
+    if not extent > 0 or not np.isfinite(extent):
+        return vertices[:0], faces[:0]
+
+    def cluster(cell: float) -> tuple[np.ndarray, np.ndarray]:
+        idx = np.floor((vertices - lo) / cell).astype(np.int64)
+        dims = idx.max(axis=0) + 1
+        _, inverse = np.unique((idx[:, 0] * dims[1] + idx[:, 1]) * dims[2] + idx[:, 2], return_inverse=True)
+        f = inverse.ravel()[faces]
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        n = int(inverse.max()) + 1
+        s = np.sort(f, axis=1)
+        if n < 2**20:  # a face's three indices as one int64 key (fast); rows otherwise
+            _, first = np.unique((s[:, 0] * n + s[:, 1]) * n + s[:, 2], return_index=True)  # a face twice: once
+        else:
+            _, first = np.unique(s, axis=0, return_index=True)
+        f = f[np.sort(first)]
+        counts = np.bincount(inverse.ravel(), minlength=n).astype(np.float64)
+        v = np.stack([np.bincount(inverse.ravel(), vertices[:, i], minlength=n) for i in range(3)], axis=1)
+        v /= np.maximum(counts, 1.0)[:, None]
+        used = np.unique(f)  # drop vertices no face refers to any more
+        remap = np.full(n, -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        return v[used], remap[f]
+
+    target = 0.9 * max_faces  # aim a little under: the law is rough, an overshoot costs a try
+    cell = extent * math.sqrt(2.0 / max_faces)
+    best: tuple[np.ndarray, np.ndarray] | None = None
+    for _ in range(DECIMATE_TRIES):
+        trial = cluster(cell)
+        n = len(trial[1])
+        if n <= max_faces and (best is None or n > len(best[1])):
+            best = trial
+        if target <= n <= max_faces:
+            break
+        cell *= min(max(math.sqrt(max(n, 1) / target), 0.5), 3.0) * (1.0 if n <= max_faces else 1.02)
+    while best is None:  # the law missed every try: coarser until it fits (one cell of the whole keeps none)
+        cell *= 2.0
+        trial = cluster(cell)
+        best = trial if len(trial[1]) <= max_faces else None
+    return best
+
+
+def fit_budget(counts: list[int], budget: int) -> int:
+    """The per-mesh triangle cap ``c`` such that meshes of ``counts`` triangles, each cut to ``min(n, c)``, fit
+    in ``budget`` together (water filling: the small meshes stay whole, the large ones share the rest)."""
+    if budget < 1:
+        raise ValueError(f"the triangle budget must be at least 1, got {budget}")
+    if sum(counts) <= budget:
+        return max(counts, default=0)
+    ordered = sorted(counts)
+    left = budget
+    for i, n in enumerate(ordered):
+        share = left // (len(ordered) - i)
+        if n > share:
+            return max(share, 1)
+        left -= n
+    return ordered[-1]
+
+
+def scene_geoms(model: object, max_mesh_faces: int = MESH_FACE_BUDGET) -> list[GeomMesh]:
     """Every drawn geom of a compiled MuJoCo model as a mesh in its body's frame (group-3 collision shapes and
-    transparent geoms left out)."""
+    transparent geoms left out).
+
+    Primitive geoms are tessellated; mesh geoms (a robot's links) are read from the model, the largest
+    simplified (:func:`decimate`) so that all mesh geoms together send at most ``max_mesh_faces`` triangles.
+    Colours: :func:`geom_rgb`.
+    """
     import mujoco
 
-    out = []
+    drawn = []
     for g in range(model.ngeom):
-        rgba = model.geom_rgba[g]
-        if model.geom_group[g] == HIDDEN_GROUP or rgba[3] == 0:
+        rgb, alpha = geom_rgb(model, g)
+        if model.geom_group[g] == HIDDEN_GROUP or alpha == 0:
             continue
+        drawn.append((g, rgb))
+    meshes = [g for g, _ in drawn if int(model.geom_type[g]) == GEOM_MESH and model.geom_dataid[g] >= 0]
+    cap = fit_budget([int(model.mesh_facenum[model.geom_dataid[g]]) for g in meshes], max_mesh_faces)
+    out = []
+    for g, rgb in drawn:
         kind, size = int(model.geom_type[g]), model.geom_size[g]
         if kind == GEOM_BOX:
             v, f = _box(size)
@@ -98,11 +237,14 @@ def scene_geoms(model: object) -> list[GeomMesh]:
         elif kind == GEOM_ELLIPSOID:
             v, f = _sphere(1.0)
             v = v * size
-        else:  # planes, height fields, meshes: none in these scenes
+        elif kind == GEOM_MESH and model.geom_dataid[g] >= 0:
+            v, f = decimate(*mesh_of(model, g), cap)
+            if len(f) == 0:
+                continue
+        else:  # planes, height fields, signed-distance fields: none in these scenes
             continue
         v = v @ quat_matrix(model.geom_quat[g]).T + model.geom_pos[g]
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}"
-        rgb = TABLE_RGB if model.geom_matid[g] >= 0 else tuple(int(255 * c) for c in rgba[:3])
         out.append(GeomMesh(name, int(model.geom_bodyid[g]), v.astype(np.float32), f.astype(np.uint32), rgb))
     return out
 
@@ -111,7 +253,7 @@ def scene_geoms(model: object) -> list[GeomMesh]:
 class Replay:
     """Body poses over an execution: ``time`` ``(N,)`` [s from the motion's start], ``pos`` ``(N, nbody, 3)``,
     ``quat`` ``(N, nbody, 4)`` (``[w, x, y, z]``); ``summary``: the runner's one-line verdict; ``realtime``:
-    simulated over wall time of the recording run."""
+    simulated over wall time of the recording run; ``robot``: the arm that ran it, ``"name (source)"``."""
 
     kind: str
     time: np.ndarray
@@ -120,17 +262,20 @@ class Replay:
     summary: str
     realtime: float
     n_motion: int
+    robot: str = "mh3f (seqmotion)"
 
 
-def rest_poses(kind: str, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def rest_poses(kind: str, start: np.ndarray | None = None,
+               robot: str | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every body's pose ``(nbody, 3)``, ``(nbody, 4)`` with the tool at the scene's home (or at the first
-    planar state ``start``), the object on it."""
+    planar state ``start``), the object on it; ``robot``: a standard arm's name
+    (:func:`seqmotion.sim.robot_models.robots`), ``None`` the built-in arm."""
     from ..sim.arm import Arm, get_scene, place_on_tool
     from ..sim.control import resolve_gains
     from ..sim.kinematics import pan_reference, planar_reference
     from ..sim.scene import OBJECT_HALF_HEIGHT
 
-    scene = get_scene(kind)
+    scene = get_scene(kind, robot)
     if kind == "pancake":
         ref = planar_reference(np.zeros((2, 6)) if start is None else np.tile(start, (2, 1)))
         height = 0.0
@@ -143,7 +288,7 @@ def rest_poses(kind: str, start: np.ndarray | None = None) -> tuple[np.ndarray, 
 
 
 def replay(kind: str, motion: np.ndarray, command: np.ndarray | None = None, stride: int = 10,
-           settle_time: float = 0.2, tail: float = 0.5) -> Replay:
+           settle_time: float = 0.2, tail: float = 0.5, robot: str | None = None) -> Replay:
     """Execute ``motion`` on the arm and record every body's pose every ``stride`` ms.
 
     Args:
@@ -152,16 +297,20 @@ def replay(kind: str, motion: np.ndarray, command: np.ndarray | None = None, str
         stride: record every this many 1 ms periods.
         settle_time: held at the first pose first (not recorded), as the runners do.
         tail: deceleration (0.1 s) plus hold after the motion [s].
+        robot: a standard arm's name (``"panda"``, ``"ur5e"``, ``"menagerie:<name>"``; see
+            :func:`seqmotion.sim.robot_models.robots`), tracked by differential IK + joint-space PD + DOB as in the
+            runners; ``None``: the built-in arm. The summary then names a joint, speed or torque limit the
+            run broke, or a pose out of the robot's reach.
     """
     import time as _time
 
     from ..sim import run_pancake, run_sliding
-    from ..sim.arm import Arm, get_scene, place_on_tool, prepare_reference, weight
+    from ..sim.arm import TRACKING_LIMIT, Arm, get_scene, place_on_tool, prepare_reference, weight
     from ..sim.control import resolve_gains
     from ..sim.kinematics import pan_reference, planar_reference
     from ..sim.scene import OBJECT_HALF_HEIGHT, OBJECT_MASS, PANCAKE_MASS
 
-    scene = get_scene(kind)
+    scene = get_scene(kind, robot)
     hold = max(tail - 0.1, 0.0)
     if kind == "pancake":
         ref = planar_reference(motion, decel_time=0.1, hold_time=hold)
@@ -170,7 +319,7 @@ def replay(kind: str, motion: np.ndarray, command: np.ndarray | None = None, str
         ref = pan_reference(motion, decel_time=0.1, hold_time=hold)
         start = np.zeros(2) if command is None else np.asarray(command)[0, :2]
         gains, height, offset, mass = resolve_gains("ch3"), OBJECT_HALF_HEIGHT, start, OBJECT_MASS
-    prepare_reference(ref, kind, accel_feedforward=True, check_workspace=True)
+    prepare_reference(ref, kind, accel_feedforward=True, check_workspace=True, robot=robot)
     arm = Arm(scene, gains)
     arm.reset(ref.pos[0], ref.quat[0], place_on_tool(scene, height, offset), weight(mass))
     still = np.zeros(6)
@@ -187,15 +336,17 @@ def replay(kind: str, motion: np.ndarray, command: np.ndarray | None = None, str
             poses.append(arm.data.xpos.copy())
             quats.append(arm.data.xquat.copy())
         arm.step(ref.pos[k], ref.quat[k], twist[k], accel[k])
-        if k % 50 == 0 and arm.diverged():
+        err = arm.controller.last_error
+        # where the runner cuts the run short (tool strayed, NaN, unstable), the replay ends too
+        if not float(err[0] ** 2 + err[1] ** 2 + err[2] ** 2) < TRACKING_LIMIT**2 or (k % 50 == 0 and arm.diverged()):
             break
     wall = _time.perf_counter() - began
     if kind == "pancake":
-        summary = run_pancake(motion, hold_time=hold).describe()
+        result = run_pancake(motion, hold_time=hold, robot=robot)
     else:
-        summary = run_sliding(motion, command, hold_time=hold).describe()
-    return Replay(kind, np.array(times), np.array(poses), np.array(quats), summary,
-                  (len(ref) + settle_time / ref.dt) * ref.dt / max(wall, 1e-9), len(motion))
+        result = run_sliding(motion, command, hold_time=hold, robot=robot)
+    return Replay(kind, np.array(times), np.array(poses), np.array(quats), result.describe(),
+                  (len(ref) + settle_time / ref.dt) * ref.dt / max(wall, 1e-9), len(motion), result.robot)
 
 
 def planar_to_world(states: np.ndarray) -> np.ndarray:
