@@ -279,6 +279,28 @@ def _sqrt(x: torch.Tensor) -> torch.Tensor:
     return s + (exact - s.detach())  # exact - s is 0 or ±1 ulp: the sum is exact
 
 
+SAFE_SPEED = 5e-324
+"""What the traced graph divides ``v`` by for an object at rest (the smallest float64): a finite direction (0)
+there, and the speed itself wherever it moves, since ``|v| > 0`` is at least ``√5e-324`` ≈ 1.5e-162."""
+
+
+def _speed(v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Whether the object moves (``|v| > 0``, as the kernel decides it) and a divisor for ``v / |v|`` that is
+    ``|v|`` wherever it moves — rounded as the kernel's ``math.sqrt(vx * vx + vy * vy)`` — and finite with a
+    finite gradient at rest; both ``(..., 1)`` from ``v`` ``(..., 2)``.
+
+    Eager: the product, sum and :func:`_sqrt` of the square, with 1 under the root at rest (so autograd
+    meets no ``√0``). Traced (the exported dynamics graph, forward only): one ``ReduceL2`` node, which
+    onnxruntime computes as exactly that root for two components, raised to :data:`SAFE_SPEED` at rest — the
+    graph runs this once per sample, and there each node costs about as much as its arithmetic."""
+    if torch.jit.is_tracing():
+        speed = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+        return speed > 0.0, torch.maximum(speed, torch.full((), SAFE_SPEED, dtype=v.dtype, device=v.device))
+    sq = (v * v).sum(-1, keepdim=True)
+    moving = sq > 0.0
+    return moving, _sqrt(torch.where(moving, sq, 1.0))
+
+
 def _breakaway_t(u: torch.Tensor, stick_limit: torch.Tensor, dt: float) -> tuple[torch.Tensor, ...]:
     """For every sample at once (it depends on ``u_p`` alone): whether a sticking object would break
     away ``(B, C, 1)``, the velocity it would then take ``(B, C, 2)`` (0 where it would not), and the
@@ -309,24 +331,27 @@ def _torch_forward(
     Returns ``(p (B, C, 2), v (B, C, 2), jac (B, C, 2, 2), branch (B, C) int8)``."""
     b, c, _ = u.shape
     can, break_vel, jxx, jxy, jyy = _breakaway_t(u, stick_limit, dt)
-    neg_u, breaks = (-u).unbind(1), break_vel.unbind(1)
-    one, zero = torch.ones((), dtype=u.dtype, device=u.device), torch.zeros((), dtype=u.dtype, device=u.device)
-    v, vs, movings, reverses = v0, [], [], []
-    for k in range(c):  # each op here is a kernel launch on a GPU: no Python scalars in torch.where
-        sq = (v * v).sum(-1, keepdim=True)
-        moving = sq > 0.0
-        w = v + dt * (neg_u[k] - slide_decel * (v / _sqrt(torch.where(moving, sq, one))))
-        reverse = (w * v).sum(-1, keepdim=True) <= 0.0  # friction would reverse the motion: it stops
-        v = torch.where(moving, torch.where(reverse, zero, w), breaks[k])
+    # per sample: (B, 1, 2) slices (split and cat, no squeeze or stack per sample: traced, every op is a node)
+    neg_u, breaks = (-u).split(1, 1), break_vel.split(1, 1)
+    decel = slide_decel.unsqueeze(1)
+    v, vs, movings, turns = v0.unsqueeze(1), [], [], []
+    for k in range(c):  # each op here is a kernel launch on a GPU and a node of the traced graph
+        moving, speed = _speed(v)
+        w = v + dt * (neg_u[k] - decel * (v / speed))
+        turn = (w * v).sum(-1, keepdim=True)  # ≤ 0: friction would reverse the motion, so it stops
+        # w · [turn > 0] is w or 0 (a multiply costs a traced graph less than a second where); w is finite
+        # wherever it moves (the safe divisor), for finite inputs, and a NaN stays NaN as in the kernel
+        v = torch.where(moving, w * (turn > 0.0), breaks[k])
         vs.append(v)
         movings.append(moving)
-        reverses.append(reverse)
-    v_out = torch.stack(vs, 1)
+        turns.append(turn)
+    v_out = torch.cat(vs, 1)
     v_prev = torch.cat([v0.unsqueeze(1), v_out[:, :-1]], 1)
     step = (0.5 * dt) * (v_prev + v_out)
     p_out = torch.cumsum(torch.cat([p0.unsqueeze(1), step], 1), 1)[:, 1:]  # p' = p + dt (v + v') / 2
     with torch.no_grad():
-        moving, reverse, can = torch.stack(movings, 1)[..., 0], torch.stack(reverses, 1)[..., 0], can[..., 0]
+        moving, can = torch.cat(movings, 1)[..., 0], can[..., 0]
+        reverse = torch.cat(turns, 1)[..., 0] <= 0.0  # as the kernel decides it (a NaN slides)
         slide, breakaway = moving & ~reverse, ~moving & can
         code = torch.full((b, c), STICK, dtype=torch.int8, device=u.device)  # masked_fill: no host sync
         code = code.masked_fill(slide, SLIDE).masked_fill(moving & reverse, STOP).masked_fill(breakaway, BREAKAWAY)
