@@ -282,7 +282,7 @@ class JointSpaceController:
        ``q_ref``'s tool is from the command it was solved for (large only where the limits or the reach
        forbid the pose).
     2. **Feedforward** through ``q_ref``'s Jacobian: ``q̇_ff = J⁺ ẋ_cmd``, ``q̈_ff = J⁺ (ẍ_cmd − J̇ q̇_ff)``
-       (``J̇ q̇_ff`` as the change of ``J`` over the period times ``q̇_ff``).
+       (``mj_jacDot`` at ``q_ref`` moving at ``q̇_ff``).
     3. **Joint PD + DOB**: ``q̈_ref = q̈_ff + K_d (q̇_ff − q̇) + K_p (q_ref − q)``, ``τ = M(q) (q̈_ref + â_dis)``
        with the observer of :class:`TaskSpaceController` (unit nominal inertia on ``M⁻¹ τ``), on the
        real model's inertias. The gains are the preset's position gains on every joint: with a good IK
@@ -331,7 +331,8 @@ class JointSpaceController:
         self._limits = limits
         self._jac = np.zeros((6, m.nv))
         self._jac_ref = np.zeros((6, m.nv))
-        self._jac_prev: np.ndarray | None = None
+        self._jacdot = np.zeros((6, m.nv))
+        self._body = int(m.site_bodyid[scene.site])
         self._twist = np.zeros(6)
         self._err = np.zeros(6)
         self._err_rot = np.zeros(3)
@@ -342,7 +343,6 @@ class JointSpaceController:
         self._command = np.zeros(n)
         self.disturbance = np.zeros(n)
         self._q_ref_full = np.zeros(m.nq)
-        self._target: np.ndarray | None = None
         self.ik_error = np.zeros(2)
         self.saturated = False
         self.ik_seconds, self.periods = 0.0, 0  # wall time spent in the differential IK, over this many periods
@@ -357,8 +357,6 @@ class JointSpaceController:
         self._q_ref_full[:] = data.qpos
         self.config.update(self._q_ref_full)
         self._posture.set_target(self._q_ref_full.copy())
-        self._jac_prev = None
-        self._target = None
         start = static_disturbance(self.scene, data, self._dof, load, include_bias=not self.model_bias)
         if self.dob is not None:
             self.dob.reset(data.qvel[self._dof], start)
@@ -395,30 +393,31 @@ class JointSpaceController:
         mj.mju_subQuat(self._err_rot, quat, quat_now)
         mj.mju_rotVecQuat(self._err[3:], self._err_rot, quat_now)
 
-        # 1. Differential IK of the reference configuration onto this period's command.
+        # 1. Differential IK of the reference configuration onto this period's command (the configuration holds
+        #    the kinematics of q_ref of the previous period), then the kinematics of the new q_ref.
         cfg = self.config
         started = time.perf_counter()
-        cfg.update(self._q_ref_full)  # kinematics at q_ref of the previous period
-        ref_data = cfg.data
-        if self._target is not None:  # how well the previous solve reached its command
-            self.ik_error = _pose_error(self._mj, self._target, ref_data.site_xpos[site], ref_data.site_xquat[site])
-        mj.mj_jacSite(m, ref_data, self._jac_ref[:3], self._jac_ref[3:], site)
         target = np.concatenate([quat, pos])
         self._frame.set_target(self._mink.SE3(wxyz_xyz=target))
         v = self._mink.solve_ik(cfg, [self._frame, self._posture], self.dt, IK_SOLVER, damping=1e-9,
                                 limits=self._limits)
+        mj.mj_integratePos(m, self._q_ref_full, v, self.dt)
+        cfg.update(self._q_ref_full)
         self.ik_seconds += time.perf_counter() - started
         self.periods += 1
-        mj.mj_integratePos(m, self._q_ref_full, v, self.dt)
-        self._target = target
+        ref_data = cfg.data
+        self.ik_error = _pose_error(mj, target, ref_data.site_xpos[site], ref_data.site_xquat[site])
 
-        # 2. Feedforward through the reference's Jacobian.
+        # 2. Feedforward through the reference's Jacobian: q̇_ff = J⁺ ẋ, q̈_ff = J⁺ (ẍ − J̇ q̇_ff).
+        mj.mj_jacSite(m, ref_data, self._jac_ref[:3], self._jac_ref[3:], site)
         jac = self._jac_ref[:, dof]
         jjt = jac @ jac.T + self._damp
         qd_ff = jac.T @ np.linalg.solve(jjt, twist)
-        jdot_qd = np.zeros(6) if self._jac_prev is None else (jac - self._jac_prev) @ qd_ff / self.dt
-        self._jac_prev = jac.copy()
-        qdd_ff = jac.T @ np.linalg.solve(jjt, accel - jdot_qd)
+        ref_data.qvel[:] = 0.0
+        ref_data.qvel[dof] = qd_ff
+        mj.mj_comVel(m, ref_data)
+        mj.mj_jacDot(m, ref_data, self._jacdot[:3], self._jacdot[3:], ref_data.site_xpos[site], self._body)
+        qdd_ff = jac.T @ np.linalg.solve(jjt, accel - self._jacdot[:, dof] @ qd_ff)
 
         # 3. Joint-space PD + observer, through the mass matrix.
         q = data.qpos[self._qpos]
