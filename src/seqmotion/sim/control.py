@@ -115,8 +115,49 @@ def static_disturbance(
     return out[dof].copy()
 
 
+class ToolController:
+    """What both controllers share: the observer's start, and measuring the tool site every period.
+
+    A subclass sets ``_mj``, ``scene``, ``_dof`` (the arm's dof slice), ``dob``, ``_jac`` ``(6, nv)``,
+    ``_twist`` ``(6,)``, ``_err`` ``(6,)`` and ``_err_rot`` ``(3,)``.
+    """
+
+    def _start_observer(self, data, start: np.ndarray) -> None:
+        """The observer (and the command it was told of) at ``start`` [rad/s²], at the measured velocity."""
+        if self.dob is not None:
+            self.dob.reset(data.qvel[self._dof], start)
+        self._command = start.copy()
+        self.disturbance = start.copy()
+
+    def _measure(self, data, pos: np.ndarray, quat: np.ndarray) -> None:
+        """The site's Jacobian, twist ``J q̇`` and pose error toward ``(pos, quat)``, into ``_jac``, ``_twist``,
+        ``_err`` (needs the kinematics of ``data``)."""
+        mj, m, site = self._mj, self.scene.model, self.scene.site
+        mj.mj_jacSite(m, data, self._jac[:3], self._jac[3:], site)
+        np.dot(self._jac, data.qvel, out=self._twist)
+        np.subtract(pos, data.site_xpos[site], out=self._err[:3])
+        quat_now = data.site_xquat[site]
+        mj.mju_subQuat(self._err_rot, quat, quat_now)  # R_now · exp(e) = R_cmd, e in the site frame
+        mj.mju_rotVecQuat(self._err[3:], self._err_rot, quat_now)  # → world frame
+
+    @property
+    def last_error(self) -> np.ndarray:
+        """``(6,)`` pose error ``[p_cmd - p, rotvec(R_cmd Rᵀ)]`` of the latest :meth:`torque` call [m, rad]."""
+        return self._err
+
+    @property
+    def last_twist(self) -> np.ndarray:
+        """``(6,)`` measured tool ``[v, ω]`` of the latest :meth:`torque` call [m/s, rad/s]."""
+        return self._twist
+
+    def tool_twist(self, data) -> np.ndarray:
+        """The site's world-frame ``[v, ω]`` ``(6,)`` [m/s, rad/s] (needs current kinematics)."""
+        self._mj.mj_jacSite(self.scene.model, data, self._jac[:3], self._jac[3:], self.scene.site)
+        return self._jac @ data.qvel
+
+
 @dataclass
-class TaskSpaceController:
+class TaskSpaceController(ToolController):
     """Task-space PD + disturbance observer for one scene (see the module docstring).
 
     Call :meth:`reset` with the MuJoCo data at the start pose, then :meth:`torque` once per
@@ -183,26 +224,7 @@ class TaskSpaceController:
         ``load`` as in :meth:`static_disturbance` (without it the arm sags by about a
         millimetre while the observer learns the object's weight).
         """
-        start = self.static_disturbance(data, load, include_bias=not self.model_bias)
-        if self.dob is not None:
-            self.dob.reset(data.qvel[self._dof], start)
-        self._command = start.copy()
-        self.disturbance = start.copy()
-
-    @property
-    def last_error(self) -> np.ndarray:
-        """``(6,)`` pose error ``[p_cmd - p, rotvec(R_cmd Rᵀ)]`` of the latest :meth:`torque` call [m, rad]."""
-        return self._err
-
-    @property
-    def last_twist(self) -> np.ndarray:
-        """``(6,)`` measured tool ``[v, ω]`` of the latest :meth:`torque` call [m/s, rad/s]."""
-        return self._twist
-
-    def tool_twist(self, data) -> np.ndarray:
-        """The site's world-frame ``[v, ω]`` ``(6,)`` [m/s, rad/s] (needs current kinematics)."""
-        self._mj.mj_jacSite(self.scene.model, data, self._jac[:3], self._jac[3:], self.scene.site)
-        return self._jac @ data.qvel
+        self._start_observer(data, self.static_disturbance(data, load, include_bias=not self.model_bias))
 
     def torque(
         self,
@@ -229,12 +251,7 @@ class TaskSpaceController:
             self.disturbance = self.dob.update(self._command, qvel[dof])
 
         # 2. Measure the tool; PD with feedforward gives the task-space acceleration reference.
-        mj.mj_jacSite(m, data, self._jac[:3], self._jac[3:], site)
-        np.dot(self._jac, qvel, out=self._twist)
-        np.subtract(pos, data.site_xpos[site], out=self._err[:3])
-        quat_now = data.site_xquat[site]
-        mj.mju_subQuat(self._err_rot, quat, quat_now)  # R_now · exp(e) = R_cmd, e in the site frame
-        mj.mju_rotVecQuat(self._err[3:], self._err_rot, quat_now)  # → world frame
+        self._measure(data, pos, quat)
         xdd_ref = accel + self._kd * (twist - self._twist) + self._kp * self._err
 
         # 3. Through the Jacobian: J q̈ = ẍ_ref - J̇ q̇, solved as q̈ = Jᵀ (J Jᵀ + λ²I)⁻¹ (…).
@@ -265,7 +282,7 @@ IK_SOLVER = "daqp"
 """The QP solver mink hands the differential IK to (installed with mink ≥ 1.0)."""
 
 
-class JointSpaceController:
+class JointSpaceController(ToolController):
     """Differential IK at every period, then joint-space PD + disturbance observer, for a standard arm.
 
     One control period (:meth:`torque`, same arguments as :meth:`TaskSpaceController.torque`):
@@ -357,26 +374,8 @@ class JointSpaceController:
         self._q_ref_full[:] = data.qpos
         self.config.update(self._q_ref_full)
         self._posture.set_target(self._q_ref_full.copy())
-        start = static_disturbance(self.scene, data, self._dof, load, include_bias=not self.model_bias)
-        if self.dob is not None:
-            self.dob.reset(data.qvel[self._dof], start)
-        self._command = start.copy()
-        self.disturbance = start.copy()
-
-    @property
-    def last_error(self) -> np.ndarray:
-        """``(6,)`` measured tool pose error ``[p_cmd - p, rotvec(R_cmd Rᵀ)]`` of the latest period [m, rad]."""
-        return self._err
-
-    @property
-    def last_twist(self) -> np.ndarray:
-        """``(6,)`` measured tool ``[v, ω]`` of the latest period [m/s, rad/s]."""
-        return self._twist
-
-    def tool_twist(self, data) -> np.ndarray:
-        """The site's world-frame ``[v, ω]`` ``(6,)`` [m/s, rad/s] (needs current kinematics)."""
-        self._mj.mj_jacSite(self.scene.model, data, self._jac[:3], self._jac[3:], self.scene.site)
-        return self._jac @ data.qvel
+        self._start_observer(data, static_disturbance(self.scene, data, self._dof, load,
+                                                      include_bias=not self.model_bias))
 
     def torque(self, data, pos: np.ndarray, quat: np.ndarray, twist: np.ndarray, accel: np.ndarray) -> np.ndarray:
         """Joint torques ``(n,)`` [N m] for one period toward the commanded tool state (see the class docstring)."""
@@ -385,13 +384,7 @@ class JointSpaceController:
         if self.dob is not None:
             self.disturbance = self.dob.update(self._command, qvel[dof])
 
-        # Measure the tool (what the run logs and judges).
-        mj.mj_jacSite(m, data, self._jac[:3], self._jac[3:], site)
-        np.dot(self._jac, qvel, out=self._twist)
-        np.subtract(pos, data.site_xpos[site], out=self._err[:3])
-        quat_now = data.site_xquat[site]
-        mj.mju_subQuat(self._err_rot, quat, quat_now)
-        mj.mju_rotVecQuat(self._err[3:], self._err_rot, quat_now)
+        self._measure(data, pos, quat)  # the tool as the run logs and judges it
 
         # 1. Differential IK of the reference configuration onto this period's command (the configuration holds
         #    the kinematics of q_ref of the previous period), then the kinematics of the new q_ref.
