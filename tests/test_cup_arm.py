@@ -50,6 +50,16 @@ def run(installed, tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="module")
+def bundle(run, tmp_path_factory):
+    pytest.importorskip("onnxruntime")
+    from seqmotion.deploy import export_onnx
+
+    out = tmp_path_factory.mktemp("cup_arm_onnx") / "onnx"
+    export_onnx(sm.load(run), out)
+    return out
+
+
 def rest(q: list[list[float]]) -> torch.Tensor:
     """States ``(B, 4)`` at rest at joint angles ``q`` ``(B, 2)``."""
     q_t = torch.tensor(q, dtype=torch.float64)
@@ -60,6 +70,24 @@ def roll(dynamics, x0: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
     """States ``(B, N + 1, 4)`` that torques ``(B, N, 2)`` give from ``x0``."""
     _, out = dynamics.step(dynamics.start(x0), tau, None)
     return torch.cat([x0[:, None], out["states"]], 1)
+
+
+def drive(gens: list, dynamics, x0: np.ndarray, until: int, sizes=(3, 7, 10, 1)) -> tuple[np.ndarray, list]:
+    """Steppers fed the states the first one's torques give the arm (``sizes`` states a call, in turn) until
+    t = ``until``: the states ``(until + 1, 4)`` and each stepper's torques ``(until, 2)``."""
+    outputs = [[g.step()] for g in gens]
+    states, x, call = [x0], torch.from_numpy(x0[None]), 0
+    while gens[0].time < until:
+        n = min(sizes[call % len(sizes)], len(outputs[0][-1]), until - gens[0].time)
+        call += 1
+        applied = torch.from_numpy(outputs[0][-1][None, :n])
+        measured = dynamics.step(dynamics.start(x), applied, None)[1]["states"]
+        x = measured[:, -1]
+        states.extend(measured[0].numpy())
+        for g, out in zip(gens, outputs, strict=True):
+            out[-1] = out[-1][:n]  # what was applied
+            out.append(g.step(measured[0].numpy()))
+    return np.array(states), [np.concatenate(out[:-1]) for out in outputs]
 
 
 # --- physics ---------------------------------------------------------------------------------------------
@@ -215,6 +243,39 @@ def test_generate_and_the_online_generator_fed_its_own_states(run):
         model.physics.replace(payload_mass=-0.1)
 
 
+def test_past_the_end_the_generator_stops_the_arm_and_holds_it_against_gravity(run, arm):
+    """The stop plans joint accelerations and outputs the torques that give them (the arm's inverse dynamics):
+    the arm decelerates within the stop's limit, comes to rest, and is then held against gravity, not let fall."""
+    model = sm.load(run)
+    sketch = model.task_def.sketch((0.75, -0.7), 80)
+    gen = model.generator(sketch)
+    stop = gen.contract()["stop"]
+    assert stop["outputs"] == "outputs_for" and stop["accel_limit"] == list(arm.STOP_ACCEL)  # rad/s², not N·m
+    states, (tau,) = drive([gen], model.dynamics(), sketch[0], until=79 + 1200)
+    after, limit, still = slice(79, None), stop["rest_velocity"], stop["rest_velocity"] * (1 + 1e-9)
+    assert np.abs(states[79, 2:]).max() > 0.1 and gen.done  # it was moving at the end of the motion; now at rest
+    ddq = np.diff(states[after, 2:], axis=0) / 1e-3  # what the arm got: the planned accelerations
+    assert np.all(np.abs(ddq) <= np.array(arm.STOP_ACCEL) + 1e-6)
+    resting = np.all(np.abs(states[:, 2:]) <= still, axis=1)
+    first = 79 + int(np.argmax(resting[after]))
+    assert resting[after].any() and first < 79 + 1000 and resting[first:].all()  # at rest, and it stays there
+    held = len(states) - 1 - first
+    assert held > 200 and np.abs(states[-1, :2] - states[first, :2]).max() <= limit * held * 1e-3 + 1e-12  # no sag
+    gravity = arm.bias_torques(torch.from_numpy(states[first:-1, :2]), torch.zeros(held, 2, dtype=torch.float64),
+                               model.physics).numpy()
+    np.testing.assert_allclose(tau[first:], gravity, rtol=0, atol=1e-6)  # the hold is gravity compensation
+    violation = model.violation_torch(torch.from_numpy(states[None]), torch.from_numpy(tau[None]))[0].numpy()
+    assert violation[after].max() <= 1e-6  # the stop keeps the liquid in
+
+
+def test_dynamics_without_outputs_for_get_no_stepper(run, arm, monkeypatch):
+    """Torques are not accelerations: without the map between them the generator could not stop the arm."""
+    monkeypatch.delattr(arm.CupArmDynamics, "outputs_for")
+    model = sm.load(run)
+    with pytest.raises(ValueError, match=r"outputs \(N·m, N·m\) are not accelerations.*outputs_for"):
+        model.generator(model.task_def.sketch((0.75, -0.7), 80))
+
+
 def test_lm_moves_the_end_toward_a_joint_space_target(run):
     model = sm.load(run)
     sketch = model.task_def.sketch((0.75, -0.7), 80)
@@ -239,21 +300,19 @@ def test_cli_deform_and_optimize(installed, run, tmp_path):
     assert np.load(tmp_path / "opt.npz")["states"].shape == (80, 4)
 
 
-def test_export_onnx_runs_the_arms_own_dynamics(run, tmp_path):
-    pytest.importorskip("onnxruntime")
-    from seqmotion.deploy import OnnxModel, OnnxStepper, export_onnx
+def test_export_onnx_runs_the_arms_own_dynamics(run, bundle):
+    from seqmotion.deploy import OnnxModel, OnnxStepper
 
     model = sm.load(run)
-    export_onnx(model, tmp_path / "onnx")
-    assert (tmp_path / "onnx" / "dynamics.onnx").is_file()
+    assert (bundle / "dynamics.onnx").is_file()
     sketch = model.task_def.sketch((0.75, -0.7), 80)
-    onnx = OnnxModel(tmp_path / "onnx")
+    onnx = OnnxModel(bundle)
     for physics in (None, {"payload_mass": 0.8, "joint_damping": 0.1}):  # the payload is an input of the graph
         ref = model.generate(sketch, physics=None if physics is None else model.physics.replace(**physics))
         mine = onnx.generate(sketch, physics=physics)
         assert np.abs(mine["states"] - ref.states).max() <= 1e-5 * np.abs(ref.states).max()
     ref = model.generate(sketch)
-    stepper, dynamics = OnnxStepper(tmp_path / "onnx", sketch), model.dynamics()
+    stepper, dynamics = OnnxStepper(bundle, sketch), model.dynamics()
     outputs, x = [stepper.step()], torch.from_numpy(sketch[:1])
     for _ in range(3):
         states = dynamics.step(dynamics.start(x), torch.from_numpy(outputs[-1][None]), None)[1]["states"]
@@ -261,3 +320,32 @@ def test_export_onnx_runs_the_arms_own_dynamics(run, tmp_path):
         outputs.append(stepper.step(states[0].numpy()))
     c = stepper.chunk
     np.testing.assert_allclose(np.concatenate(outputs)[: 4 * c], ref.accel[: 4 * c], rtol=0, atol=1e-4)
+
+
+def test_the_onnx_stepper_stops_the_arm_like_pytorch(run, bundle, tmp_path):
+    """The bundle carries the arm's outputs_for as a graph: the ONNX stepper's stop is PyTorch's, at the
+    contract's payload and at another; a cup-arm bundle from before the graph is refused with advice."""
+    import json
+    import shutil
+
+    from seqmotion.deploy import OnnxModel, OnnxStepper
+    from seqmotion.deploy.bundle import SEAL, contract_digest
+
+    model = sm.load(run)
+    sketch = model.task_def.sketch((0.75, -0.7), 80)
+    onnx = OnnxModel(bundle)
+    assert onnx.contract["stop"]["outputs"] == "outputs_for" and onnx.contract["files"]["outputs_for"]
+    for physics in (None, {"payload_mass": 0.8}):
+        at = None if physics is None else model.physics.replace(**physics)
+        gens = [model.generator(sketch, physics=at), OnnxStepper(onnx, sketch, physics=physics)]
+        states, (mine, theirs) = drive(gens, model.dynamics(at), sketch[0], until=79 + 400)
+        assert np.abs(states[-1, 2:]).max() < 0.1 * np.abs(states[79, 2:]).max()  # well into the stop
+        np.testing.assert_allclose(theirs[79:], mine[79:], rtol=0, atol=1e-5)  # N·m
+    old = Path(shutil.copytree(bundle, tmp_path / "old"))
+    contract = json.loads((old / "contract.json").read_text())
+    del contract["stop"]["outputs"], contract["files"]["outputs_for"], contract["sha256"]["outputs_for"]
+    contract[SEAL] = contract_digest(contract)
+    (old / "contract.json").write_text(json.dumps(contract))
+    with pytest.raises(ValueError, match=r"'stop\.outputs' is missing and the outputs \(N·m, N·m\) are not "
+                                         r"accelerations.*re-export"):
+        OnnxModel(old)

@@ -133,6 +133,41 @@ def test_the_contract_is_the_steppers(exported):
     assert set(contract["graphs"]["decoder_step"]["inputs"]) == {"h", "c", "window"}
 
 
+def test_the_sliding_dynamics_graph_stays_small(exported):
+    """The stepper runs the sliding dynamics graph at every chunk boundary, where its cost is its node count (each
+    node costs about as much as its arithmetic, and a large graph finds the cache cold): at most 15 nodes per sample
+    of the contact loop, each constant value made once, and the graph still the contact model (the rest of its
+    parity: test_dynamics_graph.py)."""
+    import onnx
+    import onnxruntime as ort
+
+    from seqmotion.deploy.export import shared_constants
+
+    folder = exported["sliding"]
+    proto = onnx.load(folder / "dynamics.onnx")
+    chunk = json.loads((folder / "contract.json").read_text())["chunk"]
+    ops = [node.op_type for node in proto.graph.node]
+    assert len(ops) - ops.count("Constant") <= 15 * chunk + 60, len(ops)
+    values = [node.attribute[0].t.SerializeToString() for node in proto.graph.node if node.op_type == "Constant"]
+    assert len(values) == len(set(values))
+    # sharing the constants changes names only: a graph with a repeated constant computes the same after it
+    doubled = onnx.ModelProto()
+    doubled.CopyFrom(proto)
+    first = next(node for node in doubled.graph.node if node.op_type == "Constant")
+    user = next(node for node in doubled.graph.node if first.output[0] in node.input)
+    copy = onnx.helper.make_node("Constant", [], ["copy_of_" + first.output[0]], value=first.attribute[0].t)
+    doubled.graph.node.insert(list(doubled.graph.node).index(user), copy)
+    user.input[:] = [copy.output[0] if name == first.output[0] else name for name in user.input]
+    shared = shared_constants(doubled)
+    assert len(shared.graph.node) == len(proto.graph.node)
+    rng = np.random.default_rng(5)
+    feeds = {"x": 0.05 * rng.standard_normal((3, 8)), "accel": 8.0 * rng.standard_normal((3, chunk, 2)),
+             "physics": np.array([0.6, 0.3])}
+    runs = [ort.InferenceSession(p.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, feeds)[0]
+            for p in (doubled, shared)]
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
 def test_the_exported_folder_runs_with_numpy_and_onnxruntime_only(exported):
     folder = exported["pancake"]
     code = f"""

@@ -249,6 +249,12 @@ BAD = {  # what a sealed but wrong contract holds → what the error names
     "a graph without a hash": (_pop("sha256.encoder"), r"'sha256' must hold a hash for each graph"),
     "a hash that is not one": (_set("sha256.encoder", "zz"), r"'sha256\.encoder' must be a SHA-256 hex digest"),
     "another format": (_set("format", "seqmotion-stepper/0"), r"format 'seqmotion-stepper/0'.*re-export"),
+    "unknown stop outputs": (_set("stop.outputs", "torques"),
+                             r"'stop\.outputs' must be null or one of \['accelerations', 'outputs_for'\]"),
+    "stop outputs_for without its graph": (_set("stop.outputs", "outputs_for"),
+                                           r"'stop\.outputs' is 'outputs_for' but 'files\.outputs_for' is absent"),
+    "accelerations that are not": (_set("accel_layout.units", ["N", "N", "N·m"]),
+                                   r"'stop\.outputs' is 'accelerations' but the outputs \(N, N, N·m\) are not"),
 }
 
 
@@ -284,6 +290,29 @@ def test_the_schema_checks_the_physics_of_the_dynamics(pristine, tmp_path, case)
     write(folder, contract)
     with pytest.raises(ValueError, match=message):
         OnnxModel(folder)
+
+
+def test_a_bundle_from_before_stop_outputs_still_runs_and_stops_alike(pristine, pancake):
+    """Format-2 bundles exported before ``stop.outputs`` existed hold no such field: for a task whose outputs are
+    accelerations (pancake) they load and stop exactly as a fresh export does (a torque task's are refused:
+    test_cup_arm.py)."""
+    from seqmotion.deploy import OnnxStepper
+
+    contract = read(pancake)
+    assert contract["stop"]["outputs"] == "accelerations" and "outputs_for" not in contract["files"]
+    del contract["stop"]["outputs"]
+    write(pancake, contract)
+    sketch = sm.data.pancake.straight((0.0, 0.1, -0.3), 120)
+    gens = [OnnxStepper(folder, sketch) for folder in (pristine / "pancake", pancake)]
+    outputs = [[g.step()] for g in gens]
+    x = sketch[:1]
+    while gens[0].time < 119 + 300:
+        states = gens[0].onnx.predict(x, outputs[0][-1][None])
+        x = states[:, -1]
+        for g, out in zip(gens, outputs, strict=True):
+            out.append(g.step(states[0]))
+    np.testing.assert_array_equal(np.concatenate(outputs[0]), np.concatenate(outputs[1]))
+    assert np.abs(outputs[0][-1]).max() < np.abs(np.concatenate(outputs[0][:3])).max()  # it was stopping
 
 
 def test_a_graph_name_that_leaves_the_bundle_reads_nothing_outside(pristine, pancake):

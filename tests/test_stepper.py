@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import seqmotion as sm
-from seqmotion.core.stepper import stop_accel
+from seqmotion.core.stepper import outputs_are_accelerations, stepper_contract, stop_accel, stop_spec
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -118,6 +118,30 @@ def test_the_sliding_pan_stops_and_the_object_comes_to_rest(sliding):
     accel, states = drive(gen, np.r_[np.zeros(4), command[0]], [100], until=299 + 1500)
     assert np.abs(states[-1, 2:4]).max() < 1e-6 and np.abs(states[-1, 6:]).max() == 0.0
     assert np.abs(accel[-100:]).max() == 0.0  # holding: exactly zero
+
+
+def test_the_stop_outputs_accelerations_where_the_outputs_are_accelerations(pancake, sliding):
+    """Pancake and sliding (the pan) output accelerations of their velocity columns: the stop outputs the planned
+    accelerations themselves, limited by the output scale; dynamics mapping accelerations to their outputs
+    (``outputs_for``) must name their own limit, in the velocity columns' units per second."""
+    for model in (pancake, sliding):
+        stop = stepper_contract(model, model.dynamics())["stop"]
+        assert stop["outputs"] == "accelerations" and stop["accel_limit"] == list(model.model.cfg.output_scale)
+    assert outputs_are_accelerations(["m", "rad/s"], ["rad/s²"], [1]) and not outputs_are_accelerations(
+        ["rad", "rad/s"], ["N·m"], [1])
+
+    class Mapped:
+        def outputs_for(self, x, accel):
+            return accel
+
+    layouts = (pancake.state_layout, pancake.accel_layout, [1.0, 1.0, 1.0], [3, 4, 5])
+    with pytest.raises(ValueError, match=r"Mapped dynamics .* no stop_accel_limit of 3 finite numbers > 0"):
+        stop_spec(Mapped(), *layouts)
+    Mapped.stop_accel_limit = (1.0, 2.0, float("nan"))
+    with pytest.raises(ValueError, match="stop_accel_limit"):
+        stop_spec(Mapped(), *layouts)
+    Mapped.stop_accel_limit = (1.0, 2.0, 3.0)
+    assert stop_spec(Mapped(), *layouts) == ("outputs_for", [1.0, 2.0, 3.0])
 
 
 def test_stop_profile_is_clipped_then_geometric():

@@ -7,8 +7,9 @@ dict (``gen.contract()``) and ``seqmotion export-onnx`` writes that dict as ``co
 
 **Layouts and units.** Measured states are rows of the task's ``state_layout`` (SI units: the
 pancake's ``y, z, θ, v_y, v_z, v_θ`` in m, m, rad, m/s, m/s, rad/s; the sliding planner's pan and
-object-relative ``[x, y, v_x, v_y]``); outputs are rows of its ``accel_layout`` (m/s², rad/s²),
-one per sample of ``dt`` (1 ms). Input and output scales are inside the model (and the graphs).
+object-relative ``[x, y, v_x, v_y]``); outputs are rows of its ``accel_layout`` (m/s², rad/s²; a
+torque-driven arm's N·m), one per sample of ``dt`` (1 ms). Input and output scales are inside the
+model (and the graphs).
 
 **What initialises the decoder.** A latent ``z`` of L·H numbers and a start state ``x0``:
 decoder layer l starts with ``c_l = z[l·H:(l+1)·H]`` and ``h_l = 0``; its first step reads ``x0``
@@ -38,17 +39,26 @@ cross a chunk boundary: a chunk's last output is always the last row returned).
   disturbance ``W_meas = W_pred`` and the plan is returned unchanged (so sample-by-sample replay equals
   ``generate`` to float rounding); a disturbance changes all remaining outputs at once, as the
   decoder would react had the chunk started at t. ``replan=False`` returns the plan unchanged.
-* **The end.** Outputs for samples ≥ K−1 decelerate the velocity columns ``v`` (columns d..2d−1 of
-  the state, d = accel size: the accelerated coordinates' velocities) with ``a = clip(−s·v/τ, ±a_max)``
-  per axis (τ = ``stop.tau``, ``a_max`` = the model's output scale), for the largest s in
-  ``stop.shrink`` (1, ½, ¼, ⅛, 1/16) whose predicted stop keeps the task's worst violation over the
-  returned samples within ``stop.violation_tolerance`` of what coasting (zero acceleration) would
-  give — so ≤ the tolerance wherever coasting keeps the constraint; if none does, the least
-  violating s, or s = 1 where coasting breaks the constraint too (it cannot be kept: stop promptly);
-  once every ``|v| ≤ stop.rest_velocity`` the output is exactly 0 (hold). ``gen.stopping`` is True
-  while it decelerates, ``gen.done`` once the latest measured state is at rest (every output then 0).
-  The stop is recomputed at every call from the latest measured state (or, in the chunk where the
-  motion ends, from the state the plan predicts at K−1). The decoder is not run past the end.
+* **The end.** From sample K−1 on the generator plans accelerations of the velocity columns ``v``
+  (columns d..2d−1 of the state, d = accel size: the accelerated coordinates' velocities)
+  ``a = clip(−s·v/τ, ±a_max)`` per axis (τ = ``stop.tau``, ``a_max`` = ``stop.accel_limit`` in the
+  velocity columns' units per second), for the largest s in ``stop.shrink`` (1, ½, ¼, ⅛, 1/16) whose
+  predicted stop keeps the task's worst violation over the returned samples within
+  ``stop.violation_tolerance`` of what coasting (zero acceleration) would give — so ≤ the tolerance
+  wherever coasting keeps the constraint; if none does, the least violating s, or s = 1 where coasting
+  breaks the constraint too (it cannot be kept: stop promptly); once every ``|v| ≤ stop.rest_velocity``
+  the acceleration is exactly 0 (hold). ``stop.outputs`` says how a planned acceleration becomes an
+  output: ``"accelerations"`` — the outputs are those accelerations (a double integrator; ``a_max`` is
+  the model's output scale), so the hold outputs exactly 0; ``"outputs_for"`` — the task's dynamics
+  turn them into its outputs, ``outputs_for(x, a)``, the outputs that give the accelerations ``a``
+  along the path they take from ``x`` (a torque-driven arm: its inverse dynamics, so the hold is
+  gravity compensation; ``a_max`` is the dynamics' ``stop_accel_limit``); the bundle holds that map as
+  a graph. ``gen.stopping`` is True while it decelerates, ``gen.done`` once the latest measured state
+  is at rest (the accelerations then 0). The stop is recomputed at every call from the latest measured
+  state (or, in the chunk where the motion ends, from the state the plan predicts at K−1). The decoder
+  is not run past the end. A task whose outputs are neither accelerations of its velocity columns (by
+  their units) nor mapped by ``outputs_for`` has ``stop.outputs`` null: its stepper is refused (it
+  could not stop the robot).
 
 **set_latent(z, restart=False, length=None).** Replay (default): takes effect at the next chunk
 boundary; the decoder state there becomes the one it would have had with ``z`` from the start, fed
@@ -79,6 +89,11 @@ CONTRACT_FORMAT = "seqmotion-stepper/2"
 """The contract's format; a runner reads only its own (a bundle of another format is refused: re-export it)."""
 DYNAMICS_GRAPH = "dynamics.onnx"
 """The file of the exported dynamics graph (one chunk of the task's ``ChunkDynamics.step``) in a bundle."""
+OUTPUTS_FOR_GRAPH = "outputs_for.onnx"
+"""The file of the exported ``outputs_for`` graph (the stop's accelerations → the task's outputs), for tasks
+whose outputs are not accelerations."""
+STOP_OUTPUTS = ("accelerations", "outputs_for")
+"""What ``stop.outputs`` may name (module docstring, "The end"); null: the stop cannot be planned."""
 STOP_TAU = 0.05
 """Time constant of the end-of-motion deceleration [s] (at shrink factor 1)."""
 STOP_SHRINK = (1.0, 0.5, 0.25, 0.125, 0.0625)
@@ -100,8 +115,9 @@ SEMANTICS = {
                           "replan: the plan",
     "end": "samples >= K-1: a = clip(-s v / tau, +-a_max) on the velocity columns, largest s in shrink whose worst "
            "violation is within tolerance of coasting's (a = 0; so <= tolerance where coasting is feasible); if "
-           "none, the least violating s, or s = 1 where coasting violates too; exactly 0 once all |v| <= "
-           "rest_velocity",
+           "none, the least violating s, or s = 1 where coasting violates too; a exactly 0 once all |v| <= "
+           "rest_velocity; outputs: a itself (stop.outputs 'accelerations'), or outputs_for(x, a), the task "
+           "outputs that give a along the path from x ('outputs_for', graph files.outputs_for)",
     "set_latent": "replay (default): from the next chunk boundary the decoder state is the one z gives from the start "
                   "fed the same measured chunks, same clock and K; restart: at the next boundary a new motion of "
                   "length samples starts from the latest measured state",
@@ -182,6 +198,49 @@ def dynamics_spec(dynamics: Any, physics: Any, chunk: int, state_dim: int, accel
     }
 
 
+def is_acceleration_unit(output_unit: str, velocity_unit: str) -> bool:
+    """Whether an output in ``output_unit`` is the rate of change of a velocity in ``velocity_unit``
+    (``m/s²`` of ``m/s``, ``rad/s²`` of ``rad/s``; ``N·m`` of ``rad/s`` is not)."""
+    return output_unit in (velocity_unit + "²", velocity_unit + "^2")
+
+
+def outputs_are_accelerations(state_units: list[str], accel_units: list[str], velocity: list[int] | None) -> bool:
+    """Whether each output's unit is its velocity column's per second (module docstring, "The end")."""
+    return velocity is not None and len(velocity) == len(accel_units) and all(
+        is_acceleration_unit(unit, state_units[i]) for unit, i in zip(accel_units, velocity, strict=True))
+
+
+def stop_spec(dynamics: Any, state: Any, accel: Any, output_scale: list[float] | None,
+              velocity: list[int] | None) -> tuple[str | None, list[float]]:
+    """How the stop makes its outputs (``stop.outputs``) and the largest acceleration it plans per velocity
+    column (``stop.accel_limit``, in the velocity columns' units per second).
+
+    Dynamics with an ``outputs_for(x (B, S), accel (B, n, d)) -> (B, n, d)`` method map the planned
+    accelerations to the task's outputs, and name the limit themselves (``stop_accel_limit``: d numbers):
+    the model's output scale is in the outputs' units (N·m for torques), not an acceleration. Otherwise
+    outputs in the velocity columns' units per second are the accelerations, limited by the output scale.
+
+    Raises:
+        ValueError: dynamics with ``outputs_for`` but no valid ``stop_accel_limit``.
+    """
+    d = accel.dim
+    if callable(getattr(dynamics, "outputs_for", None)):
+        limit = getattr(dynamics, "stop_accel_limit", None)
+        try:
+            values = [float(v) for v in limit]
+        except (TypeError, ValueError):
+            values = []
+        if len(values) != d or not all(np.isfinite(v) and v > 0 for v in values):
+            raise ValueError(f"the {type(dynamics).__name__} dynamics map the stop's accelerations to outputs "
+                             f"(outputs_for) but give no stop_accel_limit of {d} finite numbers > 0 (the largest "
+                             f"deceleration of each velocity column, in its unit per second), got {limit!r}")
+        return "outputs_for", values
+    scale = [float(v) for v in (output_scale or [1.0] * d)]
+    if outputs_are_accelerations(list(state.units), list(accel.units), velocity):
+        return "accelerations", scale
+    return None, scale
+
+
 def stepper_contract(model: Any, dynamics: Any, physics: Any = None) -> dict[str, Any]:
     """The stepper's contract for a trained model (a ``TrainedModel``), the dynamics it runs with and their
     physics (default: the model's own, ``model.physics``)."""
@@ -192,6 +251,7 @@ def stepper_contract(model: Any, dynamics: Any, physics: Any = None) -> dict[str
     if 2 * d > state.dim or not all(state.units[i].endswith("/s") for i in velocity):
         velocity = None  # not the [positions, velocities] convention: the stop holds (outputs 0)
     spec = dynamics_spec(dynamics, model.physics if physics is None else physics, cfg.chunk, state.dim, d)
+    outputs, limit = stop_spec(dynamics, state, accel, cfg.output_scale, velocity)
     lengths = getattr(model.options, "length", None)
     return {
         "format": CONTRACT_FORMAT,
@@ -215,7 +275,8 @@ def stepper_contract(model: Any, dynamics: Any, physics: Any = None) -> dict[str
         "stop": {
             "tau": STOP_TAU,
             "shrink": list(STOP_SHRINK),
-            "accel_limit": [float(v) for v in (cfg.output_scale or [1.0] * d)],
+            "accel_limit": limit,
+            "outputs": outputs,
             "rest_velocity": REST_VELOCITY,
             "violation_tolerance": VIOLATION_TOLERANCE,
         },
@@ -339,6 +400,16 @@ class StepperCore:
         self._limit = np.asarray(stop["accel_limit"], dtype=np.float64)
         self._rest, self._tol = float(stop["rest_velocity"]), float(stop["violation_tolerance"])
         self._velocity = contract["velocity_columns"]
+        # a contract without the field predates it: the schema let it through only where the outputs are the
+        # accelerations by their units (deploy/bundle.py)
+        self._outputs = stop.get("outputs", "accelerations")
+        if self._velocity is not None and self._outputs not in STOP_OUTPUTS:
+            units = ", ".join(contract["accel_layout"]["units"])
+            raise ValueError(f"the {contract['task']!r} task's outputs ({units}) are not accelerations of its velocity "
+                             "columns and its dynamics define no outputs_for(x, accel): the generator could not "
+                             "bring the robot to rest after the motion. Give the dynamics an outputs_for method "
+                             "(the outputs that produce given accelerations, e.g. inverse dynamics) and a "
+                             "stop_accel_limit")
         self._single = bool(single)
         self._z = self._check_latent(latent)
         self._batch = self._z.shape[0]
@@ -389,8 +460,9 @@ class StepperCore:
     @property
     def done(self) -> bool:
         """Whether the motion is over and the robot at rest: t ≥ K−1 and every velocity column of the latest
-        measured state within ``stop.rest_velocity``, so every output from here on is exactly 0 (a batch: all
-        of its motions). ``while not gen.done`` loops until the robot stands still."""
+        measured state within ``stop.rest_velocity``, so every planned acceleration from here on is exactly 0
+        (outputs 0, or for ``stop.outputs == "outputs_for"`` the outputs that hold the robot, e.g. against
+        gravity; a batch: all of its motions). ``while not gen.done`` loops until the robot stands still."""
         return self._past_end and self._at_rest()
 
     @property
@@ -532,19 +604,23 @@ class StepperCore:
         if self._velocity is None:
             return np.zeros((b, n, d))
         v = x[:, self._velocity]
+        mapped = self._outputs == "outputs_for"
         if not self._contract["constraint"]:
-            return stop_accel(v, n, np.ones(b), self._tau, self._limit, self.dt, self._rest)
+            accel = stop_accel(v, n, np.ones(b), self._tau, self._limit, self.dt, self._rest)
+            return self._outputs_for(x, accel) if mapped else accel
         ns = len(self._shrink)
         rows, scale = self._candidate_rows(b)
         accel = stop_accel(v[rows[: ns * b]], n, scale, self._tau, self._limit, self.dt, self._rest)
         candidates = np.concatenate([accel, np.zeros((b, n, d))])  # + coasting, the reference
         start = x[rows]
+        if mapped:  # the outputs that give those accelerations, coasting's included
+            candidates = self._outputs_for(start, candidates)
         states = np.concatenate([start[:, None], self._predict(start, candidates)], axis=1)
         worst = self._violation(states, candidates).max(axis=1).reshape(ns + 1, b)
         ok = worst[:ns] <= np.maximum(worst[ns], 0.0) + self._tol  # no worse than not decelerating
         lost = worst[ns] > self._tol  # even coasting breaks the constraint: stop promptly instead
         pick = np.where(ok.any(axis=0), ok.argmax(axis=0), np.where(lost, 0, worst[:ns].argmin(axis=0)))
-        return accel.reshape(ns, b, n, d)[pick, np.arange(b)]
+        return candidates[: ns * b].reshape(ns, b, n, d)[pick, np.arange(b)]
 
     def _candidate_rows(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """For B states: the rows that repeat them once per stop candidate and once for coasting
@@ -571,6 +647,12 @@ class StepperCore:
 
     def _violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray:
         """The task's violation ``(B, n)`` of states ``(B, n+1, S)`` and accelerations ``(B, n, d)``."""
+        raise NotImplementedError
+
+    def _outputs_for(self, x: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """The outputs ``(B, n, d)`` that give the velocity columns the accelerations ``accel`` ``(B, n, d)`` along
+        the path they take from states ``x`` ``(B, S)`` (the dynamics' ``outputs_for``; ``stop.outputs`` is
+        ``"outputs_for"``)."""
         raise NotImplementedError
 
 
@@ -615,9 +697,17 @@ class OnlineGenerator(StepperCore):
             out = self._violation_fn(torch.from_numpy(states), torch.from_numpy(accel))
         return out.double().numpy()
 
+    def _outputs_for(self, x: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        torch = self._torch
+        with torch.inference_mode():
+            out = self.dynamics.outputs_for(torch.from_numpy(np.ascontiguousarray(x)),
+                                            torch.from_numpy(np.ascontiguousarray(accel)))
+        return out.double().numpy()
+
 
 __all__ = [
-    "CLOSED_FORMS", "CLOSED_FORM_TOLERANCE", "CONTRACT_FORMAT", "DYNAMICS_GRAPH", "OnlineGenerator", "REST_VELOCITY",
-    "SEMANTICS", "STOP_SHRINK", "STOP_TAU", "StepperCore", "VIOLATION_TOLERANCE", "check_states", "check_vectors",
-    "closed_form", "dynamics_spec", "layout_dict", "physics_inputs", "stepper_contract", "stop_accel",
+    "CLOSED_FORMS", "CLOSED_FORM_TOLERANCE", "CONTRACT_FORMAT", "DYNAMICS_GRAPH", "OUTPUTS_FOR_GRAPH",
+    "OnlineGenerator", "REST_VELOCITY", "SEMANTICS", "STOP_OUTPUTS", "STOP_SHRINK", "STOP_TAU", "StepperCore",
+    "VIOLATION_TOLERANCE", "check_states", "check_vectors", "closed_form", "dynamics_spec", "is_acceleration_unit",
+    "layout_dict", "outputs_are_accelerations", "physics_inputs", "stepper_contract", "stop_accel", "stop_spec",
 ]

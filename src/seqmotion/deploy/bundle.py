@@ -7,7 +7,9 @@ standalone runner checks the same things.
 **The schema** (:data:`FIELDS`, then :func:`_check_relations`): every field the runner reads,
 with its type and range — counts are integers ≥ 1, times and limits finite and > 0, layouts
 lists of names with one unit each, the dynamics' physics a list of field names, the ones its
-graph reads among them and a finite value for each, and each graph in ``files`` a plain file
+graph reads among them and a finite value for each, ``stop.outputs`` with the ``outputs_for`` graph
+when it names it (a contract from before that field is read as ``"accelerations"`` only where the
+outputs' units say so: :func:`_check_stop_outputs`), and each graph in ``files`` a plain file
 name ending in ``.onnx`` (no folder, not absolute, no ``..``) of a file inside the bundle.
 Fields the runner does not read (``semantics``, ``graphs``, ``model``, …) are only covered by
 the seal.
@@ -32,17 +34,25 @@ from pathlib import Path
 from typing import Any
 
 try:  # inside the seqmotion package
-    from ..core.stepper import CLOSED_FORMS, CONTRACT_FORMAT
+    from ..core.stepper import CLOSED_FORMS, CONTRACT_FORMAT, STOP_OUTPUTS, outputs_are_accelerations
 except ImportError:  # the standalone copy beside the graphs
-    from stepper import CLOSED_FORMS, CONTRACT_FORMAT  # type: ignore[no-redef]
+    from stepper import (  # type: ignore[no-redef]
+        CLOSED_FORMS,
+        CONTRACT_FORMAT,
+        STOP_OUTPUTS,
+        outputs_are_accelerations,
+    )
 
 CONTRACT = "contract.json"
 SEAL = "contract_sha256"
 """The contract's own hash (of its canonical JSON without this key)."""
 HASHES = "sha256"
 """The graphs' hashes, keyed like ``files``."""
-GRAPHS = ("encoder", "decoder_step", "dynamics", "violation", "decoder_step_int8")
-"""The keys of ``files`` a bundle may have (``violation`` may be null; ``decoder_step_int8`` absent)."""
+GRAPHS = ("encoder", "decoder_step", "dynamics", "violation", "decoder_step_int8", "outputs_for")
+"""The keys of ``files`` a bundle may have (``violation`` may be null; ``decoder_step_int8`` and ``outputs_for``
+absent)."""
+OPTIONAL_GRAPHS = ("decoder_step_int8", "outputs_for")
+"""Graphs a bundle may lack; where the key is there, the file must be."""
 MAX_CONTRACT_BYTES = 2**20
 """A ``contract.json`` larger than this (exported ones are ~10 kB) is refused before it is parsed."""
 PREVIOUS = ".previous"
@@ -118,7 +128,7 @@ FIELDS: dict[str, Check] = {  # in order: a parent object before its fields
     "stop": OBJECT,
     "stop.tau": POSITIVE,  # [s]
     "stop.shrink": list_of(FRACTION),
-    "stop.accel_limit": list_of(POSITIVE),  # per output, in its unit (m/s², rad/s²)
+    "stop.accel_limit": list_of(POSITIVE),  # per velocity column, in its unit per second (m/s², rad/s²)
     "stop.rest_velocity": NON_NEGATIVE,
     "stop.violation_tolerance": NON_NEGATIVE,
     "files": OBJECT,
@@ -185,8 +195,9 @@ def check_contract(contract: Any, where: str) -> None:
     if contract.get("format") != CONTRACT_FORMAT:
         raise ValueError(_format_message(where, contract.get("format")))
     fields = dict(FIELDS)
-    if isinstance(contract.get("files"), dict) and "decoder_step_int8" in contract["files"]:
-        fields["files.decoder_step_int8"] = GRAPH
+    for key in OPTIONAL_GRAPHS:
+        if isinstance(contract.get("files"), dict) and key in contract["files"]:
+            fields[f"files.{key}"] = GRAPH
     for field, (ok, what) in fields.items():
         value = _get(contract, field)
         if value is _MISSING:
@@ -235,6 +246,7 @@ def _check_relations(c: dict, where: str) -> None:
     velocity = c["velocity_columns"]
     if velocity is not None and (len(velocity) != d or len(set(velocity)) != d or max(velocity) >= s):
         fail(f"field 'velocity_columns' must be null or {d} distinct state columns below {s}, got {velocity}")
+    _check_stop_outputs(c, fail)
     for key in files:
         if key not in GRAPHS:
             fail(f"field 'files.{key}' is not a graph of the bundle (known: {', '.join(GRAPHS)})")
@@ -248,6 +260,33 @@ def _check_relations(c: dict, where: str) -> None:
     for key, value in c[HASHES].items():
         if not DIGEST[0](value):
             fail(f"field 'sha256.{key}' must be {DIGEST[1]}, got {value!r}")
+
+
+def _check_stop_outputs(c: dict, fail: Callable[[str], None]) -> None:
+    """``stop.outputs`` names how the stop makes its outputs, with the graph it needs; a contract without the
+    field (exported before it) is read as ``"accelerations"`` only where the outputs' units are the velocity
+    columns' per second (m/s² of m/s): a torque task's bundle from then would apply accelerations as torques."""
+    stop, files, velocity = c["stop"], c["files"], c["velocity_columns"]
+    state_units, accel_units = c["state_layout"]["units"], c["accel_layout"]["units"]
+    if "outputs" not in stop:
+        if velocity is not None and not outputs_are_accelerations(state_units, accel_units, velocity):
+            fail(f"field 'stop.outputs' is missing and the outputs ({', '.join(accel_units)}) are not accelerations "
+                 "of the velocity columns: the bundle was exported before the stop went through the task's "
+                 "dynamics, and its stop would apply accelerations as outputs; re-export the model: seqmotion "
+                 "export-onnx MODEL OUT")
+        outputs = "accelerations"
+    else:
+        outputs = stop["outputs"]
+        if outputs is not None and outputs not in STOP_OUTPUTS:
+            fail(f"field 'stop.outputs' must be null or one of {list(STOP_OUTPUTS)}, got {outputs!r}")
+    if outputs == "accelerations" and velocity is not None and not outputs_are_accelerations(
+            state_units, accel_units, velocity):
+        fail(f"field 'stop.outputs' is 'accelerations' but the outputs ({', '.join(accel_units)}) are not "
+             "the velocity columns' units per second")
+    graph = files.get("outputs_for")
+    if (outputs == "outputs_for") != (graph is not None):
+        fail(f"field 'stop.outputs' is {outputs!r} but 'files.outputs_for' is "
+             f"{'absent' if graph is None else repr(graph)}: the outputs_for graph goes with 'outputs_for'")
 
 
 def previous_path(directory: str | Path) -> Path:

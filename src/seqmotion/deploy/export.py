@@ -15,6 +15,10 @@
   ``accel`` ``(B, C, d)`` float64, and ``physics`` ``(P,)`` float64 — the fields of the task's physics
   the dynamics read (:func:`~seqmotion.core.stepper.physics_inputs`; absent when there are none) —
   output ``states`` ``(B, C, S)`` float64, the C states that follow ``x``.
+* ``outputs_for.onnx`` (tasks whose outputs are not accelerations, e.g. joint torques) — the dynamics'
+  ``outputs_for``, traced like ``dynamics.onnx``: inputs ``x`` ``(B, S)``, ``accel`` ``(B, C, d)`` float64
+  (accelerations of the velocity columns) and ``physics`` as above, output ``outputs`` ``(B, C, d)``
+  float64, the outputs that give those accelerations along the path from ``x`` (the stepper's stop).
 * ``violation.onnx`` (tasks with a constraint) — ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)``
   float32 → ``violation`` ``(B, N)``: the task's constraint at the model's options.
 * ``contract.json`` — :func:`seqmotion.core.stepper.stepper_contract` (layouts, units, chunk, dt,
@@ -49,7 +53,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..core.stepper import DYNAMICS_GRAPH, stepper_contract
+from ..core.stepper import DYNAMICS_GRAPH, OUTPUTS_FOR_GRAPH, stepper_contract
 from ..core.trained import TrainedModel
 from ..io import check_writable_dir, replace_directory
 from ..physics.parameters import Physics
@@ -59,7 +63,8 @@ OPSET = 17
 INT8_MIN_FEATURES = 256
 RUNNER_FILES = ("onnx_stepper.py", "bundle.py", "numpy_physics.py")
 GRAPH_FILES = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx", "dynamics": DYNAMICS_GRAPH,
-               "violation": "violation.onnx", "decoder_step_int8": "decoder_step.int8.onnx"}
+               "violation": "violation.onnx", "decoder_step_int8": "decoder_step.int8.onnx",
+               "outputs_for": OUTPUTS_FOR_GRAPH}
 """The graphs' file names, by their key in the contract's ``files``."""
 BUNDLE_NAMES = frozenset({CONTRACT, "stepper.py", *RUNNER_FILES, *GRAPH_FILES.values(), "__pycache__"})
 """What a previous export (of any version) holds; ``__pycache__``: Python's, from running the runner there."""
@@ -129,6 +134,17 @@ class DynamicsStep(nn.Module):
             setattr(dynamics, name, physics[i])
         _, out = dynamics.step(dynamics.start(x), accel, None)
         return out["states"]
+
+
+class OutputsFor(DynamicsStep):
+    """The dynamics' ``outputs_for``, ``(x (B, S), accel (B, C, d)[, physics (P,)])`` → ``outputs (B, C, d)``,
+    with the physics fields set like :class:`DynamicsStep`'s."""
+
+    def forward(self, x: torch.Tensor, accel: torch.Tensor, physics: torch.Tensor | None = None) -> torch.Tensor:
+        dynamics = self.trained.dynamics(self.physics)
+        for i, name in enumerate(self.inputs):
+            setattr(dynamics, name, physics[i])
+        return dynamics.outputs_for(x, accel)
 
 
 class Violation(nn.Module):
@@ -315,6 +331,37 @@ dynamics on inputs other than the traced ones before the export is refused: roun
 call) is off by the size of the states themselves."""
 
 
+def shared_constants(proto: Any) -> Any:
+    """A copy of ``proto`` in which each ``Constant`` node's value is made once: a later ``Constant`` of the same
+    type, shape and bytes is dropped and its uses read the first. The tracer writes a constant per use, which for
+    the per-sample steps of a dynamics graph is hundreds of copies of ``dt`` and ``0``; fewer make a smaller graph
+    to keep in cache, and the same numbers (only names change)."""
+    import onnx
+    from onnx import numpy_helper
+
+    model = onnx.ModelProto()
+    model.CopyFrom(proto)
+    graph = model.graph
+    first: dict[tuple, str] = {}
+    renamed: dict[str, str] = {}
+    outputs = {value.name for value in graph.output}
+    nodes = []
+    for node in graph.node:
+        node.input[:] = [renamed.get(name, name) for name in node.input]
+        if (node.op_type == "Constant" and len(node.attribute) == 1 and node.attribute[0].name == "value"
+                and node.output[0] not in outputs):
+            value = node.attribute[0].t
+            key = (value.data_type, tuple(value.dims), numpy_helper.to_array(value).tobytes())
+            if key in first:
+                renamed[node.output[0]] = first[key]
+                continue
+            first[key] = node.output[0]
+        nodes.append(node)
+    del graph.node[:]
+    graph.node.extend(nodes)
+    return model
+
+
 def physics_read(proto: Any) -> set[int]:
     """The entries of the graph input ``physics`` that ``proto`` reads: each ``Gather(physics, i)`` with a
     constant index i (how the tracer writes ``physics[i]``); any other use of ``physics`` reads all of it.
@@ -364,6 +411,7 @@ def dynamics_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> 
         raise ValueError(f"the {task!r} task's dynamics ({type(model.dynamics(physics)).__name__}) cannot be "
                          f"exported as an ONNX graph: tracing their step failed with {type(exc).__name__}: {exc}"
                          ) from exc
+    proto = shared_constants(proto)
     read = physics_read(proto)
     unread = [name for i, name in enumerate(inputs) if i not in read]
     if unread:
@@ -375,9 +423,34 @@ def dynamics_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> 
     return proto
 
 
-def _check_traced(model: TrainedModel, physics: Physics, inputs: list[str], proto: Any) -> None:
-    """Refuse a dynamics graph that differs from the PyTorch dynamics on fresh inputs (:data:`PARITY_TOLERANCE`):
-    rows at rest and rows in motion, accelerations up to the model's output scale."""
+def outputs_for_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> Any:
+    """The ``outputs_for`` graph of ``model`` at ``physics`` (module docstring), with the same ``physics`` input
+    as the dynamics graph, checked against the PyTorch ``outputs_for`` on fresh inputs like the dynamics graph.
+
+    Raises:
+        ValueError: naming the task: tracing failed, or the graph differs from PyTorch.
+    """
+    task = model.task_def.name
+    s, d, c = model.state_layout.dim, model.accel_layout.dim, model.model.cfg.chunk
+    vector = (torch.tensor([getattr(physics, name) for name in inputs], dtype=torch.float64),) if inputs else ()
+    x, accel = torch.zeros(1, s, dtype=torch.float64), torch.zeros(1, c, d, dtype=torch.float64)
+    try:
+        proto = to_onnx(OutputsFor(model, physics, inputs), (x, accel, *vector),
+                        ["x", "accel", *(["physics"] if inputs else [])], ["outputs"],
+                        {"x": {0: "B"}, "accel": {0: "B"}, "outputs": {0: "B"}})
+    except Exception as exc:  # whatever the task's own code raises under the tracer
+        raise ValueError(f"the {task!r} task's outputs_for cannot be exported as an ONNX graph: tracing it failed "
+                         f"with {type(exc).__name__}: {exc}") from exc
+    proto = shared_constants(proto)
+    _check_traced(model, physics, inputs, proto, "outputs_for")
+    return proto
+
+
+def _check_traced(model: TrainedModel, physics: Physics, inputs: list[str], proto: Any,
+                  method: str = "step") -> None:
+    """Refuse a dynamics graph (``method`` ``"step"``; ``"outputs_for"``: that graph) that differs from the PyTorch
+    dynamics on fresh inputs (:data:`PARITY_TOLERANCE`): rows at rest and rows in motion, outputs up to the
+    model's output scale (accelerations up to the stop's limit)."""
     import onnxruntime as ort
 
     cfg = model.model.cfg
@@ -385,23 +458,29 @@ def _check_traced(model: TrainedModel, physics: Physics, inputs: list[str], prot
     rng = np.random.default_rng(0)
     x = 0.1 * rng.standard_normal((8, s))
     x[:2] = 0.0  # at rest (a contact sticking, say) as well as moving
-    scale = np.asarray(cfg.output_scale or [1.0] * d, dtype=np.float64)
+    dynamics = model.dynamics(physics)
+    limit = getattr(dynamics, "stop_accel_limit", None) if method == "outputs_for" else None
+    scale = np.asarray(limit or cfg.output_scale or [1.0] * d, dtype=np.float64)
     accel = scale * rng.standard_normal((8, cfg.chunk, d))
     feeds = {"x": x, "accel": accel}
     if inputs:
         feeds["physics"] = np.array([getattr(physics, name) for name in inputs], dtype=np.float64)
     session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    feeds = {i.name: feeds[i.name] for i in session.get_inputs()}  # a graph may not read every input
     (graph,) = session.run(None, feeds)
-    dynamics = model.dynamics(physics)
     with torch.no_grad():
-        _, out = dynamics.step(dynamics.start(torch.from_numpy(x)), torch.from_numpy(accel), None)
-    ref = out["states"].double().cpu().numpy()
+        if method == "outputs_for":
+            ref = dynamics.outputs_for(torch.from_numpy(x), torch.from_numpy(accel)).double().cpu().numpy()
+        else:
+            _, out = dynamics.step(dynamics.start(torch.from_numpy(x)), torch.from_numpy(accel), None)
+            ref = out["states"].double().cpu().numpy()
     same = (graph == ref) | (np.isnan(graph) & np.isnan(ref))  # a NaN both give (e.g. sqrt of a negative) agrees
     diff = np.where(same, 0.0, np.abs(graph - ref))
     finite = np.abs(ref[np.isfinite(ref)])
     gap = float(np.nan_to_num(diff, nan=np.inf).max()) / max(float(finite.max()) if finite.size else 0.0, 1e-300)
     if not gap <= PARITY_TOLERANCE:
-        raise ValueError(f"the {model.task_def.name!r} task's dynamics traced into a graph that differs from PyTorch "
+        what = "dynamics" if method == "step" else method
+        raise ValueError(f"the {model.task_def.name!r} task's {what} traced into a graph that differs from PyTorch "
                          f"on inputs other than the traced ones (by {gap:.3g} of the states' magnitude): the step "
                          "has something the tracer cannot follow, such as a Python if on a tensor's value (write it "
                          "with torch.where) or a computation outside torch (NumPy, numba)")
@@ -457,6 +536,8 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
              "accel": {0: "B"}}),
         "dynamics": dynamics_graph(model, physics, contract["dynamics"]["physics"]["inputs"]),
     }
+    if contract["stop"]["outputs"] == "outputs_for":
+        graphs["outputs_for"] = outputs_for_graph(model, physics, contract["dynamics"]["physics"]["inputs"])
     if contract["constraint"]:
         graphs["violation"] = to_onnx(
             Violation(model), (torch.zeros(1, 3, s), torch.zeros(1, 2, d)), ["states", "accel"], ["violation"],
@@ -469,6 +550,8 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     files["violation"] = GRAPH_FILES["violation"] if contract["constraint"] else None
     if int8:
         files["decoder_step_int8"] = GRAPH_FILES["decoder_step_int8"]
+    if "outputs_for" in graphs:
+        files["outputs_for"] = GRAPH_FILES["outputs_for"]
     vector_doc = {"physics": "(P,) float64: the values of dynamics.physics.inputs, in that order"} \
         if contract["dynamics"]["physics"]["inputs"] else {}
     contract = {
@@ -496,6 +579,13 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
                                     "the first states (the dynamics are causal)", **vector_doc},
                 "outputs": {"states": "(B, C, S) float64: the C states that follow x"},
             },
+            **({"outputs_for": {
+                "inputs": {"x": "(B, S) float64: the state before the chunk (state_layout)",
+                           "accel": "(B, C, d) float64: accelerations of the velocity columns (their units per "
+                                    "second); fewer: pad with zeros and keep the first outputs", **vector_doc},
+                "outputs": {"outputs": "(B, C, d) float64: the outputs (accel_layout) that give those "
+                                       "accelerations along the path from x"},
+            }} if "outputs_for" in graphs else {}),
             "violation": None if not contract["constraint"] else {
                 "inputs": {"states": "(B, N+1, S) float32", "accel": "(B, N, d) float32"},
                 "outputs": {"violation": "(B, N) float32: >= 0, 0 where the constraint holds"},
@@ -535,5 +625,5 @@ def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, physi
             "states": float(np.max(np.abs(mine["states"] - states.cpu().numpy())))}
 
 
-__all__ = ["OPSET", "bundle_target", "check_parity", "dynamics_graph", "encoder_graph", "export_onnx", "physics_read",
-           "to_onnx", "write_bundle"]
+__all__ = ["OPSET", "bundle_target", "check_parity", "dynamics_graph", "encoder_graph", "export_onnx",
+           "outputs_for_graph", "physics_read", "shared_constants", "to_onnx", "write_bundle"]

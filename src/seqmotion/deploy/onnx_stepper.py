@@ -16,6 +16,8 @@ model trained with), at the physics the contract records (``contract["dynamics"]
 at other values of the fields that graph reads: ``OnnxStepper("OUT", motion, physics={"mu": 0.8})``.
 Dynamics the contract names a closed form of (``"closed_form": "double_integrator"``: the pancake's,
 the tray's) are computed in NumPy instead (``numpy_physics.py``), the same numbers without a session run.
+For a task whose outputs are not accelerations (joint torques), the stop's planned accelerations become
+outputs through the bundle's ``outputs_for.onnx`` graph (``contract["stop"]["outputs"] == "outputs_for"``).
 
 Inside seqmotion the same classes are ``sm.deploy.OnnxModel`` / ``sm.deploy.OnnxStepper``. The
 semantics of ``step``, ``set_latent``, ``reset`` and the end of the motion are the module
@@ -85,6 +87,9 @@ class OnnxModel:
         self.decoder = session("decoder_step_int8" if int8 else "decoder_step")
         self.dynamics_session = session("dynamics")
         self.violation_session = session("violation") if files.get("violation") else None
+        self.outputs_for_session = session("outputs_for") if files.get("outputs_for") else None
+        self._outputs_for_inputs = [i.name for i in self.outputs_for_session.get_inputs()] \
+            if self.outputs_for_session else []
         # a constraint that reads only the accelerations (tray) has no states input in its graph
         self._violation_inputs = [i.name for i in self.violation_session.get_inputs()] if self.violation_session else []
         c = self.contract
@@ -231,6 +236,35 @@ class OnnxModel:
             x = states[:, -1]
         return out[-1] if len(out) <= 2 else np.concatenate(out, axis=1)
 
+    def outputs_for(self, x: np.ndarray, accel: np.ndarray, physics: np.ndarray | None = None) -> np.ndarray:
+        """The outputs ``(B, n, d)`` float64 that give the velocity columns the accelerations ``accel`` ``(B, n, d)``
+        along the path from states ``x`` ``(B, S)`` (the bundle's ``outputs_for`` graph, at ``physics`` like
+        :meth:`predict`). C at a time like :meth:`predict_graph`; past C the next chunk starts from the state the
+        dynamics reach with the outputs so far.
+
+        Raises:
+            ValueError: the bundle has no ``outputs_for`` graph (its outputs are the accelerations themselves).
+        """
+        if self.outputs_for_session is None:
+            raise ValueError(f"{self.directory} has no outputs_for graph: the {self.contract['task']!r} task's "
+                             "outputs are the accelerations themselves")
+        vector = self._default_vector if physics is None else physics
+        x, accel = np.asarray(x, dtype=np.float64), np.asarray(accel, dtype=np.float64)
+        b, n = accel.shape[:2]
+        c = self.chunk
+        out = []
+        for start in range(0, n, c):
+            part = accel[:, start:start + c]
+            m = part.shape[1]
+            if m < c:  # causal: the first m outputs do not depend on the padding
+                part = np.concatenate([part, np.zeros((b, c - m, self.accel_dim))], axis=1)
+            feeds = {"x": np.ascontiguousarray(x), "accel": np.ascontiguousarray(part), "physics": vector}
+            (outputs,) = self.outputs_for_session.run(None, {k: feeds[k] for k in self._outputs_for_inputs})
+            out.append(outputs[:, :m].astype(np.float64, copy=False))
+            if start + c < n:
+                x = self.predict(x, out[-1], physics)[:, -1]
+        return out[0] if len(out) == 1 else np.concatenate(out, axis=1)
+
     def violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray | None:
         """The violation ``(B, N)`` of ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)`` (None: no constraint)."""
         if self.violation_session is None:
@@ -347,6 +381,9 @@ class OnnxStepper(StepperCore):
 
     def _violation(self, states: np.ndarray, accel: np.ndarray) -> np.ndarray:
         return self.onnx.violation(states, accel)
+
+    def _outputs_for(self, x: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        return self.onnx.outputs_for(x, accel, self._physics)
 
 
 __all__ = ["OnnxModel", "OnnxStepper"]

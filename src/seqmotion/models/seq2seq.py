@@ -415,6 +415,13 @@ class ChunkDynamics(Protocol):
         parameters of the dynamics then apply to those rows."""
         ...
 
+    # Optional, for a task whose outputs are not the accelerations of its velocity columns (e.g. joint
+    # torques): ``outputs_for(x (B, S), accel (B, n, d)) -> (B, n, d)``, the outputs that give those
+    # accelerations along the path from ``x``, and ``stop_accel_limit`` ``(d,)``, the accelerations the
+    # online generator may plan to stop the robot with. The generator stops such a task through them (and
+    # exports ``outputs_for`` beside the dynamics graph); without them its stepper is refused by name
+    # (``seqmotion.core.stepper``; examples/cup_arm has both).
+
 
 class EntrywiseCovariance(Protocol):
     """Optionally, dynamics whose covariance propagation acts on every entry of ``S_u`` alike (the double

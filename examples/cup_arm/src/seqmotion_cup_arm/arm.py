@@ -45,6 +45,11 @@ LINK_LENGTHS = (0.30, 0.25)  # [m]
 LINK_MASSES = (1.0, 0.6)  # [kg]
 HOME = (0.6, -0.6)
 """The home pose ``(q1, q2)`` [rad]: link 1 raised 34°, link 2 horizontal, the cup upright."""
+STOP_ACCEL = (5.0, 5.0)
+"""The hardest the online generator's end-of-motion stop decelerates each joint [rad/s²]: within what the
+model's torque scale (2 and 1 N·m about the hold torque) gives at :data:`HOME` (about 9 and 32 rad/s²),
+and gentle on the cup: 5 rad/s² at the arm's full 0.55 m reach is 2.75 m/s², a 16° lean of the specific
+force, under the default 20° spill limit (the stop slows further where the constraint asks)."""
 Number = float | torch.Tensor
 
 
@@ -183,8 +188,13 @@ class CupArmDynamics:
 
     The carry is ``(x, cov)``: the state ``(B, 4)`` at the chunk boundary and the joint angles'
     :class:`CovarianceCarry`. ``payload_mass`` and ``joint_damping`` are read at every step (an exported
-    graph sets them from its ``physics`` input); floats or 0-d tensors.
+    graph sets them from its ``physics`` input); floats or 0-d tensors. :meth:`outputs_for` (the torques for
+    given joint accelerations) and ``stop_accel_limit`` let the online generator stop the arm through its
+    torques.
     """
+
+    stop_accel_limit = STOP_ACCEL
+    """The stop's deceleration limit per joint [rad/s²] (:data:`STOP_ACCEL`)."""
 
     def __init__(self, payload_mass: Number = 0.3, joint_damping: Number = 0.02, dt: float = DT) -> None:
         self.payload_mass, self.joint_damping, self.dt = payload_mass, joint_damping, dt
@@ -223,6 +233,26 @@ class CupArmDynamics:
             out["pos_cov"], cov_carry = propagate_covariance(
                 cov_carry, accel_covariance(before, cov, self.payload_mass), self.dt)
         return (out["states"][:, -1], cov_carry), out
+
+    def outputs_for(self, x: torch.Tensor, ddq: torch.Tensor) -> torch.Tensor:
+        """The torques ``(B, n, 2)`` [N·m] that give the joints the accelerations ``ddq`` ``(B, n, 2)`` [rad/s²]
+        sample by sample from states ``x`` ``(B, 4)``: ``τ[k] = M(q[k]) q̈[k] + C(q[k], q̇[k]) q̇[k] + g(q[k]) +
+        b q̇[k]`` at the states the semi-implicit step passes through with those accelerations, so :meth:`step`
+        applied to them accelerates the arm by ``ddq`` (to rounding). Zero accelerations hold a resting arm
+        against gravity. The online generator's stop plans accelerations and outputs these torques."""
+        q1, q2, dq1, dq2 = x.unbind(-1)
+        j1, j2, s2, w1 = _inertias(self.payload_mass)
+        l1s2, g_w1, g_s2, b, dt = LINK_LENGTHS[0] * s2, GRAVITY * w1, GRAVITY * s2, self.joint_damping, self.dt
+        rows: list[list[torch.Tensor]] = [[], []]
+        for a1, a2 in zip(*(a.unbind(1) for a in ddq.unbind(-1)), strict=True):
+            c, h = l1s2 * torch.cos(q2), l1s2 * torch.sin(q2)  # M = [[j1 + j2 + 2c, j2 + c], [j2 + c, j2]]
+            tip = g_s2 * torch.cos(q1 + q2)
+            rows[0].append((j1 + j2 + 2 * c) * a1 + (j2 + c) * a2 - h * dq2 * (2 * dq1 + dq2) + g_w1 * torch.cos(q1)
+                           + tip + b * dq1)
+            rows[1].append((j2 + c) * a1 + j2 * a2 + h * dq1 * dq1 + tip + b * dq2)
+            dq1, dq2 = dq1 + dt * a1, dq2 + dt * a2
+            q1, q2 = q1 + dt * dq1, q2 + dt * dq2
+        return torch.stack([torch.stack(row, 1) for row in rows], -1)
 
     def decoder_input(self, states: torch.Tensor) -> torch.Tensor:
         return states
