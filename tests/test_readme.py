@@ -101,6 +101,11 @@ CHECKS: dict[str, tuple[str, str | None]] = {
     "seqmotion lfd train --data my_robot_dataset --out my_models --seqae-from my_models/seqae --cnn-targets pair "
     "[--map ...]": ("tests/test_lerobot_other_robot.py", None),
     "pip install -e \".[view]\" && seqmotion view": ("tests/test_view.py::test_page_loads", None),
+    "pip install -e \".[robots]\" && pip install --no-deps \"robosuite>=1.5,<1.6\"": (
+        "tests/test_robots.py (.ci/run installs both, as the README's test command does)", None),
+    "seqmotion robots": ("as written", r"panda +robosuite +7 joints"),
+    "seqmotion simulate pancake --trajectory deformed.npz --robot ur5e": (
+        "as written", r"pancake on ur5e \(robosuite\): "),
     "seqmotion train tray --config tiny --epochs 20 --batches-per-epoch 5 --out runs/tray-tiny": (
         "tests/test_plugin_task.py (installs examples/tray, runs this)", None),
     "seqmotion deform --model runs/tray-tiny --input path.csv --output smooth.csv": (
