@@ -122,6 +122,63 @@ def test_the_sliding_graph_is_the_contact_model_sticking_and_sliding_at_any_fric
     np.testing.assert_array_equal(onnx_model.predict(x, accel, vector), ref["states"])
 
 
+class _Loop(torch.nn.Module):
+    """The contact loop alone, as the sliding dynamics call it while traced (every output of it read)."""
+
+    def __init__(self, dt: float) -> None:
+        super().__init__()
+        self.dt = dt
+
+    def forward(self, v0, neg_u, breaks, decel):  # noqa: ANN001, ANN201
+        from seqmotion.physics.sliding import ContactLoop
+
+        return ContactLoop.apply(v0, neg_u, breaks, decel, self.dt)
+
+
+def test_the_contact_loop_scan_is_the_eager_loop_and_the_kernel_bit_for_bit():
+    """Exported, the per-sample contact loop is one Scan whose body is the eager loop's step traced on its own. On
+    random inputs that stick, slide, stop on reversal and break away, at per-row friction and a dt that is no float32
+    number, its velocities are the numba kernel's bit for bit and its velocities, moving flags and w·v the eager
+    loop's (equal values: a stop is +0 in onnxruntime as in the kernel, where torch's ``w · 0`` keeps w's sign)."""
+    import onnxruntime as ort
+
+    from seqmotion.deploy.export import to_onnx
+    from seqmotion.physics.sliding import GRAVITY, ContactChunk, _breakaway_t, _torch_forward, contact_loop
+
+    rng = np.random.default_rng(7)
+    b, c, dt = 48, 60, 0.003
+    mu = rng.uniform(0.2, 1.2, b)
+    mu_dyn = rng.uniform(0.3, 1.0, b) * mu
+    stick_limit, slide_decel = (torch.from_numpy(f).reshape(b, 1) * GRAVITY for f in (mu, mu_dyn))
+    v0 = 0.05 * rng.standard_normal((b, 2))
+    v0[: b // 3] = 0.0  # at rest: sticking until the pan pushes past mu g, then breaking away
+    u = rng.choice([2.0, 6.0, 20.0], (b, c, 1)) * rng.standard_normal((b, c, 2))
+    u[:, ::7] = 0.0  # a still pan: a sliding object decelerates and stops
+    v0, u = torch.from_numpy(v0), torch.from_numpy(u)
+    p0 = torch.zeros_like(v0)
+    _, _, _, code = _torch_forward(p0, v0, u, stick_limit, slide_decel, dt)
+    assert (np.bincount(code.numpy().ravel(), minlength=4) > 0).all()  # stick, breakaway, slide and stop all occur
+    breaks = _breakaway_t(u, stick_limit, dt)[1]
+    with torch.no_grad():
+        ref = [t.numpy() for t in contact_loop(v0, -u, breaks, slide_decel, dt)]
+        kernel_v = ContactChunk.apply(p0, v0, u, torch.from_numpy(mu), torch.from_numpy(mu_dyn), dt)[1].numpy()
+    args = (v0[:1], -u[:1], breaks[:1], slide_decel[:1])
+    names, outs = ["v0", "neg_u", "breaks", "decel"], ["v", "moving", "turn"]
+    proto = to_onnx(_Loop(dt), args, names, outs, {name: {0: "B"} for name in names + outs})
+    ops = [node.op_type for node in proto.graph.node]
+    assert ops.count("Scan") == 1 and len(ops) <= 2, ops  # no sample unrolled outside the Scan
+    body = next(a.g for a in proto.graph.node[ops.index("Scan")].attribute if a.name == "body")
+    assert sum(node.op_type != "Constant" for node in body.node) <= 15
+    assert all(entry.domain in ("", "ai.onnx") for entry in proto.opset_import)  # the placeholder is gone
+    session = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+    feeds = dict(zip(names, (v0.numpy(), -u.numpy(), breaks.numpy(), slide_decel.numpy()), strict=True))
+    mine = session.run(None, feeds)
+    np.testing.assert_array_equal(mine[0].view(np.uint64), kernel_v.view(np.uint64))
+    for got, want in zip(mine, ref, strict=True):
+        assert got.shape == want.shape and got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
 def test_sliding_generate_and_the_stepper_at_another_friction(sliding_onnx):
     """generate and the stepper at μ = 0.6, μ' = 0.3 (the export recorded 1.0, 0.5) follow PyTorch at that friction,
     and differ from what the export's own friction gives."""

@@ -11,7 +11,8 @@
   inside); outputs ``h_out``, ``c_out`` and ``accel`` ``(B, C, d)`` (the Gaussian head's means).
 * ``dynamics.onnx`` — one chunk of the task's own dynamics, traced from the PyTorch code the model
   trains with (``ChunkDynamics.step``; the sliding contact's stick/slip cases are ``Where`` nodes, so
-  every case and every friction value runs through the same graph): inputs ``x`` ``(B, S)`` and
+  every case and every friction value runs through the same graph, and its per-sample loop is a ``Scan``
+  whose body is the loop's traced step, :mod:`seqmotion.deploy.scan`): inputs ``x`` ``(B, S)`` and
   ``accel`` ``(B, C, d)`` float64, and ``physics`` ``(P,)`` float64 — the fields of the task's physics
   the dynamics read (:func:`~seqmotion.core.stepper.physics_inputs`; absent when there are none) —
   output ``states`` ``(B, C, S)`` float64, the C states that follow ``x``.
@@ -58,6 +59,7 @@ from ..core.trained import TrainedModel
 from ..io import check_writable_dir, replace_directory
 from ..physics.parameters import Physics
 from .bundle import CONTRACT, check_contract, previous_path, seal
+from .scan import expand_contact_loops
 
 OPSET = 17
 INT8_MIN_FEATURES = 256
@@ -160,7 +162,8 @@ class Violation(nn.Module):
 
 def to_onnx(module: nn.Module, args: tuple, inputs: list[str], outputs: list[str],
             dynamic: dict[str, dict[int, str]]) -> Any:
-    """``module`` traced into an ONNX ModelProto (TorchScript exporter, opset :data:`OPSET`)."""
+    """``module`` traced into an ONNX ModelProto (TorchScript exporter, opset :data:`OPSET`), the sliding contact
+    loop as a ``Scan`` (:func:`~seqmotion.deploy.scan.expand_contact_loops`)."""
     import onnx
 
     buffer = io.BytesIO()
@@ -168,7 +171,7 @@ def to_onnx(module: nn.Module, args: tuple, inputs: list[str], outputs: list[str
         warnings.simplefilter("ignore")
         torch.onnx.export(module.eval(), args, buffer, dynamo=False, opset_version=OPSET, input_names=inputs,
                           output_names=outputs, dynamic_axes=dynamic, do_constant_folding=True)
-    return onnx.load_from_string(buffer.getvalue())
+    return expand_contact_loops(onnx.load_from_string(buffer.getvalue()), OPSET)
 
 
 def _prefixed(graph: Any, prefix: str) -> Any:

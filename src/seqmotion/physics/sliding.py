@@ -320,6 +320,70 @@ def _breakaway_t(u: torch.Tensor, stick_limit: torch.Tensor, dt: float) -> tuple
     return (can, vel, *jac)
 
 
+def contact_sample(
+    v: torch.Tensor, neg_u: torch.Tensor, brk: torch.Tensor, decel: torch.Tensor, dt: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One sample of the contact loop, the only part that is sequential: from the relative velocity ``v``
+    ``(..., 2)`` [m/s] under ``−u_p`` ``(..., 2)`` [m/s²], with ``brk`` ``(..., 2)`` the velocity a sticking object
+    breaks away to (0 where it would not; :func:`_breakaway_t`) and ``decel = μ' g`` ``(..., 1)`` [m/s²]. Returns
+    the next velocity ``(..., 2)``, whether the object moved ``(..., 1)`` bool and ``(w · v)`` ``(..., 1)`` (≤ 0:
+    sliding friction would have reversed the motion, so it stopped). Shape-agnostic, so the same function is the
+    eager loop's step and, traced on its own, the body of the exported graph's ``Scan``."""
+    moving, speed = _speed(v)
+    w = v + dt * (neg_u - decel * (v / speed))
+    turn = (w * v).sum(-1, keepdim=True)  # ≤ 0: friction would reverse the motion, so it stops
+    # w · [turn > 0] is w or 0 (a multiply costs a traced graph less than a second where); w is finite
+    # wherever it moves (the safe divisor), for finite inputs, and a NaN stays NaN as in the kernel
+    return torch.where(moving, w * (turn > 0.0), brk), moving, turn
+
+
+def contact_loop(
+    v0: torch.Tensor, neg_u: torch.Tensor, breaks: torch.Tensor, slide_decel: torch.Tensor, dt: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`contact_sample` over the C samples, one after another: ``v0`` ``(B, 2)``, ``neg_u`` and ``breaks``
+    ``(B, C, 2)``, ``slide_decel`` ``(B, 1)`` → velocities ``(B, C, 2)``, moving ``(B, C, 1)`` and ``w · v``
+    ``(B, C, 1)``."""
+    c = neg_u.shape[1]
+    # per sample (B, 1, 2) slices: split and cat, no squeeze or stack per sample (on a GPU each op is a launch)
+    neg_us, brks, decel = neg_u.split(1, 1), breaks.split(1, 1), slide_decel.unsqueeze(1)
+    v, vs, movings, turns = v0.unsqueeze(1), [], [], []
+    for k in range(c):
+        v, moving, turn = contact_sample(v, neg_us[k], brks[k], decel, dt)
+        vs.append(v)
+        movings.append(moving)
+        turns.append(turn)
+    return torch.cat(vs, 1), torch.cat(movings, 1), torch.cat(turns, 1)
+
+
+CONTACT_LOOP_OP = "ContactLoop"
+CONTACT_LOOP_DOMAIN = "seqmotion"
+"""The node :class:`ContactLoop` traces into: a placeholder in domain ``seqmotion`` that the ONNX export replaces
+by a ``Scan`` over :func:`contact_sample` traced on its own (:mod:`seqmotion.deploy.scan`)."""
+
+
+class ContactLoop(torch.autograd.Function):
+    """:func:`contact_loop` as a single node of a traced graph (forward only; used only while tracing). Unrolled,
+    the loop is ~15 nodes per sample (1,500 for a chunk of 100); the export turns this node into one ``Scan`` whose
+    body is the traced :func:`contact_sample`, the same ops, so the graph computes what the loop does, bit for bit.
+    """
+
+    @staticmethod
+    def forward(ctx, v0, neg_u, breaks, slide_decel, dt):  # noqa: ANN001, ANN205
+        return contact_loop(v0, neg_u, breaks, slide_decel, dt)
+
+    @staticmethod
+    def symbolic(g, v0, neg_u, breaks, slide_decel, dt):  # noqa: ANN001, ANN205
+        v, moving, turn = g.op(f"{CONTACT_LOOP_DOMAIN}::{CONTACT_LOOP_OP}", v0, neg_u, breaks, slide_decel,
+                               dt_t=torch.tensor(float(dt), dtype=torch.float64), outputs=3)  # dt_f would be float32
+        # the exporter cannot infer a custom node's outputs: velocities like -u_p, the flags one wide
+        kind = neg_u.type()
+        sizes = kind.varyingSizes() or [None, None, None]
+        v.setType(kind)
+        moving.setType(kind.with_sizes([*sizes[:-1], 1]).with_dtype(torch.bool))
+        turn.setType(kind.with_sizes([*sizes[:-1], 1]))
+        return v, moving, turn
+
+
 def _torch_forward(
     p0: torch.Tensor, v0: torch.Tensor, u: torch.Tensor, stick_limit: torch.Tensor, slide_decel: torch.Tensor,
     dt: float,
@@ -331,27 +395,14 @@ def _torch_forward(
     Returns ``(p (B, C, 2), v (B, C, 2), jac (B, C, 2, 2), branch (B, C) int8)``."""
     b, c, _ = u.shape
     can, break_vel, jxx, jxy, jyy = _breakaway_t(u, stick_limit, dt)
-    # per sample: (B, 1, 2) slices (split and cat, no squeeze or stack per sample: traced, every op is a node)
-    neg_u, breaks = (-u).split(1, 1), break_vel.split(1, 1)
-    decel = slide_decel.unsqueeze(1)
-    v, vs, movings, turns = v0.unsqueeze(1), [], [], []
-    for k in range(c):  # each op here is a kernel launch on a GPU and a node of the traced graph
-        moving, speed = _speed(v)
-        w = v + dt * (neg_u[k] - decel * (v / speed))
-        turn = (w * v).sum(-1, keepdim=True)  # ≤ 0: friction would reverse the motion, so it stops
-        # w · [turn > 0] is w or 0 (a multiply costs a traced graph less than a second where); w is finite
-        # wherever it moves (the safe divisor), for finite inputs, and a NaN stays NaN as in the kernel
-        v = torch.where(moving, w * (turn > 0.0), breaks[k])
-        vs.append(v)
-        movings.append(moving)
-        turns.append(turn)
-    v_out = torch.cat(vs, 1)
+    loop = ContactLoop.apply if torch.jit.is_tracing() else contact_loop
+    v_out, moving_all, turn_all = loop(v0, -u, break_vel, slide_decel, dt)
     v_prev = torch.cat([v0.unsqueeze(1), v_out[:, :-1]], 1)
     step = (0.5 * dt) * (v_prev + v_out)
     p_out = torch.cumsum(torch.cat([p0.unsqueeze(1), step], 1), 1)[:, 1:]  # p' = p + dt (v + v') / 2
     with torch.no_grad():
-        moving, can = torch.cat(movings, 1)[..., 0], can[..., 0]
-        reverse = torch.cat(turns, 1)[..., 0] <= 0.0  # as the kernel decides it (a NaN slides)
+        moving, can = moving_all[..., 0], can[..., 0]
+        reverse = turn_all[..., 0] <= 0.0  # as the kernel decides it (a NaN slides)
         slide, breakaway = moving & ~reverse, ~moving & can
         code = torch.full((b, c), STICK, dtype=torch.int8, device=u.device)  # masked_fill: no host sync
         code = code.masked_fill(slide, SLIDE).masked_fill(moving & reverse, STOP).masked_fill(breakaway, BREAKAWAY)
