@@ -357,20 +357,6 @@ class RobotPushingScene:
 # ----------------------------------------------------------------------------------------------------------------
 # The loop
 # ----------------------------------------------------------------------------------------------------------------
-@dataclass
-class TouchState:
-    """The Touch twin's measured state, what the decoder reads as the slave: θ [rad], θ̇ [rad/s], τ [N m] ``(3,)``
-    each (duck-typed for :class:`seqmotion.lfd.models.DecoderSource`)."""
-
-    theta: np.ndarray
-    dtheta: np.ndarray
-    tau: np.ndarray
-
-    def as_vector(self) -> np.ndarray:
-        """``(9,)``: θ, θ̇, τ concatenated."""
-        return np.concatenate([self.theta, self.dtheta, self.tau])
-
-
 class TouchTwin:
     """The Touch's joint state computed from the robot's pen tip and pen force (see the module docstring)."""
 
@@ -379,17 +365,20 @@ class TouchTwin:
         theta, _ = touch_angles(tip, pushing.default_pose())
         self.velocity = PseudoDerivative(g, dt, theta)
         self.force = LowPass(g, dt, np.zeros(3))
-        self.state = TouchState(theta, np.zeros(3), np.zeros(3))
+        from ..lfd.teleop import ArmState  # the state the decoder reads from a slave arm
+
+        self.state = ArmState(theta, np.zeros(3), np.zeros(3))
         self.clamped = 0  # periods whose tip was beyond the Touch's reach
 
-    def sense(self, tip: np.ndarray, pen_force: np.ndarray) -> TouchState:
-        """Update with the tip ``(3,)`` [m] and the force on the pen ``(3,)`` [N]; return the state."""
+    def sense(self, tip: np.ndarray, pen_force: np.ndarray) -> Any:
+        """Update with the tip ``(3,)`` [m] and the force on the pen ``(3,)`` [N]; return the state (an
+        :class:`seqmotion.lfd.teleop.ArmState`: θ, θ̇, τ)."""
         theta, clamped = touch_angles(tip, self.state.theta)
         self.clamped += clamped
         dtheta = self.velocity.update(theta)
         force = self.force.update(pen_force)
         tau = -touch_jacobian(theta).T @ force
-        self.state = TouchState(theta, np.asarray(dtheta, dtype=np.float64).copy(), tau)
+        self.state = type(self.state)(theta, np.asarray(dtheta, dtype=np.float64).copy(), tau)
         return self.state
 
 
