@@ -1,7 +1,7 @@
 """The chapter-5 pushing policy's closed loop on a Franka Panda (robosuite's model) in place of the Touch arm.
 
 Runs the evaluation protocol of ``seqmotion lfd evaluate`` (5 trials at each of the 6 block positions, seed 0,
-the same block placements and lighting) on the Touch arm and on the Panda (:mod:`seqmotion.sim.pushing_robot`;
+the same block placements and lighting) on the Touch arm and on the Panda (:mod:`seqmotion.lfd.robot`;
 ``--mode command`` or ``twin``, see its ``run_trial``), the latter with the CNN on the Panda world's images,
 with the CNN on the Touch world's images of the same trials, and (given ``--data``, a ``seqmotion lfd collect``
 directory) with the demonstrations' medoid latents per position (no CNN). Prints one JSON object (rates, per
@@ -22,7 +22,7 @@ import numpy as np
 
 import seqmotion as sm
 from seqmotion.lfd.evaluation import evaluate, position_latents
-from seqmotion.sim.pushing_robot import run_on_robot
+from seqmotion.lfd.robot import run_on_robot
 
 
 def main() -> None:
@@ -33,7 +33,7 @@ def main() -> None:
     parser.add_argument("--data", default=None, help="a 'seqmotion lfd collect' directory (for oracle latents)")
     parser.add_argument("--skip-touch", action="store_true", help="do not run the Touch arm's own evaluation")
     parser.add_argument("--mode", default="command", choices=("command", "twin"),
-                        help="how the decoder's commands reach the robot (seqmotion.sim.pushing_robot.run_trial)")
+                        help="how the decoder's commands reach the robot (seqmotion.lfd.robot.run_trial)")
     args = parser.parse_args()
     policy = sm.load_pretrained("pushing")
     out: dict = {"policy": "pushing (shipped)", "robot": args.robot, "mode": args.mode,

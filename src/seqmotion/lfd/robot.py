@@ -63,14 +63,14 @@ from typing import Any
 
 import numpy as np
 
-from . import pushing
-from .arm import IK_TOLERANCE, JointReport, joint_report
-from .backend import control_period, import_mujoco
-from .control import GAINS, Gains, JointSpaceController
-from .observers import LowPass, PseudoDerivative
-from .render import Renderer
-from .robot_models import Robot, resolve_robot, solve_pose, tool_mount
-from .scene import Scene, robot_prefix
+from ..sim import pushing
+from ..sim.arm import IK_TOLERANCE, JointReport, joint_report
+from ..sim.backend import control_period, import_mujoco
+from ..sim.control import GAINS, Gains, JointSpaceController
+from ..sim.observers import LowPass, PseudoDerivative
+from ..sim.render import Renderer
+from ..sim.robot_models import Robot, resolve_robot, solve_pose, tool_mount
+from ..sim.scene import Scene, robot_prefix
 
 PEN_LENGTH = 0.10
 """Flange to the pen tip [m]: the Touch's 5 cm pen would leave the Panda's flange housing (≈ 9 cm across)
@@ -365,7 +365,7 @@ class TouchTwin:
         theta, _ = touch_angles(tip, pushing.default_pose())
         self.velocity = PseudoDerivative(g, dt, theta)
         self.force = LowPass(g, dt, np.zeros(3))
-        from ..lfd.teleop import ArmState  # the state the decoder reads from a slave arm
+        from .teleop import ArmState  # the state the decoder reads from a slave arm
 
         self.state = ArmState(theta, np.zeros(3), np.zeros(3))
         self.clamped = 0  # periods whose tip was beyond the Touch's reach
@@ -503,7 +503,7 @@ class _TouchSlave:
 
     def __init__(self, scene: RobotPushingScene, position: pushing.BlockPosition,
                  variation: pushing.SceneVariation | None, gains: Any) -> None:
-        from ..lfd.teleop import ArmServo
+        from .teleop import ArmServo
 
         self.touch = pushing.PushingScene()
         self.touch.reset(position, variation)
@@ -526,7 +526,7 @@ class _TouchSlave:
     def step(self, command: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One period of the slave law under ``command``; the Touch's tip position [m], velocity [m/s] and
         acceleration [m/s²] ``(3,)`` each (the acceleration from successive velocities)."""
-        from ..lfd.teleop import slave_torque
+        from .teleop import slave_torque
 
         torque = slave_torque(command, self.state, self.servo.nominal_inertia, self.gains)
         self.touch.step(self.servo.actuate(torque))
@@ -540,7 +540,7 @@ class _TouchSlave:
 
 
 def _check_policy(policy: Any) -> None:
-    from ..lfd.models import PushingPolicy, require_arm
+    from .models import PushingPolicy, require_arm
 
     if not isinstance(policy, PushingPolicy):
         raise ValueError(
@@ -580,7 +580,7 @@ def run_trial(
     Returns:
         ``(RobotRun, image (64, 64, 3) uint8, z (latent,))``.
     """
-    from ..lfd.teleop import BilateralGains
+    from .teleop import BilateralGains
 
     _check_policy(policy)
     if mode not in MODES:
@@ -792,7 +792,7 @@ def run_on_robot(
     Raises:
         ValueError: as ``evaluate`` (bad policy, camera, positions, trials, seed, latents), or an unknown robot.
     """
-    from ..lfd.evaluation import EVAL_STREAM, TrialOutcome, trial_rng
+    from .evaluation import EVAL_STREAM, TrialOutcome, trial_rng
 
     _check_policy(policy)
     if mode not in MODES:
