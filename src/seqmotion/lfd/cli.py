@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
     from .models import PushingPolicy
 
-_SET_NAMES = ("motions", "pairs_default", "pairs_position1", "pairs_position2")
+_SET_NAMES = ("motions", "pairs_default", "pairs_position1", "pairs_position2", "hard", "hard_motions")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -31,7 +31,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
     p = sub.add_parser("collect", help="record the datasets with the scripted operator (90 motions, 3 x 18 pairs)")
     p.add_argument("--out", required=True, help="output directory; one <set>.h5 per set")
-    p.add_argument("--sets", nargs="+", choices=_SET_NAMES, default=list(_SET_NAMES), help="which sets (default all)")
+    p.add_argument("--benchmark", choices=["chapter", "hard"], default="chapter",
+                   help="chapter: the six block positions (the four sets of 5.3.3); hard: block anywhere in a wide "
+                   "region, turned, box or cylinder, distractors, camera and lighting jitter (the 'hard' set)")
+    p.add_argument("--sets", nargs="+", choices=_SET_NAMES, help="which sets (default: the benchmark's)")
+    p.add_argument("--episodes", type=int, help="hard benchmark: episodes to record (default 140)")
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
     p.add_argument("--duration", type=float, default=4.0, help="seconds per demonstration (default 4)")
     p.add_argument("--per-position", type=int, default=None, help="episodes per block position for every set")
@@ -52,7 +56,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument(
         "--preset",
         help="model size: original (7x64) | larger (10x128) | smaller (3x32) | "
-        "tiny (1x16, for tests); default: seqmotion.lfd.train.DEFAULT_PRESET (smaller)",
+        "wide64 (3x64, z in R^16) | tiny (1x16, for tests); default: seqmotion.lfd.train.DEFAULT_PRESET (smaller)",
     )
     p.add_argument(
         "--methods", nargs="+", default=["proposed"], choices=["proposed", "end_to_end", "seqae"],
@@ -71,6 +75,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="image-motion sets to train CNNs (or end-to-end models) on",
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--benchmark", choices=["chapter", "hard"], default="chapter",
+                   help="hard: train every method on the 'hard' set's demonstrations (collect --benchmark hard)")
+    p.add_argument("--demos", type=int, help="hard benchmark: train on the first N successful demonstrations")
+    p.add_argument("--extra-motions", action="store_true",
+                   help="hard benchmark: the SeqAE also trains on the hard_motions set (motions without images)")
     p.add_argument(
         "--seqae-epochs", type=int, help="SeqAE epochs (default 2000, as in the dissertation; tiny 200)"
     )
@@ -105,9 +114,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     p.add_argument("--camera", help="webcam pose (default: the one the policy was trained on)")
     p.add_argument("--positions", nargs="+", type=int, help="block position indices 0..5 (default all)")
-    p.add_argument("--trials", type=int, default=5, help="trials per position (default 5: 30 in all)")
+    p.add_argument("--benchmark", choices=["chapter", "hard"], default="chapter",
+                   help="chapter: trials at each of the six block positions; hard: every trial a fresh draw of the "
+                   "hard benchmark (object anywhere, turned, box or cylinder, distractors, camera and light jitter)")
+    p.add_argument("--trials", type=int,
+                   help="chapter: trials per position (default 5: 30 in all); hard: trials in all (default 30)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", help="write the full result (every trial) to this JSON file")
+    p.add_argument("--json", help="write the full result (every trial, success_rate, its 95%% Wilson interval) "
+                   "to this JSON file")
     p.add_argument(
         "--oracle-latents",
         metavar="DATASET",
@@ -169,15 +183,19 @@ def run(args: argparse.Namespace) -> int:
 
         check_writable_dir(args.out, "--out")
 
-        per_position = {name: args.per_position for name in args.sets} if args.per_position is not None else None
+        from .dataset import CHAPTER_SETS
+
+        sets = args.sets or (list(CHAPTER_SETS) if args.benchmark == "chapter" else ["hard"])  # hard_motions: by name
+        per_position = {name: args.per_position for name in sets} if args.per_position is not None else None
         reports = collect(
             args.out,
-            args.sets,
+            sets,
             seed=args.seed,
             duration=args.duration,
             per_position=per_position,
             progress=not args.quiet,
             overwrite=args.overwrite,
+            episodes=args.episodes,
         )
         for r in reports.values():
             per_pos = " ".join(f"{s}/{a}" for s, a in zip(r.successes, r.attempts, strict=True))
@@ -196,10 +214,14 @@ def run(args: argparse.Namespace) -> int:
             f"{data.path}: set {a['set_name']!r}, {len(data)} episodes of {a['samples']} samples "
             f"(dt {a['dt']} s), camera {a['camera'] or 'none'}, seed {a['seed']}"
         )
-        for pos in POSITIONS:
-            mask = data.episodes["position_index"] == pos.index
+        if a.get("benchmark") == "hard":  # placements drawn from a region: summarise by object
+            groups = {shape: data.episodes["shape"] == shape for shape in sorted(set(data.episodes["shape"]))}
+            print(f"  hard benchmark{', filmed at 50 fps' if data.video is not None else ''}")
+        else:
+            groups = {pos.name: data.episodes["position_index"] == pos.index for pos in POSITIONS}
+        for name, mask in groups.items():
             ok = int(data.episodes["success"][mask].sum())
-            print(f"  {pos.name:13s} {ok}/{int(mask.sum())} successful")
+            print(f"  {name:13s} {ok}/{int(mask.sum())} successful")
         return 0
     if args.lfd_command == "train":
         check_writable_dir(args.out, "--out")
@@ -254,7 +276,7 @@ def _train(args: argparse.Namespace) -> int:
 
         preset_name = PushingPolicy.from_pretrained(args.seqae_from).config.preset
     preset_name = preset_name or training.DEFAULT_PRESET
-    seqae, e2e, cnn = training.default_settings(preset_name)
+    seqae, e2e, cnn = training.default_settings(preset_name, args.benchmark)
     for settings in (seqae, e2e):
         if args.state_noise is not None:
             settings.state_noise = args.state_noise
@@ -291,6 +313,9 @@ def _train(args: argparse.Namespace) -> int:
         successful_only=not args.keep_failed,
         resume=not args.no_resume,
         mapping=parse_map(args.map),
+        benchmark=args.benchmark,
+        demos=args.demos,
+        extra_motions=args.extra_motions,
     )
     for name, path in report.policies.items():
         print(f"{name}: {path}")
@@ -316,10 +341,11 @@ def _evaluate(args: argparse.Namespace) -> int:
         policy,
         camera=args.camera,
         positions=args.positions,
-        trials=args.trials,
+        trials=args.trials if args.trials is not None else (30 if args.benchmark == "hard" else 5),
         seed=args.seed,
         progress=not args.quiet,
         latents=None if args.oracle_latents is None else _oracle_latents(policy, args.oracle_latents),
+        benchmark=args.benchmark,
     )
     if args.json:  # before printing: a closed stdout (e.g. piped into head) must not lose the result
         from ..io import atomic_write_bytes
@@ -327,8 +353,9 @@ def _evaluate(args: argparse.Namespace) -> int:
         # keys in position order, not sorted
         atomic_write_bytes(Path(args.json), (json.dumps(result.as_dict(), indent=1) + "\n").encode())
     cells = "  ".join(f"{name} {ok}/{n}" for name, (ok, n) in result.per_position.items())
+    low, high = result.wilson_interval
     print(
-        f"success {result.successes}/{result.n_trials} = {result.success_rate:.1%} (camera {result.camera}, "
-        f"seed {result.seed}, {result.seconds:.0f} s)\n  {cells}"
+        f"success {result.successes}/{result.n_trials} = {result.success_rate:.1%} (95% {low:.0%}-{high:.0%}; "
+        f"{result.benchmark} benchmark, camera {result.camera}, seed {result.seed}, {result.seconds:.0f} s)\n  {cells}"
     )
     return 0

@@ -1,6 +1,7 @@
 """Demonstration datasets of the pushing task (dissertation 5.3.3) in HDF5.
 
-Sets (all seeded and deterministic; episodes cycle through the six block positions):
+Sets (all seeded and deterministic; the chapter's episodes cycle through the six block positions,
+the hard set's draw their placement from ``seqmotion.sim.pushing.sample_hard_placement``):
 
 =====================  ==========  =========  ======================================
 name                   episodes    images     purpose
@@ -9,6 +10,10 @@ name                   episodes    images     purpose
 ``pairs_default``      18 (3×6)    default    CNN training (image–motion pairs)
 ``pairs_position1``    18 (3×6)    position1  CNN retraining after the camera moved
 ``pairs_position2``    18 (3×6)    position2  CNN retraining after the camera moved
+``hard``               140         default    the hard benchmark: every method trains on its first
+                                              N successful episodes (images and 50 fps video)
+``hard_motions``       400         none       the hard benchmark's motions without images (cheap to
+                                              record: what the proposed method's SeqAE can add)
 =====================  ==========  =========  ======================================
 
 File layout (format ``seqmotion.lfd.pushing``, version 1). N episodes of K samples at
@@ -29,12 +34,15 @@ File layout (format ``seqmotion.lfd.pushing``, version 1). N episodes of K sampl
     /motions/master_tip     (N, K, 3)  master tip position [m]
     /motions/slave_tip      (N, K, 3)  slave tip position [m]
     /motions/phase          (N, K)     int8 operator phase (index into attrs["phases"])
-    /episodes/position_index (N,) int8 block position 0..5 (seqmotion.sim.pushing.POSITIONS)
+    /episodes/position_index (N,) int8 block position 0..5 (seqmotion.sim.pushing.POSITIONS); -1 on the hard set
     /episodes/side          (N,)  str  "left" / "right"
     /episodes/distance      (N,)  block centre's distance from the centre line [m]
     /episodes/seed_key      (N, 3) int64 (seed, set id, episode): np.random.SeedSequence(seed,
                                    spawn_key=(set id, episode)) regenerates the episode
-    /episodes/success       (N,)  bool: block centre across the centre line at the end
+    /episodes/reach         (N,)  block centre's forward position [m]
+    /episodes/shape         (N,)  str  "box" / "cylinder"
+    /episodes/success       (N,)  bool: block centre across the centre line at the end (hard: at
+                                   its goal, ``PushingScene.success``)
     /episodes/crossed_time  (N,)  first time the centre crossed [s] (NaN if never)
     /episodes/n_pushes      (N,)  int8 pushes the operator made
     /episodes/block_initial_pose (N, 7)
@@ -42,6 +50,7 @@ File layout (format ``seqmotion.lfd.pushing``, version 1). N episodes of K sampl
     /operator/<name>        (N,)  operator parameters (seqmotion.lfd.operator.OperatorParams)
     /images                 (N, 64, 64, 3) uint8, only in image sets: the webcam image
                                    taken just before the motion
+    /video                  (N, F, 64, 64, 3) uint8, hard sets: the webcam every 20 ms from t = 0
     /cameras/<name>         attrs pos, target [m], fovy [deg] of every webcam pose
 
 Phase 2 reads 20 ms motions with :meth:`PushingDataset.motion` (by default every 20th sample).
@@ -71,15 +80,20 @@ _WIDTH = {"block_pose": 7}
 
 @dataclass(frozen=True)
 class SetSpec:
-    """A dataset to collect: ``per_position`` episodes at each of the 6 block positions.
+    """A dataset to collect: ``per_position`` episodes at each of the 6 block positions (chapter),
+    or ``episodes`` placements drawn from the hard benchmark (``benchmark="hard"``).
 
     ``camera`` names the webcam pose the image is taken from, or ``None`` for motion-only sets.
-    ``set_id`` keeps seeds of different sets apart (it enters the episode's seed key).
+    ``set_id`` keeps seeds of different sets apart (it enters the episode's seed key). A hard set
+    also films every episode at 50 fps (``/video``): what a policy that watches the scene, such as
+    ACT, trains on.
     """
 
     per_position: int
     camera: str | None
     set_id: int
+    benchmark: str = "chapter"
+    episodes: int = 0
 
 
 SETS: dict[str, SetSpec] = {
@@ -87,8 +101,14 @@ SETS: dict[str, SetSpec] = {
     "pairs_default": SetSpec(3, "default", 2),
     "pairs_position1": SetSpec(3, "position1", 3),
     "pairs_position2": SetSpec(3, "position2", 4),
+    "hard": SetSpec(0, "default", 5, "hard", 140),
+    "hard_motions": SetSpec(0, None, 6, "hard", 400),
 }
-"""The dissertation's sets (5.3.3 and Table 5.3)."""
+"""The dissertation's sets (5.3.3 and Table 5.3) and the hard benchmark's (``seqmotion.sim.pushing.
+sample_hard_placement``: 140 episodes, of which the first 10/25/50/100 successful ones make the
+data-efficiency curve's training sets)."""
+CHAPTER_SETS = tuple(name for name, spec in SETS.items() if spec.benchmark == "chapter")
+"""The dissertation's four sets: what :func:`collect` records by default."""
 
 DEFAULT_DURATION = 4.0
 """Recorded length of one demonstration [s] (4000 samples at 1 ms, 200 at 20 ms)."""
@@ -96,7 +116,7 @@ DEFAULT_DURATION = 4.0
 
 @dataclass
 class SetReport:
-    """What :func:`collect_set` did: the file, success per position (6,), wall time [s]."""
+    """What :func:`collect_set` did: the file, success per position (6,; hard: one entry), wall time [s]."""
 
     name: str
     path: Path
@@ -115,10 +135,18 @@ def episode_rng(seed: int, set_id: int, episode: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(set_id, episode)))
 
 
-def _scene_description() -> dict:
+def _scene_description(benchmark: str = "chapter") -> dict:
     from ..sim import pushing
 
+    hard = {
+        "benchmark": "hard", "distance_range_m": list(pushing.HARD_DISTANCE), "reach_range_m": list(pushing.HARD_REACH),
+        "yaw_range_rad": pushing.HARD_YAW, "shapes": list(pushing.SHAPES), "cylinder_radius_m": pushing.CYLINDER_RADIUS,
+        "cylinder_height_m": pushing.CYLINDER_HEIGHT, "cylinder_mass_kg": pushing.CYLINDER_MASS,
+        "goal_past_m": pushing.GOAL_PAST, "goal_tolerance_m": pushing.GOAL_TOLERANCE,
+        "max_distractors": pushing.MAX_DISTRACTORS,
+    } if benchmark == "hard" else {}
     return {
+        **hard,
         "block_size_m": list(pushing.BLOCK_SIZE),
         "block_mass_kg": pushing.BLOCK_MASS,
         "block_table_friction": pushing.BLOCK_TABLE_FRICTION,
@@ -140,6 +168,7 @@ def collect_set(
     duration: float = DEFAULT_DURATION,
     progress: bool = False,
     overwrite: bool = False,
+    episodes: int | None = None,
 ) -> SetReport:
     """Record one dataset of scripted-operator demonstrations into an HDF5 file.
 
@@ -152,6 +181,7 @@ def collect_set(
         duration: recorded length of each episode [s].
         progress: print a progress line to stderr.
         overwrite: replace an existing file (otherwise an existing file is an error).
+        episodes: a hard set's number of episodes (default: the set's, 140).
 
     Returns:
         A :class:`SetReport`.
@@ -162,13 +192,23 @@ def collect_set(
     from ..sim import pushing
     from .operator import PHASES, OperatorParams, ScriptedOperator
     from .teleop import BilateralGains, teleoperate
+    from .timing import samples_per_command
 
     if name not in SETS:
         raise ValueError(f"unknown dataset {name!r}; choose one of {sorted(SETS)}")
     spec = SETS[name]
+    hard = spec.benchmark == "hard"
     seed = check_number("seed", seed, minimum=0, integer=True)
-    per_position = spec.per_position if per_position is None else per_position
-    per_position = check_number("per_position", per_position, minimum=1, integer=True)
+    if hard:
+        if per_position is not None:
+            raise ValueError(f"the {name!r} set has no block positions to count per position: pass episodes")
+        n = check_number("episodes", spec.episodes if episodes is None else episodes, minimum=1, integer=True)
+    else:
+        if episodes is not None:
+            raise ValueError(f"the {name!r} set counts episodes per block position: pass per_position")
+        per_position = spec.per_position if per_position is None else per_position
+        per_position = check_number("per_position", per_position, minimum=1, integer=True)
+        n = per_position * len(pushing.POSITIONS)
     if camera is True:
         camera = spec.camera
     elif camera is False:
@@ -183,9 +223,11 @@ def collect_set(
 
     gains = BilateralGains()
     steps = round(duration / gains.dt)
-    n = per_position * len(pushing.POSITIONS)
-    scene, master = pushing.PushingScene(), pushing.MasterArm()
-    successes, attempts = np.zeros(6, dtype=int), np.zeros(6, dtype=int)
+    video_every = samples_per_command(gains.dt) if hard and camera is not None else 0
+    frames = -(-steps // video_every) if video_every else 0
+    scene, master = pushing.PushingScene(benchmark=spec.benchmark), pushing.MasterArm()
+    slots = 1 if hard else len(pushing.POSITIONS)
+    successes, attempts = np.zeros(slots, dtype=int), np.zeros(slots, dtype=int)
     start = time.perf_counter()
     float_opts = {"dtype": "f4", "compression": "gzip", "compression_opts": 4, "shuffle": True}
     # Written under a temporary name and renamed when complete: a killed collection leaves the old file
@@ -197,7 +239,8 @@ def collect_set(
                 format=FORMAT, version=VERSION, set_name=name, seed=seed, dt=gains.dt, duration=float(duration),
                 n_episodes=n, samples=steps, camera=camera or "", image_size=pushing.IMAGE_SIZE, complete=False,
                 motion_columns=json.dumps(list(_motion_columns())), phases=json.dumps(list(PHASES)),
-                scene=json.dumps(_scene_description()), gains=json.dumps(dataclasses.asdict(gains)),
+                scene=json.dumps(_scene_description(spec.benchmark)), gains=json.dumps(dataclasses.asdict(gains)),
+                benchmark=spec.benchmark,
             )
             for cam_name, cam in pushing.CAMERAS.items():
                 g = f.create_group(f"cameras/{cam_name}")
@@ -212,31 +255,46 @@ def collect_set(
                 if camera is not None
                 else None
             )
+            video = (
+                f.create_dataset("video", shape=(n, frames, 64, 64, 3), dtype="u1", chunks=(1, frames, 64, 64, 3),
+                                 compression="gzip", compression_opts=4)
+                if video_every
+                else None
+            )
             rows: list[dict] = []
             for episode in range(n):
-                position = pushing.POSITIONS[episode % len(pushing.POSITIONS)]
                 rng = episode_rng(seed, spec.set_id, episode)
-                params = OperatorParams.sample(rng)
-                variation = pushing.SceneVariation.sample(rng)
+                if hard:
+                    position, variation = pushing.sample_hard_placement(rng)
+                    params = OperatorParams.sample(rng)
+                else:
+                    position = pushing.POSITIONS[episode % len(pushing.POSITIONS)]
+                    params = OperatorParams.sample(rng)
+                    variation = pushing.SceneVariation.sample(rng)
                 demo = teleoperate(
-                    scene, master, ScriptedOperator(params, rng), position, duration, variation, camera, gains
+                    scene, master, ScriptedOperator(params, rng), position, duration, variation, camera, gains,
+                    video_every,
                 )
                 for key in (*MOTION_KEYS, *EXTRA_KEYS):
                     motions[key][episode] = getattr(demo, key)
                 motions["phase"][episode] = demo.phase
                 if images is not None:
                     images[episode] = demo.image
+                if video is not None:
+                    video[episode] = demo.video
                 rows.append(
                     {
                         "position_index": position.index, "side": position.side, "distance": position.distance,
+                        "reach": position.reach, "shape": position.shape,
                         "seed_key": (seed, spec.set_id, episode), "success": demo.success,
                         "crossed_time": demo.crossed_time, "n_pushes": demo.n_pushes,
                         "block_initial_pose": demo.block_pose[0], "variation": dataclasses.asdict(variation),
                         "operator": params.as_dict(),
                     }
                 )
-                attempts[position.index] += 1
-                successes[position.index] += int(demo.success)
+                slot = max(position.index, 0)
+                attempts[slot] += 1
+                successes[slot] += int(demo.success)
                 if progress:
                     elapsed = time.perf_counter() - start
                     print(
@@ -262,6 +320,8 @@ def _write_episode_table(f, rows: list[dict]) -> None:  # noqa: ANN001 - an open
     ep["position_index"] = np.array([r["position_index"] for r in rows], dtype=np.int8)
     ep["side"] = np.array([r["side"] for r in rows], dtype="S5")
     ep["distance"] = np.array([r["distance"] for r in rows])
+    ep["reach"] = np.array([r["reach"] for r in rows])
+    ep["shape"] = np.array([r["shape"] for r in rows], dtype="S8")
     ep["seed_key"] = np.array([r["seed_key"] for r in rows], dtype=np.int64)
     ep["success"] = np.array([r["success"] for r in rows], dtype=bool)
     ep["crossed_time"] = np.array([r["crossed_time"] for r in rows])
@@ -277,23 +337,26 @@ def _write_episode_table(f, rows: list[dict]) -> None:  # noqa: ANN001 - an open
 
 def collect(
     out_dir: str | Path,
-    sets: Iterable[str] = tuple(SETS),
+    sets: Iterable[str] = CHAPTER_SETS,
     seed: int = 0,
     duration: float = DEFAULT_DURATION,
     per_position: dict[str, int] | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    episodes: int | None = None,
 ) -> dict[str, SetReport]:
     """Collect the chapter-5 datasets into ``out_dir/<name>.h5``.
 
     Args:
         out_dir: output directory (created).
-        sets: which of :data:`SETS` to collect (default all four: 90 motions and 3 × 18 pairs).
+        sets: which of :data:`SETS` to collect (default the chapter's four, :data:`CHAPTER_SETS`: 90
+            motions and 3 × 18 pairs).
         seed: base seed of every set.
         duration: recorded length of each episode [s].
         per_position: optional ``{set name: episodes per position}`` overrides (for quick runs).
         progress: print progress lines to stderr.
         overwrite: replace existing files.
+        episodes: episodes of the hard set (default its 140).
 
     Returns:
         ``{set name: SetReport}`` in collection order.
@@ -311,8 +374,10 @@ def collect(
     out_dir = Path(out_dir)
     reports = {}
     for name in sets:
+        hard = SETS[name].benchmark == "hard"
         reports[name] = collect_set(
-            out_dir / f"{name}.h5", name, seed, per_position.get(name), True, duration, progress, overwrite
+            out_dir / f"{name}.h5", name, seed, per_position.get(name), True, duration, progress, overwrite,
+            episodes if hard else None,
         )
     return reports
 
@@ -330,6 +395,7 @@ class PushingDataset:
         episodes: ``{key: (N, ...)}`` per-episode values (``side`` as str).
         operator: ``{parameter: (N,)}``.
         images: ``(N, 64, 64, 3)`` uint8 or ``None``.
+        video: ``(N, F, 64, 64, 3)`` uint8, the webcam every 20 ms of each episode (hard sets), or ``None``.
     """
 
     path: Path
@@ -338,6 +404,7 @@ class PushingDataset:
     episodes: dict[str, np.ndarray]
     operator: dict[str, np.ndarray]
     images: np.ndarray | None
+    video: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.episodes["success"])
@@ -407,10 +474,13 @@ def _read_open_dataset(path: Path, f: object) -> PushingDataset:  # f: an open h
         }
         episodes = {k: f["episodes"][k][()] for k in f["episodes"] if isinstance(f["episodes"][k], h5py.Dataset)}
         episodes["side"] = episodes["side"].astype(str)
+        if "shape" in episodes:
+            episodes["shape"] = episodes["shape"].astype(str)
         episodes["variation"] = {k: v[()] for k, v in f["episodes/variation"].items()}
         operator = {k: v[()] for k, v in f["operator"].items()}
         images = f["images"][()] if "images" in f else None
-    return PushingDataset(path, attrs, motions, episodes, operator, images)
+        video = f["video"][()] if "video" in f else None
+    return PushingDataset(path, attrs, motions, episodes, operator, images, video)
 
 
 def _check_sizes(path: Path, f: object) -> None:  # f: an open h5py.File
@@ -427,8 +497,7 @@ def _check_sizes(path: Path, f: object) -> None:  # f: an open h5py.File
 
     groups = [f[name] for name in ("motions", "episodes", "episodes/variation", "operator")]
     datasets = [item for group in groups for item in group.values() if isinstance(item, h5py.Dataset)]
-    if "images" in f and isinstance(f["images"], h5py.Dataset):
-        datasets.append(f["images"])
+    datasets += [f[name] for name in ("images", "video") if name in f and isinstance(f[name], h5py.Dataset)]
     total = 0
     for dataset in datasets:
         # floats are read as float64 (motions: astype below); other kinds as they are stored
@@ -468,7 +537,8 @@ def save_dataset(data: PushingDataset, path: str | Path, overwrite: bool = False
         for key, value in data.episodes.items():
             if key == "variation":
                 continue
-            episodes[key] = np.asarray(value, dtype="S5") if key == "side" else np.asarray(value)
+            text = {"side": "S5", "shape": "S8"}  # h5py stores bytes, not numpy's unicode
+            episodes[key] = np.asarray(value, dtype=text[key]) if key in text else np.asarray(value)
         if "side" not in data.episodes:
             episodes["side"] = np.full(n, b"", dtype="S5")
         variation = episodes.create_group("variation")
@@ -479,6 +549,8 @@ def save_dataset(data: PushingDataset, path: str | Path, overwrite: bool = False
             operator[key] = np.asarray(value)
         if data.images is not None:
             f.create_dataset("images", data=np.asarray(data.images, dtype=np.uint8))
+        if data.video is not None:
+            f.create_dataset("video", data=np.asarray(data.video, dtype=np.uint8), compression="gzip")
     return path
 
 

@@ -6,9 +6,19 @@ the policy's CNN turns it into ẑ and the decoder drives the slave under the bi
 controller for 4 s (:func:`seqmotion.lfd.teleop.run_autonomous`). Success = the block's
 centre ends on the other side of the robot's centre line.
 
-Trial seeds come from ``SeedSequence(seed, spawn_key=(EVAL_STREAM, position, trial))``; the
-datasets use stream ids 1–4 (``seqmotion.lfd.dataset.SETS``), so no evaluation episode
-repeats a training episode, whatever the seeds.
+``benchmark="hard"`` draws every trial's scene from
+:func:`seqmotion.sim.pushing.sample_hard_placement` instead (object anywhere in a wide region,
+turned, box or cylinder, distractors, camera and lighting jitter) and judges success by
+:meth:`~seqmotion.sim.pushing.PushingScene.success` (the object put down at its goal line, on the
+table).
+
+Any policy with :class:`PushingPolicy`'s ``run`` method can be evaluated (:class:`Evaluable`):
+seqmotion's own policies and, through an adapter, a peer such as LeRobot's ACT
+(``benchmarks/peers/act/``).
+
+Trial seeds come from ``SeedSequence(seed, spawn_key=(EVAL_STREAM, position, trial))`` (hard:
+``position`` = :data:`HARD_KEY`); the datasets use stream ids 1–5 (``seqmotion.lfd.dataset.SETS``),
+so no evaluation episode repeats a training episode, whatever the seeds.
 """
 
 from __future__ import annotations
@@ -18,12 +28,24 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 EVAL_STREAM = 1000
-"""Seed-stream id of evaluation trials (the datasets use 1–4)."""
+"""Seed-stream id of evaluation trials (the datasets use 1–5)."""
+HARD_KEY = 100
+"""Second key of a hard-benchmark trial's seed (the chapter's trials use the position index 0..5)."""
+
+
+class Evaluable(Protocol):
+    """What :func:`evaluate` needs from a policy: ``run`` one closed-loop episode, and a ``config``
+    with ``kind``, ``preset`` and ``camera`` (the webcam it was trained on)."""
+
+    config: Any
+
+    def run(self, scene: Any, position: Any, variation: Any = None, camera: str | None = None,
+            duration: float = 4.0, latent: Any = None) -> tuple[Any, np.ndarray, np.ndarray]: ...
 
 
 @dataclass
@@ -38,6 +60,9 @@ class TrialOutcome:
         crossed_time: first time it crossed [s] (NaN if never).
         final_block_y: block centre's final y [m] (+ = robot's left).
         latent: the CNN's ẑ for this trial's image ``(latent,)``.
+        placement: hard benchmark: the object's ``shape``, ``distance``, ``reach`` [m], ``yaw`` [rad],
+            ``distractors`` and where it ended, ``past`` [m] beyond the centre line (else empty).
+        decision_ms: the policy's wall time per command (median over the episode) [ms].
         run: the :class:`~seqmotion.lfd.teleop.AutonomousRun` (only with ``keep_runs``).
         image: the webcam image (only with ``keep_runs``).
     """
@@ -50,6 +75,8 @@ class TrialOutcome:
     crossed_time: float
     final_block_y: float
     latent: np.ndarray
+    placement: dict = field(default_factory=dict)
+    decision_ms: float = math.nan
     run: Any = None
     image: np.ndarray | None = None
 
@@ -63,6 +90,8 @@ class TrialOutcome:
             "crossed_time": None if math.isnan(self.crossed_time) else self.crossed_time,
             "final_block_y": self.final_block_y,
             "latent": self.latent.tolist(),
+            **({"placement": self.placement} if self.placement else {}),
+            "decision_ms": None if math.isnan(self.decision_ms) else self.decision_ms,
         }
 
 
@@ -73,7 +102,7 @@ class Evaluation:
     Attributes:
         success_rate: successes / trials over all positions.
         successes, n_trials: counts.
-        per_position: ``{position name: (successes, trials)}``.
+        per_position: ``{position name: (successes, trials)}`` (hard: per object shape).
         outcomes: every :class:`TrialOutcome`, in order.
         camera: the webcam pose the images came from.
         seconds: wall time [s].
@@ -90,12 +119,28 @@ class Evaluation:
     seconds: float = 0.0
     policy_kind: str = ""
     policy_preset: str = ""
+    benchmark: str = "chapter"
+
+    @property
+    def wilson_interval(self) -> tuple[float, float]:
+        """95 % Wilson score interval of the success rate."""
+        return wilson_interval(self.successes, self.n_trials)
+
+    @property
+    def decision_ms(self) -> dict[str, float]:
+        """The policy's wall time per command over all trials' medians [ms]: ``p50``, ``max``."""
+        times = np.array([o.decision_ms for o in self.outcomes if not math.isnan(o.decision_ms)])
+        return {"p50": float(np.median(times)), "max": float(times.max())} if len(times) else {}
 
     def as_dict(self) -> dict:
+        low, high = self.wilson_interval
         return {
             "policy_kind": self.policy_kind,
             "policy_preset": self.policy_preset,
+            "benchmark": self.benchmark,
             "success_rate": self.success_rate,
+            "wilson_95": [low, high],
+            "decision_ms": self.decision_ms,
             "successes": self.successes,
             "n_trials": self.n_trials,
             "per_position": {k: list(v) for k, v in self.per_position.items()},
@@ -104,6 +149,16 @@ class Evaluation:
             "seconds": self.seconds,
             "outcomes": [o.as_dict() for o in self.outcomes],
         }
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.959964) -> tuple[float, float]:
+    """95 % (``z``) Wilson score interval ``(low, high)`` of a success rate ``successes / trials``."""
+    if trials <= 0:
+        return (0.0, 1.0)
+    p = successes / trials
+    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def trial_rng(seed: int, position_index: int, trial: int) -> np.random.Generator:
@@ -122,40 +177,56 @@ def evaluate(
     keep_runs: bool = False,
     scene: Any = None,
     latents: Any = None,
+    benchmark: str = "chapter",
 ) -> Evaluation:
-    """Run ``trials`` closed-loop episodes at each block position and count the successes.
+    """Run closed-loop episodes and count the successes.
 
     Args:
-        policy: a :class:`~seqmotion.lfd.models.PushingPolicy` (e.g. ``sm.load_pretrained("pushing")``).
+        policy: a :class:`~seqmotion.lfd.models.PushingPolicy` (e.g. ``sm.load_pretrained("pushing")``)
+            or any :class:`Evaluable` (a peer's adapter).
         camera: webcam pose for the images (default: the one the policy's CNN was trained on).
-        positions: block position indices 0..5 (default all six, see ``seqmotion.sim.pushing.POSITIONS``).
-        trials: trials **per position** (default 5: 30 in all, as in the dissertation).
+        positions: block position indices 0..5 (default all six, see ``seqmotion.sim.pushing.POSITIONS``);
+            chapter benchmark only.
+        trials: trials **per position** (default 5: 30 in all, as in the dissertation); on the hard
+            benchmark the number of trials in all.
         seed: evaluation seed; trial seeds never coincide with the datasets' (see module doc).
         duration: episode length [s].
         progress: print a progress line to stderr.
         keep_runs: keep each trial's run and image in its outcome (memory: ~0.5 MB per trial).
-        scene: a :class:`~seqmotion.sim.pushing.PushingScene` to reuse (one is made and closed otherwise).
+        scene: a :class:`~seqmotion.sim.pushing.PushingScene` of this benchmark to reuse (one is made
+            and closed otherwise).
         latents: ``(6, latent)``: decode ``latents[position]`` instead of the CNN's ẑ — a
-            diagnostic that takes the CNN out of the loop (see :func:`position_latents`).
+            diagnostic that takes the CNN out of the loop (see :func:`position_latents`); chapter only.
+        benchmark: ``"chapter"`` (the six positions) or ``"hard"`` (see the module doc).
 
     Returns:
         An :class:`Evaluation`.
 
     Raises:
-        ValueError: an unknown camera, a bad position index, ``trials < 1``, a negative seed; a
-            policy whose SeqAE is not the 3-joint arm's (trained on another robot's motions: the
-            simulated slave is the arm), or one without a CNN (kind ``seqae``) and no ``latents``.
+        ValueError: an unknown camera or benchmark, a bad position index, ``trials < 1``, a negative
+            seed; a policy whose SeqAE is not the 3-joint arm's (trained on another robot's motions:
+            the simulated slave is the arm), or one without a CNN (kind ``seqae``) and no ``latents``;
+            positions or latents on the hard benchmark; a scene of the other benchmark.
     """
     from ..sim import pushing
     from .models import PushingPolicy, require_arm
 
-    if not isinstance(policy, PushingPolicy):
+    if not callable(getattr(policy, "run", None)) or not hasattr(policy, "config"):
         raise ValueError(
-            f"policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')), got {type(policy).__name__}"
+            "policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')) or have its run(...) and config, "
+            f"got {type(policy).__name__}"
         )
-    require_arm(policy.seqae_config, "the closed-loop evaluation in MuJoCo")
-    if policy.cnn is None and latents is None:
-        raise ValueError("a 'seqae' model has no CNN to turn the webcam image into z: pass latents (--oracle-latents)")
+    if isinstance(policy, PushingPolicy):
+        require_arm(policy.seqae_config, "the closed-loop evaluation in MuJoCo")
+        if policy.cnn is None and latents is None:
+            raise ValueError(
+                "a 'seqae' model has no CNN to turn the webcam image into z: pass latents (--oracle-latents)"
+            )
+    if benchmark not in pushing.BENCHMARKS:
+        raise ValueError(f"unknown benchmark {benchmark!r}; choose one of {pushing.BENCHMARKS}")
+    hard = benchmark == "hard"
+    if hard and (positions is not None or latents is not None):
+        raise ValueError("the hard benchmark draws every placement itself: positions and latents are chapter-only")
     camera = policy.config.camera if camera is None else camera
     if camera not in pushing.CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")
@@ -164,60 +235,84 @@ def evaluate(
         raise ValueError("positions is empty; give block position indices 0..5")
     chosen = [pushing.block_position(i) for i in positions]  # ValueError names a bad index
     if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or trials < 1:
-        raise ValueError(f"trials (per position) must be a positive integer, got {trials!r}")
+        raise ValueError(f"trials must be a positive integer, got {trials!r}")
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration!r}")
+    if scene is not None and getattr(scene, "benchmark", "chapter") != benchmark:
+        raise ValueError(f"scene is the {scene.benchmark!r} benchmark's, not the {benchmark!r} one's")
 
     if latents is not None:
         latents = np.asarray(latents, dtype=np.float64)
         if latents.ndim != 2 or latents.shape[0] != len(pushing.POSITIONS) or not np.isfinite(latents).all():
             raise ValueError(f"latents must be a finite ({len(pushing.POSITIONS)}, latent) array, got {latents.shape}")
 
+    # (position index for the seed, trial): the chapter interleaves positions so a partial run is balanced
+    episodes = (
+        [(HARD_KEY, trial) for trial in range(trials)]
+        if hard
+        else [(position.index, trial) for trial in range(trials) for position in chosen]
+    )
     own_scene = scene is None
-    scene = pushing.PushingScene() if own_scene else scene
+    scene = pushing.PushingScene(benchmark=benchmark) if own_scene else scene
     outcomes: list[TrialOutcome] = []
     start = time.perf_counter()
-    total = len(chosen) * trials
     try:
-        for trial in range(trials):  # interleave positions so a partial run is balanced
-            for position in chosen:
-                rng = trial_rng(int(seed), position.index, trial)
-                variation = pushing.SceneVariation.sample(rng)
-                z_given = None if latents is None else latents[position.index]
-                run, image, z = policy.run(scene, position, variation, camera, duration, z_given)
-                outcomes.append(
-                    TrialOutcome(
-                        position.index,
-                        position.name,
-                        trial,
-                        (int(seed), EVAL_STREAM, position.index, trial),
-                        bool(run.success),
-                        float(run.crossed_time),
-                        float(run.block_pose[-1, 1]),
-                        z,
-                        run if keep_runs else None,
-                        image if keep_runs else None,
-                    )
+        for key, trial in episodes:
+            rng = trial_rng(int(seed), key, trial)
+            if hard:
+                position, variation = pushing.sample_hard_placement(rng)
+            else:
+                position, variation = pushing.POSITIONS[key], pushing.SceneVariation.sample(rng)
+            z_given = None if latents is None else latents[position.index]
+            run, image, z = policy.run(scene, position, variation, camera, duration, z_given)
+            placement = {}
+            if hard:
+                placement = {
+                    "shape": position.shape, "side": position.side, "distance": position.distance,
+                    "reach": position.reach, "yaw": variation.block_yaw,
+                    "distractors": int(np.sum(variation.distractors)),
+                    "past": float(-position.sign * run.block_pose[-1, 1]),
+                }
+            outcomes.append(
+                TrialOutcome(
+                    position.index,
+                    position.name,
+                    trial,
+                    (int(seed), EVAL_STREAM, key, trial),
+                    bool(run.success),
+                    float(run.crossed_time),
+                    float(run.block_pose[-1, 1]),
+                    np.asarray(z, dtype=np.float64),
+                    placement,
+                    float(np.median(run.decision_seconds) * 1000) if len(run.decision_seconds) else math.nan,
+                    run if keep_runs else None,
+                    image if keep_runs else None,
                 )
-                if progress:
-                    ok = sum(o.success for o in outcomes)
-                    print(
-                        f"\r[evaluate {camera}] {len(outcomes)}/{total} trials, {ok} successful, "
-                        f"{time.perf_counter() - start:.0f} s",
-                        end="" if len(outcomes) < total else "\n",
-                        file=sys.stderr,
-                        flush=True,
-                    )
+            )
+            if progress:
+                ok = sum(o.success for o in outcomes)
+                print(
+                    f"\r[evaluate {benchmark} {camera}] {len(outcomes)}/{len(episodes)} trials, {ok} successful, "
+                    f"{time.perf_counter() - start:.0f} s",
+                    end="" if len(outcomes) < len(episodes) else "\n",
+                    file=sys.stderr,
+                    flush=True,
+                )
     finally:
         if own_scene:
             scene.close()
-    outcomes.sort(key=lambda o: (o.position_index, o.trial))
     per_position = {}
-    for position in chosen:
-        mine = [o for o in outcomes if o.position_index == position.index]
-        per_position[position.name] = (sum(o.success for o in mine), len(mine))
+    if hard:
+        for shape in pushing.SHAPES:
+            mine = [o for o in outcomes if o.placement["shape"] == shape]
+            per_position[shape] = (sum(o.success for o in mine), len(mine))
+    else:
+        outcomes.sort(key=lambda o: (o.position_index, o.trial))
+        for position in chosen:
+            mine = [o for o in outcomes if o.position_index == position.index]
+            per_position[position.name] = (sum(o.success for o in mine), len(mine))
     successes = sum(o.success for o in outcomes)
     return Evaluation(
         successes / len(outcomes),
@@ -228,8 +323,9 @@ def evaluate(
         camera,
         int(seed),
         time.perf_counter() - start,
-        policy.config.kind,
-        policy.config.preset,
+        str(getattr(policy.config, "kind", "")),
+        str(getattr(policy.config, "preset", "")),
+        benchmark,
     )
 
 

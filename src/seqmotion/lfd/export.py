@@ -41,12 +41,16 @@ def evaluation_summary(path: str | Path) -> tuple[str, str, dict[str, Any]]:
         if result.get("policy_kind")
         else f"`{Path(path).stem}`"
     )
-    label = f"{who}, {result['camera']} camera"
+    benchmark = result.get("benchmark", "chapter")
+    label = f"{who}, {result['camera']} camera" + (", hard benchmark" if benchmark == "hard" else "")
+    low, high = result.get("wilson_95", (None, None))
+    interval = f", 95 % Wilson {low:.0%}–{high:.0%}" if low is not None else ""
     line = (
-        f"- {label}: **{result['success_rate']:.1%}** ({result['successes']}/{result['n_trials']} trials, "
+        f"- {label}: **{result['success_rate']:.1%}** ({result['successes']}/{result['n_trials']} trials{interval}, "
         f"evaluation seed {result['seed']}) — {cells}"
     )
     brief = {k: result[k] for k in ("camera", "seed", "success_rate", "successes", "n_trials", "per_position")}
+    brief["benchmark"] = benchmark
     return label, line, brief
 
 

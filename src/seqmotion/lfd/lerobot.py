@@ -37,9 +37,11 @@ Features (J joints: the arm's 3 named ``yaw``, ``shoulder``, ``elbow``, another 
   controller then holds for a frame); a LeRobot policy (ACT, Diffusion Policy) learns
   ``action[t]`` from ``observation[t]`` and its output goes into the same slot.
 * ``observation.environment_state`` ``(7,)``: the block's centre [m] and quaternion (w, x, y, z).
-* ``observation.images.webcam`` ``(64, 64, 3)``: seqmotion takes one webcam image per episode,
-  just before the motion; it is stored on every frame of the episode (LeRobot wants one per
-  frame; the scene in front of the camera is what the policy sees when it starts). ``image``
+* ``observation.images.webcam`` ``(64, 64, 3)``: the chapter's sets take one webcam image per
+  episode, just before the motion; it is stored on every frame of the episode (LeRobot wants one
+  per frame; the scene in front of the camera is what the policy sees when it starts). The hard
+  set films every episode at 50 fps (``/video``): each frame then holds what the camera saw at
+  that frame, as a policy that watches the scene (ACT, Diffusion Policy) trains on. ``image``
   dtype (PNG in the parquet) by default, an mp4 (AV1 or H.264) with ``videos=True``. The
   import takes each episode's first frame.
 * ``timestamp``, ``frame_index``, ``episode_index``, ``index``, ``task_index`` as LeRobot has them;
@@ -215,6 +217,14 @@ def _frames(data: PushingDataset, fps: int) -> dict[str, Any]:
     def flat(*parts: np.ndarray) -> np.ndarray:
         return np.concatenate(parts, axis=-1).reshape(n * length, -1)
 
+    webcam = {}
+    if data.video is not None:  # filmed episodes: each frame's own image
+        filmed_every = round(data.motions["slave_theta"].shape[1] / data.video.shape[1])
+        if every % filmed_every or data.video[:, :: every // filmed_every].shape[1] != length:
+            raise ValueError(f"the episodes are filmed at {rate / filmed_every:g} fps; export them at a rate that "
+                             f"divides it, got {fps}")
+        webcam = {"webcam": data.video[:, :: every // filmed_every].reshape(n * length, *IMAGE_SHAPE)}
+
     episode = np.repeat(np.arange(n, dtype=np.int64), length)
     frame = np.tile(np.arange(length, dtype=np.int64), n)
     return {
@@ -229,6 +239,7 @@ def _frames(data: PushingDataset, fps: int) -> dict[str, Any]:
         "task_index": np.zeros(n * length, dtype=np.int64),
         "lengths": np.full(n, length, dtype=np.int64),
         "joints": joints,
+        **webcam,
     }
 
 
@@ -276,9 +287,12 @@ def _write_data(root: Path, frames: dict, images: np.ndarray | None, features: d
         if feature["dtype"] == "video":
             continue
         if feature["dtype"] == "image":
-            png = [_png(image) for image in images]  # one PNG per episode, referenced by each of its frames
             image_type = pa.struct([("bytes", pa.binary()), ("path", pa.string())])
-            rows = [{"bytes": png[e], "path": None} for e in frames["episode_index"]]
+            if "webcam" in frames:  # a filmed episode: a PNG per frame
+                rows = [{"bytes": _png(image), "path": None} for image in frames["webcam"]]
+            else:  # one PNG per episode, referenced by each of its frames
+                png = [_png(image) for image in images]
+                rows = [{"bytes": png[e], "path": None} for e in frames["episode_index"]]
             columns[key] = pa.array(rows, type=image_type)
         elif feature["shape"] == [1]:
             columns[key] = pa.array(frames[key])
@@ -296,8 +310,8 @@ def _write_data(root: Path, frames: dict, images: np.ndarray | None, features: d
 
 
 def _write_video(root: Path, frames: dict, images: np.ndarray, fps: int, codec: str) -> list[dict]:
-    """One mp4 of all episodes back to back (each episode's image on each of its frames); its per-episode
-    rows for the episodes table (``videos/<key>/...``)."""
+    """One mp4 of all episodes back to back (each frame's image if filmed, else the episode's image on each
+    of its frames); its per-episode rows for the episodes table (``videos/<key>/...``)."""
     av = _av()
     path = root / VIDEO_PATH.format(video_key=WEBCAM, chunk_index=0, file_index=0)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -308,10 +322,11 @@ def _write_video(root: Path, frames: dict, images: np.ndarray, fps: int, codec: 
         stream.pix_fmt = "yuv420p"
         stream.time_base = Fraction(1, fps)
         stream.options = {"g": "2", "crf": "30"}
-        for image, length in zip(images, frames["lengths"], strict=True):
+        for e, length in enumerate(frames["lengths"]):
             rows.append({"chunk_index": 0, "file_index": 0, "from_timestamp": pts / fps,
                          "to_timestamp": (pts + int(length)) / fps})
             for _ in range(int(length)):
+                image = frames["webcam"][pts] if "webcam" in frames else images[e]
                 frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image, dtype=np.uint8), format="rgb24")
                 frame.pts, frame.time_base = pts, Fraction(1, fps)
                 container.mux(stream.encode(frame))
@@ -352,7 +367,9 @@ def _all_stats(frames: dict, images: np.ndarray | None, features: dict, rows: sl
                episodes: slice) -> dict[str, dict[str, np.ndarray]]:
     out = {}
     for key, feature in features.items():
-        if feature["dtype"] in ("image", "video"):
+        if feature["dtype"] in ("image", "video") and "webcam" in frames:
+            out[key] = _stats(frames["webcam"][rows], image=True)
+        elif feature["dtype"] in ("image", "video"):
             # every frame of an episode shows its one image and the episodes are equally long, so the
             # statistics of the per-episode images are those of the frames
             out[key] = _stats(images[episodes], image=True)

@@ -30,6 +30,7 @@ the law, with the policy's (θ, θ̇, τ) standing in for the master's, refreshe
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -193,6 +194,7 @@ class Demonstration:
     operator: dict[str, float] = field(default_factory=dict)
     image: np.ndarray | None = None
     camera: str | None = None
+    video: np.ndarray | None = None
 
     @property
     def length(self) -> int:
@@ -274,6 +276,7 @@ def teleoperate(
     variation: SceneVariation | None = None,
     camera: str | None = None,
     gains: BilateralGains | None = None,
+    video_every: int = 0,
 ) -> Demonstration:
     """Run one demonstration: the operator's hand drives the master, the slave pushes the block.
 
@@ -286,6 +289,9 @@ def teleoperate(
         variation: block placement / lighting / colour variation (none if omitted).
         camera: if given, one 64×64 image from this camera is taken before the motion.
         gains: bilateral control parameters (Table 5.1 if omitted).
+        video_every: with ``camera``, also film the episode: one image every ``video_every``
+            samples from sample 0 (20 at 1 ms: the 50 fps a LeRobot policy such as ACT reads), in
+            ``demo.video`` ``(ceil(K / video_every), 64, 64, 3)`` uint8.
 
     Returns:
         The recorded :class:`Demonstration` (success = block centre across the centre line at the end).
@@ -305,9 +311,14 @@ def teleoperate(
         {"mt": 3, "mdt": 3, "mtau": 3, "st": 3, "sdt": 3, "stau": 3, "block": 7, "force": 3, "mtip": 3, "stip": 3,
          "phase": 1},
     )
+    if video_every and camera is None:
+        raise ValueError("video_every needs a camera to film with")
+    video = np.zeros((-(-steps // video_every), *image.shape), np.uint8) if video_every else None
     crossed_time = math.nan
     for k in range(steps):
         t = k * gains.dt
+        if video is not None and k % video_every == 0:
+            video[k // video_every] = image if k == 0 else scene.render(camera)
         ms, ss = m_servo.sense(), s_servo.sense()
         block = scene.block_pose
         tip, tip_velocity, slave_tip = master.tip, master.tip_velocity(), scene.tip
@@ -342,6 +353,7 @@ def teleoperate(
         operator=operator.describe(),
         image=image,
         camera=camera,
+        video=video,
     )
 
 
@@ -355,7 +367,9 @@ class AutonomousRun:
     """A run with a command source in the master's place, sampled every ``dt``.
 
     ``slave_theta/dtheta/tau`` ``(K, 3)``, ``command_theta/dtheta/tau`` ``(K, 3)`` (the held
-    command in force at each sample), ``block_pose`` ``(K, 7)``, ``slave_tip`` ``(K, 3)``.
+    command in force at each sample), ``block_pose`` ``(K, 7)``, ``slave_tip`` ``(K, 3)``;
+    ``decision_seconds`` ``(calls,)``: the source's wall time at each call [s] (the policy's
+    decision time per control step).
     """
 
     position: BlockPosition
@@ -370,6 +384,7 @@ class AutonomousRun:
     slave_tip: np.ndarray
     success: bool
     crossed_time: float
+    decision_seconds: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def run_autonomous(
@@ -405,11 +420,14 @@ def run_autonomous(
     rec = _Recorder(steps, {"st": 3, "sdt": 3, "stau": 3, "ct": 3, "cdt": 3, "ctau": 3, "block": 7, "stip": 3})
     crossed_time = math.nan
     command = servo.state
+    decision = np.zeros(-(-steps // every))
     for k in range(steps):
         t = k * gains.dt
         state = servo.sense()
         if k % every == 0:
+            begin = time.perf_counter()
             command = source(t, state)
+            decision[k // every] = time.perf_counter() - begin
             for name, value in (("theta", command.theta), ("dtheta", command.dtheta), ("tau", command.tau)):
                 if np.shape(value) != (pushing.N_JOINTS,) or not np.all(np.isfinite(value)):
                     raise ValueError(f"command source returned a bad {name}: {value!r} (need 3 finite numbers)")
@@ -433,6 +451,7 @@ def run_autonomous(
         slave_tip=rec["stip"],
         success=scene.success(),
         crossed_time=crossed_time,
+        decision_seconds=decision,
     )
 
 

@@ -177,7 +177,7 @@ and its SeqAE training fits the 45-minute collect-and-train budget of a 2-core C
 ones' do not (``benchmarks/RESULTS_lfd.md``).
 """
 
-SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 1200}
+SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 1200, "wide64": 2000}
 """Default SeqAE epochs per preset: the dissertation's 2000, except ``larger``, whose 2000 epochs would take
 hours on a 2-core CPU (``tiny`` is for tests)."""
 
@@ -185,10 +185,17 @@ E2E_EPOCHS = 2000
 """Default epochs of the end-to-end baseline (the dissertation's), every preset."""
 
 
-def default_settings(preset_name: str = DEFAULT_PRESET) -> tuple[SeqAETraining, SeqAETraining, CNNTraining]:
-    """``(SeqAE, end-to-end, CNN)`` training settings ``seqmotion lfd train`` uses for ``preset_name``."""
+def default_settings(
+    preset_name: str = DEFAULT_PRESET, benchmark: str = "chapter"
+) -> tuple[SeqAETraining, SeqAETraining, CNNTraining]:
+    """``(SeqAE, end-to-end, CNN)`` training settings ``seqmotion lfd train`` uses for ``preset_name``.
+
+    On the hard benchmark the CNN regresses each pair's own z (``"pair"``, eq. 5.2): its placements
+    are continuous, so there are no block positions to pool demonstrations over.
+    """
     preset(preset_name)  # ValueError for an unknown name
-    return SeqAETraining(epochs=SEQAE_EPOCHS[preset_name]), SeqAETraining(epochs=E2E_EPOCHS), CNNTraining()
+    cnn = CNNTraining(targets="pair") if benchmark == "hard" else CNNTraining()
+    return SeqAETraining(epochs=SEQAE_EPOCHS[preset_name]), SeqAETraining(epochs=E2E_EPOCHS), cnn
 
 
 def augment_images(images: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
@@ -513,6 +520,9 @@ def train(
     successful_only: bool = True,
     resume: bool = True,
     mapping: Mapping[str, str] | None = None,
+    benchmark: str = "chapter",
+    demos: int | None = None,
+    extra_motions: bool = False,
 ) -> TrainReport:
     """Train policies from ``data_dir`` (``motions.h5``, ``pairs_<camera>.h5``) into ``out/<method>_<camera>/``.
 
@@ -542,6 +552,14 @@ def train(
             some; False has each training this run does remove its own and start over.
         mapping: ``{field: feature key}`` for LeRobot folders (``--map``, see
             :func:`seqmotion.lfd.lerobot.from_lerobot`): another robot's feature names.
+        benchmark: ``"hard"`` trains every method on the same demonstrations, the ``hard`` set's
+            (``hard.h5``), with their images (default camera): the SeqAE on their motions, the CNN
+            on their image–motion pairs.
+        demos: hard benchmark: train on the set's first ``demos`` usable (successful)
+            demonstrations (the data-efficiency curve's 10, 25, 50, 100); default all.
+        extra_motions: hard benchmark: the SeqAE also trains on the ``hard_motions`` set's usable
+            demonstrations (motions without images, as the chapter's SeqAE trains on 90 motions and
+            its CNN on 18 pairs); the CNN still pairs the ``demos`` images with their own z.
     """
     data_dir, out = Path(data_dir), Path(out)
     seed = check_number("seed", seed, minimum=0, integer=True)
@@ -555,20 +573,48 @@ def train(
 
     if not cameras or any(c not in CAMERAS for c in cameras):
         raise ValueError(f"cameras must be a non-empty subset of {sorted(CAMERAS)}, got {cameras!r}")
-    defaults = default_settings(preset_name)
+    if benchmark not in ("chapter", "hard"):
+        raise ValueError(f"unknown benchmark {benchmark!r}; choose 'chapter' or 'hard'")
+    hard = benchmark == "hard"
+    if demos is not None and not hard:
+        raise ValueError("demos picks the hard set's first demonstrations; the chapter's sets are fixed (5.3.3)")
+    if hard and tuple(cameras) != ("default",):
+        raise ValueError(f"the hard set is filmed from the default camera only, got cameras {cameras!r}")
+    defaults = default_settings(preset_name, benchmark)
     seqae_settings = _with_seed(seqae_settings or defaults[0], seed)
     e2e_settings = _with_seed(e2e_settings or defaults[1], seed)
     cnn_settings = _with_seed(cnn_settings or defaults[2], seed)
+    if hard and cnn_settings.targets != "pair":
+        raise ValueError(f"the hard benchmark has no block positions for the CNN targets {cnn_settings.targets!r}: "
+                         "use 'pair' (each image's own demonstration's z)")
     # the SeqAE alone needs motions only; a CNN (proposed, end to end) needs the image-motion pairs
     needs_pairs = "proposed" in methods or "end_to_end" in methods
-    pairs = {c: _open_set(data_dir, f"pairs_{c}", mapping) for c in cameras} if needs_pairs else {}
     needs_motions = "proposed" in methods or "seqae" in methods
-    motions_data = _open_set(data_dir, "motions", mapping) if needs_motions else None
+    if hard:  # one set of demonstrations, with images, for every method
+        hard_data = _open_set(data_dir, "hard", mapping)
+        usable = _episodes(hard_data, successful_only)
+        if demos is not None:
+            demos = check_number("demos", demos, minimum=2, integer=True)
+            if demos > len(usable):
+                raise ValueError(f"{hard_data.path} has {len(usable)} usable demonstrations, fewer than demos={demos}")
+            usable = usable[:demos]
+        hard_data = _subset(hard_data, usable)
+        pairs = {"default": hard_data} if needs_pairs else {}
+        motions_data = hard_data if needs_motions else None
+        if extra_motions and needs_motions:
+            more = _open_set(data_dir, "hard_motions", mapping)
+            motions_data = _concatenate(hard_data, _subset(more, _episodes(more, successful_only)))
+    elif extra_motions:
+        raise ValueError("extra_motions adds the hard benchmark's motions: pass benchmark='hard'")
+    else:
+        pairs = {c: _open_set(data_dir, f"pairs_{c}", mapping) for c in cameras} if needs_pairs else {}
+        motions_data = _open_set(data_dir, "motions", mapping) if needs_motions else None
     config = replace(config, joints=_joint_count({"motions": motions_data, **pairs}))
 
     report = TrainReport(out)
     checkpoints = out / "checkpoints"
-    record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_record()}
+    record = {"command": command, "seed": seed, "data_dir": str(data_dir), "machine": machine_record(),
+              "benchmark": benchmark, **({"demos": len(hard_data), "extra_motions": extra_motions} if hard else {})}
 
     if needs_motions:
         keep_motions = _episodes(motions_data, successful_only)
@@ -730,6 +776,32 @@ def _record(report: TrainReport, part: str, settings: Any, history: dict, **coun
     report.seconds[part] = history["seconds"]
     report.final_loss[part] = history["loss"][-1]
     return {"settings": asdict(settings), **counts, "seconds": history["seconds"], "final_loss": history["loss"][-1]}
+
+
+def _subset(data: Any, episodes: np.ndarray) -> Any:
+    """The ``PushingDataset`` of these episodes only (every per-episode array indexed by them)."""
+    def pick(tree: Any) -> Any:
+        return {k: pick(v) for k, v in tree.items()} if isinstance(tree, dict) else np.asarray(tree)[episodes]
+
+    return replace(
+        data,
+        motions=pick(data.motions),
+        episodes=pick(data.episodes),
+        operator=pick(data.operator),
+        images=None if data.images is None else data.images[episodes],
+        video=None if data.video is None else data.video[episodes],
+    )
+
+
+def _concatenate(first: Any, second: Any) -> Any:
+    """One ``PushingDataset`` of both sets' motions and episode records (no images: it trains a SeqAE)."""
+    def join(a: Any, b: Any) -> Any:
+        if isinstance(a, dict):
+            return {k: join(a[k], b[k]) for k in a if k in b}
+        return np.concatenate([np.asarray(a), np.asarray(b)])
+
+    return replace(first, motions=join(first.motions, second.motions), episodes=join(first.episodes, second.episodes),
+                   operator=join(first.operator, second.operator), images=None, video=None)
 
 
 def _with_seed(settings: Any, seed: int) -> Any:

@@ -179,20 +179,58 @@ DISTANCES = (0.045, 0.080, 0.115)
 
 SIDES = ("left", "right")
 
+SHAPES = ("box", "cylinder")
+"""Objects the robot pushes: the chapter's wooden block (``box``) and, on the hard benchmark, a
+smaller, lighter painted-wood ``cylinder`` standing on its end."""
+
+CYLINDER_RADIUS = 0.03
+CYLINDER_HEIGHT = 0.05
+CYLINDER_MASS = 600.0 * math.pi * CYLINDER_RADIUS**2 * CYLINDER_HEIGHT
+"""[m], [m], [kg]: 6 cm across, 5 cm high, 0.085 kg at the block's 600 kg/m³."""
+
+
+def object_half_height(shape: str) -> float:
+    """Height of the object's centre above the table when it stands as placed [m]."""
+    return (BLOCK_SIZE[2] if shape == "box" else CYLINDER_HEIGHT) / 2
+
+
+def face_offset(shape: str, yaw: float) -> float:
+    """Lateral (y) distance [m] from the object's centre to its outer boundary at the centre's x.
+
+    Where the pen meets the object when it pushes along y through the centre: for the box turned
+    by ``yaw`` its long face (half-depth ``BLOCK_SIZE[1] / 2``) crosses the line at
+    ``half / cos(yaw)``; a cylinder's at its radius.
+    """
+    if shape == "cylinder":
+        return CYLINDER_RADIUS
+    return BLOCK_SIZE[1] / 2 / max(math.cos(yaw), 0.5)
+
+
+def lateral_extent(shape: str, yaw: float) -> float:
+    """Half the object's width along y [m] (the box's corners when turned): what a pen must clear."""
+    if shape == "cylinder":
+        return CYLINDER_RADIUS
+    return abs(BLOCK_SIZE[0] / 2 * math.sin(yaw)) + abs(BLOCK_SIZE[1] / 2 * math.cos(yaw))
+
 
 @dataclass(frozen=True)
 class BlockPosition:
-    """One of the six nominal block placements.
+    """Where the object is placed: one of the chapter's six positions, or a hard-benchmark draw.
 
     Attributes:
-        index: 0..5, ordered left 4.5, left 8.0, left 11.5, right 4.5, right 8.0, right 11.5.
+        index: 0..5, ordered left 4.5, left 8.0, left 11.5, right 4.5, right 8.0, right 11.5;
+            −1 for a placement drawn from the hard benchmark's continuous region.
         side: ``"left"`` (+y, pushed to the right) or ``"right"`` (−y, pushed to the left).
-        distance: lateral distance of the block's centre from the robot's centre line [m].
+        distance: lateral distance of the object's centre from the robot's centre line [m].
+        reach: forward position of the object's centre [m].
+        shape: one of :data:`SHAPES`.
     """
 
     index: int
     side: str
     distance: float
+    reach: float = BLOCK_REACH_X
+    shape: str = "box"
 
     @property
     def sign(self) -> float:
@@ -202,16 +240,77 @@ class BlockPosition:
     @property
     def xy(self) -> np.ndarray:
         """Nominal block-centre position ``(2,)`` [m] on the table."""
-        return np.array([BLOCK_REACH_X, self.sign * self.distance])
+        return np.array([self.reach, self.sign * self.distance])
 
     @property
     def name(self) -> str:
-        return f"{self.side}_{round(self.distance * 1000) / 10:g}cm"
+        if self.index >= 0:
+            return f"{self.side}_{round(self.distance * 1000) / 10:g}cm"
+        return f"{self.shape}_{self.side}_{self.distance * 100:.1f}cm_x{self.reach * 100:.1f}cm"
 
 
 POSITIONS: tuple[BlockPosition, ...] = tuple(
     BlockPosition(i, side, d) for i, (side, d) in enumerate((s, d) for s in SIDES for d in DISTANCES)
 )
+
+
+BENCHMARKS = ("chapter", "hard")
+"""``chapter``: the six positions of Fig. 5.5 with small placement noise (dissertation 5.3.5);
+``hard``: see :func:`sample_hard_placement`."""
+
+HARD_DISTANCE = (0.02, 0.14)
+"""Hard benchmark: lateral distance of the object's centre from the centre line [m], the chapter's
+span 4.5–11.5 cm (centre 8 cm) widened to 8 ± 6 cm."""
+HARD_REACH = (0.14, 0.18)
+"""Hard benchmark: forward position of the object's centre [m] (the chapter's 16 cm ± 2 cm; the
+Touch's workspace is 16.5 cm deep)."""
+HARD_YAW = math.radians(30.0)
+"""Hard benchmark: the object's rotation about z is uniform in ± this [rad]."""
+GOAL_PAST = 0.035
+GOAL_TOLERANCE = 0.02
+"""Hard benchmark success: the goal line is the chapter's (the robot's centre line, which the block
+must cross) moved ``GOAL_PAST`` [m] on, to where the demonstrators leave the object (they aim 1–3 cm
+past the centre line and it slides on; median 4.0 cm over 40 hard demonstrations), and the object's
+centre must end within ``GOAL_TOLERANCE`` [m] of it: across the centre line by 1.5–5.5 cm. Pushing
+the object across is not enough; it must be put down there."""
+TABLE_HALF = 0.6
+"""The table's half-size [m] (the plane's extent): beyond it the object has left the table."""
+
+
+def sample_hard_placement(rng: np.random.Generator) -> tuple[BlockPosition, SceneVariation]:
+    """One episode of the hard benchmark: placement, object, distractors, camera and lighting.
+
+    * the object: box or cylinder (equally likely), its centre anywhere in :data:`HARD_DISTANCE` ×
+      :data:`HARD_REACH` on either side, turned uniformly within ± :data:`HARD_YAW`;
+    * 0, 1 or 2 distractors (small boxes and cylinders of random colour) on the table in front of the
+      workspace, where neither pen nor object goes, in view of the webcam;
+    * the webcam moved by up to ±1 cm along each axis and turned by up to ±2° about each axis;
+    * lighting ×U(0.6, 1.4), the key light moved ±15 cm, colours of object and table ±20 % / ±10 %.
+    """
+    side = SIDES[int(rng.integers(2))]
+    position = BlockPosition(
+        -1, side, float(rng.uniform(*HARD_DISTANCE)), float(rng.uniform(*HARD_REACH)), SHAPES[int(rng.integers(2))]
+    )
+    count = int(rng.integers(3))
+    poses = np.zeros((MAX_DISTRACTORS, 3))
+    poses[:, 0] = rng.uniform(0.26, 0.33, size=MAX_DISTRACTORS)
+    # one distractor on each half of the table, so two never overlap
+    poses[:, 1] = rng.uniform(0.02, 0.16, size=MAX_DISTRACTORS) * np.array([1.0, -1.0])
+    poses[:, 2] = rng.uniform(-math.pi, math.pi, size=MAX_DISTRACTORS)
+    variation = SceneVariation(
+        block_offset=np.zeros(2),
+        block_yaw=float(rng.uniform(-HARD_YAW, HARD_YAW)),
+        light_scale=float(rng.uniform(0.6, 1.4)),
+        light_shift=rng.uniform(-0.15, 0.15, size=3),
+        block_tint=rng.uniform(0.8, 1.2, size=3),
+        table_tint=rng.uniform(0.9, 1.1, size=3),
+        camera_shift=rng.uniform(-0.01, 0.01, size=3),
+        camera_turn=rng.uniform(-math.radians(2), math.radians(2), size=3),
+        distractors=np.arange(MAX_DISTRACTORS) < count,
+        distractor_pose=poses,
+        distractor_rgb=rng.uniform(0.1, 0.95, size=(MAX_DISTRACTORS, 3)),
+    )
+    return position, variation
 
 
 def block_position(index: int) -> BlockPosition:
@@ -324,8 +423,38 @@ _ASSETS = """
   </asset>"""
 
 
-def pushing_mjcf(with_environment: bool = True, arm: ArmGeometry = ARM) -> str:
+PARKED_XY = (-2.0, 0.0)
+"""Where the hard scene keeps the object not in use [m]: on the table far behind the robot, out of
+every webcam's view (and the distractors not shown, below the table)."""
+
+
+def _hard_objects_xml() -> str:
+    """The hard scene's cylinder (parked until an episode uses it) and its distractors (visual only)."""
+    distractors = "\n".join(
+        f'<geom name="distractor{i}" type="{kind}" pos="{PARKED_XY[0]} {0.3 * i} -0.5" size="{size}" '
+        f'material="distractor{i}"/>'
+        for i, (kind, size) in enumerate((("box", "0.014 0.02 0.016"), ("cylinder", "0.013 0.022")))
+    )
+    return f"""
+    <body name="cylinder" pos="{PARKED_XY[0]} {PARKED_XY[1]} {CYLINDER_HEIGHT / 2}">
+      <freejoint name="cylinder"/>
+      <geom name="cylinder" type="cylinder" size="{CYLINDER_RADIUS} {CYLINDER_HEIGHT / 2}" mass="{CYLINDER_MASS}"
+        material="paint"/>
+    </body>
+    {distractors}"""
+
+
+_HARD_ASSETS = """  <material name="paint" rgba="0.70 0.22 0.18 1"/>
+    <material name="distractor0" rgba="0.2 0.5 0.8 1"/>
+    <material name="distractor1" rgba="0.8 0.8 0.2 1"/>
+  </asset>"""
+
+
+def pushing_mjcf(with_environment: bool = True, arm: ArmGeometry = ARM, benchmark: str = "chapter") -> str:
     """MJCF text of the slave scene (``with_environment``) or of the bare master arm.
+
+    ``benchmark="hard"`` adds the hard benchmark's cylinder and distractors to the slave scene
+    (the chapter's scene is unchanged by it).
 
     Both use ``timestep = 1 ms`` and the implicit-fast integrator (stable with the joint
     damping at this step). Friction uses elliptic cones with ``impratio = 10``: MuJoCo's
@@ -349,13 +478,17 @@ def pushing_mjcf(with_environment: bool = True, arm: ArmGeometry = ARM) -> str:
     <body name="block" pos="{x0} {y0} {half[2]}">
       <freejoint name="block"/>
       <geom name="block" type="box" size="{half[0]} {half[1]} {half[2]}" mass="{BLOCK_MASS}" material="wood"/>
-    </body>"""
+    </body>{_hard_objects_xml() if benchmark == "hard" else ""}"""
         wood, pen = BLOCK_TABLE_FRICTION, PEN_BLOCK_FRICTION  # sliding; torsional 5e-3 m, rolling 1e-4 m
+        objects = ("block", "cylinder") if benchmark == "hard" else ("block",)
+        pairs = "\n    ".join(
+            f'<pair geom1="{a}" geom2="{b}" condim="3" friction="{mu} {mu} 0.005 1e-4 1e-4"/>'
+            for name in objects
+            for a, b, mu in ((name, "table", wood), ("pen", name, pen), ("forearm", name, pen))
+        )
         contacts = f"""
   <contact>
-    <pair geom1="block" geom2="table" condim="3" friction="{wood} {wood} 0.005 1e-4 1e-4"/>
-    <pair geom1="pen" geom2="block" condim="3" friction="{pen} {pen} 0.005 1e-4 1e-4"/>
-    <pair geom1="forearm" geom2="block" condim="3" friction="{pen} {pen} 0.005 1e-4 1e-4"/>
+    {pairs}
     <pair geom1="pen" geom2="table" condim="3" friction="{pen} {pen} 0.005 1e-4 1e-4"/>
   </contact>"""
     else:
@@ -366,12 +499,12 @@ def pushing_mjcf(with_environment: bool = True, arm: ArmGeometry = ARM) -> str:
   <option timestep="{DT}" integrator="implicitfast" cone="elliptic" impratio="10" gravity="0 0 {-PUSHING_GRAVITY}"/>
   <visual>
     <global offwidth="{IMAGE_SIZE}" offheight="{IMAGE_SIZE}"/>
-    <quality shadowsize="4096"/>
+    <quality shadowsize="{4096 if benchmark == "chapter" else 1024}"/>
   </visual>
   <default>
     <geom contype="0" conaffinity="0"/>
   </default>
-  {_ASSETS}
+  {_ASSETS if benchmark != "hard" else _ASSETS.replace("</asset>", _HARD_ASSETS)}
   <worldbody>
     {world}
     {_arm_xml(arm)}
@@ -477,6 +610,10 @@ class MasterArm(ArmSim):
         self.set_joint_state(default_pose() if q is None else q)
 
 
+MAX_DISTRACTORS = 2
+"""Distractor objects the hard scene holds (each episode shows 0 to this many)."""
+
+
 @dataclass
 class SceneVariation:
     """Seeded nuisance variation of one episode (the "light variation" of the set-up).
@@ -488,6 +625,13 @@ class SceneVariation:
         light_shift: ``(3,)`` [m] displacement of the key light.
         block_tint: ``(3,)`` multiplier of the block's RGB.
         table_tint: ``(3,)`` multiplier of the table's RGB.
+        camera_shift: ``(3,)`` [m] displacement of every webcam (hard benchmark).
+        camera_turn: ``(3,)`` [rad] rotation vector turning every webcam about its own axes (hard).
+        distractors: ``(MAX_DISTRACTORS,)`` bool, which distractors stand on the table (hard).
+        distractor_pose: ``(MAX_DISTRACTORS, 3)`` their ``x, y`` [m] and yaw [rad].
+        distractor_rgb: ``(MAX_DISTRACTORS, 3)`` their colours.
+
+    The hard benchmark's fields are neutral by default and only the hard scene has distractors.
     """
 
     block_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
@@ -496,6 +640,11 @@ class SceneVariation:
     light_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
     block_tint: np.ndarray = field(default_factory=lambda: np.ones(3))
     table_tint: np.ndarray = field(default_factory=lambda: np.ones(3))
+    camera_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    camera_turn: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    distractors: np.ndarray = field(default_factory=lambda: np.zeros(MAX_DISTRACTORS, dtype=bool))
+    distractor_pose: np.ndarray = field(default_factory=lambda: np.zeros((MAX_DISTRACTORS, 3)))
+    distractor_rgb: np.ndarray = field(default_factory=lambda: np.full((MAX_DISTRACTORS, 3), 0.5))
 
     @classmethod
     def sample(cls, rng: np.random.Generator) -> SceneVariation:
@@ -510,6 +659,12 @@ class SceneVariation:
         )
 
 
+def _axis_angle(rotation: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(unit axis (3,), angle [rad])`` of a rotation vector (any axis for no rotation)."""
+    angle = float(np.linalg.norm(rotation))
+    return (np.asarray(rotation, dtype=np.float64) / angle if angle > 0 else np.array([0.0, 0.0, 1.0])), angle
+
+
 class PushingScene(ArmSim):
     """The slave side: arm, table, wooden block, lights and the webcam.
 
@@ -522,16 +677,29 @@ class PushingScene(ArmSim):
         scene.success()                            # has the block's centre crossed y = 0?
     """
 
-    def __init__(self, arm: ArmGeometry = ARM) -> None:
-        super().__init__(pushing_mjcf(with_environment=True, arm=arm), arm)
+    def __init__(self, arm: ArmGeometry = ARM, benchmark: str = "chapter") -> None:
+        if benchmark not in BENCHMARKS:
+            raise ValueError(f"unknown benchmark {benchmark!r}; choose one of {BENCHMARKS}")
+        super().__init__(pushing_mjcf(with_environment=True, arm=arm, benchmark=benchmark), arm)
+        self.benchmark = benchmark
         m = self.model
         self.block_body = m.body("block").id
-        self._block_qpos = m.jnt_qposadr[m.joint("block").id]
+        # qpos address of each object's free joint; the one in use is the episode's "block"
+        self._object_qpos = {
+            shape: int(m.jnt_qposadr[m.joint(name).id])
+            for shape, name in (("box", "block"), ("cylinder", "cylinder"))
+            if benchmark == "hard" or shape == "box"
+        }
+        self._block_qpos = self._object_qpos["box"]
         self._block_geom = m.geom("block").id
+        self._nominal_cameras = (m.cam_pos.copy(), m.cam_quat.copy())
+        self._distractors = [m.geom(f"distractor{i}").id for i in range(MAX_DISTRACTORS)] if benchmark == "hard" else []
+        self._distractor_parked = m.geom_pos[self._distractors].copy() if self._distractors else None
         self._table_mat = m.mat("table").id
         self._key_light = m.light("key").id
         # Nominal appearance, restored before each episode's variation is applied.
         self._nominal_block_mat_rgba = m.mat_rgba[m.mat("wood").id].copy()
+        self._nominal_paint_rgba = m.mat_rgba[m.mat("paint").id].copy() if benchmark == "hard" else None
         self._nominal_table_rgba = m.mat_rgba[self._table_mat].copy()
         self._nominal_light_pos = m.light_pos[self._key_light].copy()
         self._nominal_light_diffuse = m.light_diffuse[self._key_light].copy()
@@ -543,20 +711,53 @@ class PushingScene(ArmSim):
     ) -> None:
         """Place the arm at ``q`` (default pose) and the block at ``position`` (+ variation), all at rest."""
         variation = variation or SceneVariation()
+        if position.shape not in self._object_qpos:
+            raise ValueError(
+                f"the {self.benchmark} scene has no {position.shape!r}; it holds {sorted(self._object_qpos)}"
+            )
         m = self.model
-        mujoco.mj_resetData(m, self.data)
+        mujoco.mj_resetData(m, self.data)  # (every object back at its MJCF position: the unused one parked)
         self.position = position
         xy = position.xy + variation.block_offset
-        adr = self._block_qpos
-        self.data.qpos[adr : adr + 3] = (xy[0], xy[1], BLOCK_SIZE[2] / 2)
+        adr = self._block_qpos = self._object_qpos[position.shape]
+        self.data.qpos[adr : adr + 3] = (xy[0], xy[1], object_half_height(position.shape))
         half_yaw = variation.block_yaw / 2
         self.data.qpos[adr + 3 : adr + 7] = (math.cos(half_yaw), 0.0, 0.0, math.sin(half_yaw))
-        wood = m.mat("wood").id
-        m.mat_rgba[wood, :3] = np.clip(self._nominal_block_mat_rgba[:3] * variation.block_tint, 0, 1)
+        if position.shape != "box":  # the block is parked where the cylinder waited
+            box = self._object_qpos["box"]
+            self.data.qpos[box : box + 3] = (*PARKED_XY, BLOCK_SIZE[2] / 2)
+            self.data.qpos[box + 1] += 0.5
+        material = m.mat("wood" if position.shape == "box" else "paint").id
+        nominal = self._nominal_block_mat_rgba if position.shape == "box" else self._nominal_paint_rgba
+        m.mat_rgba[material, :3] = np.clip(nominal[:3] * variation.block_tint, 0, 1)
+        if self._distractors:
+            self._place_distractors(variation)
+        self._place_cameras(variation)
         m.mat_rgba[self._table_mat, :3] = np.clip(self._nominal_table_rgba[:3] * variation.table_tint, 0, 1)
         m.light_pos[self._key_light] = self._nominal_light_pos + variation.light_shift
         m.light_diffuse[self._key_light] = np.clip(self._nominal_light_diffuse * variation.light_scale, 0, 1)
         self.set_joint_state(default_pose() if q is None else q)
+
+    def _place_distractors(self, variation: SceneVariation) -> None:
+        m = self.model
+        for i, geom in enumerate(self._distractors):
+            if variation.distractors[i]:
+                x, y, yaw = variation.distractor_pose[i]
+                m.geom_pos[geom] = (x, y, m.geom_size[geom][2 if m.geom_type[geom] == mujoco.mjtGeom.mjGEOM_BOX else 1])
+                m.geom_quat[geom] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+            else:
+                m.geom_pos[geom] = self._distractor_parked[i]
+            m.mat_rgba[m.geom_matid[geom], :3] = variation.distractor_rgb[i]
+
+    def _place_cameras(self, variation: SceneVariation) -> None:
+        """Every webcam at its nominal pose moved by ``camera_shift`` and turned by ``camera_turn``."""
+        m = self.model
+        pos, quat = self._nominal_cameras
+        m.cam_pos[:] = pos + variation.camera_shift
+        turn = np.zeros(4)
+        mujoco.mju_axisAngle2Quat(turn, *_axis_angle(variation.camera_turn))
+        for i in range(m.ncam):
+            mujoco.mju_mulQuat(m.cam_quat[i], quat[i], turn)  # about the camera's own axes
 
     # -- block ---------------------------------------------------------------------------------
     @property
@@ -574,8 +775,19 @@ class PushingScene(ArmSim):
         self.set_joint_state(q)
 
     def success(self) -> bool:
-        """True once the block's centre lies on the other side of the robot's centre line."""
-        return bool(self.position.sign * self.data.qpos[self._block_qpos + 1] < 0.0)
+        """Has the task succeeded, as the object lies now?
+
+        ``chapter``: the block's centre lies on the other side of the robot's centre line.
+        ``hard``: the object's centre lies within :data:`GOAL_TOLERANCE` of the goal line
+        (:data:`GOAL_PAST` beyond the centre line) and the object is still on the table, standing
+        as it was placed (centre within 1 cm of its resting height).
+        """
+        x, y, z = self.data.qpos[self._block_qpos : self._block_qpos + 3]
+        past = -self.position.sign * y  # how far past the centre line [m]
+        if self.benchmark == "chapter":
+            return bool(past > 0.0)
+        on_table = max(abs(x), abs(y)) < TABLE_HALF and abs(z - object_half_height(self.position.shape)) < 0.01
+        return bool(on_table and abs(past - GOAL_PAST) <= GOAL_TOLERANCE)
 
     # -- camera --------------------------------------------------------------------------------
     def render(self, camera: str = "default") -> np.ndarray:
