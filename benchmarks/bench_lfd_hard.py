@@ -1,0 +1,205 @@
+"""The hard pushing benchmark's data-efficiency curve: success against the number of demonstrations.
+
+    # every method on the first N successful demonstrations of the hard set, 2 training seeds each
+    python benchmarks/bench_lfd_hard.py run --data runs/hard --out runs/curve --demos 10 25 50 100 --seeds 0 1
+    # the chapter-5 policy (six positions) on the same held-out trials
+    python benchmarks/bench_lfd_hard.py chapter --out runs/curve
+    # rows of every finished job (and of ACT's, benchmarks/peers/act/) into one JSON and a plot
+    python benchmarks/bench_lfd_hard.py merge --out runs/curve --act runs/act/*/eval.json \
+        --json benchmarks/results_lfd_act.json --plot benchmarks/figures/lfd_hard_curve.png
+
+``run`` trains each method (``proposed``: SeqAE + CNN; ``end_to_end``: the baseline) with
+``seqmotion.lfd.train.train(..., benchmark="hard", demos=N)`` and evaluates it on the same
+held-out trials (``seqmotion.lfd.evaluation.evaluate(..., benchmark="hard")``, evaluation seed
+``--eval-seed``: the trials' seeds never coincide with the demonstrations'). One JSON per job,
+``OUT/jobs/<method>_<N>_<seed>.json``, written when the job is done, so several ``run`` processes
+(one per core) can share an ``--out``, and a stopped run skips the jobs it finished.
+
+Rows: method, demonstrations, seed, success_rate, successes, trials, wilson_95, train_seconds,
+train_steps (optimiser updates), decision_ms (the policy's wall time per 20 ms control step:
+the decoder step, median over trials), and the machine's load while training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+METHODS = ("proposed", "end_to_end")
+
+
+def _write(path: Path, payload: dict) -> None:
+    from seqmotion.io import atomic_write_bytes
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, (json.dumps(payload, indent=1) + "\n").encode())
+
+
+def _row(method: str, demos: int | None, seed: int | None, result, train_seconds: float | None,
+         train_steps: int | None, extra: dict) -> dict:
+    low, high = result.wilson_interval
+    return {
+        "method": method, "demonstrations": demos, "seed": seed, "success_rate": result.success_rate,
+        "successes": result.successes, "trials": result.n_trials, "wilson_95": [low, high],
+        "train_seconds": train_seconds, "train_steps": train_steps, "decision_ms": result.decision_ms,
+        "per_shape": {k: list(v) for k, v in result.per_position.items()}, "eval_seed": result.seed,
+        "eval_seconds": round(result.seconds, 1), **extra,
+    }
+
+
+def _steps(policy_dir: Path, part: str) -> int | None:
+    """Optimiser updates of one training part, from the policy's recorded settings and data size."""
+    config = json.loads((policy_dir / "config.json").read_text())
+    record = config["policy"].get("training", {}).get(part, {})
+    settings, n = record.get("settings", {}), record.get("motions") or record.get("pairs")
+    if not settings or not n:
+        return None
+    batches = -(-int(n) // int(settings["batch_size"]))
+    return int(settings["epochs"]) * batches
+
+
+def run(args: argparse.Namespace) -> int:
+    from seqmotion.lfd.evaluation import evaluate
+    from seqmotion.lfd.models import PushingPolicy
+    from seqmotion.lfd.train import train
+    from seqmotion.training.provenance import command_line
+
+    out = Path(args.out)
+    for demos in args.demos:
+        for seed in args.seeds:
+            for method in args.methods:
+                job = out / "jobs" / f"{method}_{demos}_{seed}.json"
+                if job.is_file():
+                    continue
+                model_dir = out / "models" / f"{method}_{demos}_{seed}"
+                load = os.getloadavg()[0]
+                start = time.perf_counter()
+                report = train(args.data, model_dir, args.preset, (method,), ("default",), seed, progress=False,
+                               command=command_line("python benchmarks/bench_lfd_hard.py"), benchmark="hard",
+                               demos=demos)
+                seconds = time.perf_counter() - start
+                policy_dir = report.policies[f"{method}_default"]
+                steps = sum(s for part in (("seqae", "cnn") if method == "proposed" else ("end_to_end",))
+                            if (s := _steps(Path(policy_dir), part)) is not None)
+                result = evaluate(PushingPolicy.from_pretrained(policy_dir), trials=args.trials, seed=args.eval_seed,
+                                  benchmark="hard")
+                row = _row(method, demos, seed, result, round(seconds, 1), steps,
+                           {"train_load": [round(load, 2), round(os.getloadavg()[0], 2)], "model": str(policy_dir)})
+                _write(job, {"row": row, "evaluation": result.as_dict()})
+                print(f"{method} N={demos} seed={seed}: {result.successes}/{result.n_trials} "
+                      f"({seconds:.0f} s training)", flush=True)
+    return 0
+
+
+def chapter(args: argparse.Namespace) -> int:
+    """The shipped chapter-5 policy (trained on the six positions) on the hard benchmark's trials."""
+    import seqmotion as sm
+    from seqmotion.lfd.evaluation import evaluate
+
+    result = evaluate(sm.load_pretrained("pushing"), trials=args.trials, seed=args.eval_seed, benchmark="hard")
+    row = _row("chapter5_pushing", None, None, result, None, None, {"model": "pretrained:pushing"})
+    _write(Path(args.out) / "jobs" / "chapter5_pushing.json", {"row": row, "evaluation": result.as_dict()})
+    print(f"chapter-5 policy: {result.successes}/{result.n_trials}")
+    return 0
+
+
+def merge(args: argparse.Namespace) -> int:
+    rows = [json.loads(p.read_text())["row"] for p in sorted((Path(args.out) / "jobs").glob("*.json"))]
+    for path in args.act or []:
+        rows.append(_act_row(Path(path)))
+    from seqmotion.training.provenance import machine_record
+
+    payload = {"benchmark": "hard", "machine": machine_record(), "rows": rows}
+    _write(Path(args.json), payload)
+    if args.plot:
+        _plot(rows, Path(args.plot))
+    for r in sorted(rows, key=lambda r: (r["method"], r["demonstrations"] or 0, r["seed"] or 0)):
+        low, high = r["wilson_95"]
+        print(f"{r['method']:18s} N={r['demonstrations']!s:>4} seed={r['seed']!s:>2}  {r['successes']:>3}/{r['trials']}"
+              f"  ({low:.0%}-{high:.0%})  train {r['train_seconds']} s")
+    return 0
+
+
+def _act_row(path: Path) -> dict:
+    """A row from ``benchmarks/peers/act/eval_act.py --json`` output (its training log beside the model)."""
+    result = json.loads(path.read_text())
+    log = json.loads((Path(result["model_dir"]) / "train_log.json").read_text())
+    select = result["select_action_ms"]
+    return {
+        "method": "act", "demonstrations": len(log["episodes_used"]), "seed": log["seed"],
+        "success_rate": result["success_rate"], "successes": result["successes"], "trials": result["n_trials"],
+        "wilson_95": result["wilson_95"], "train_seconds": round(log["seconds"]["train"], 1),
+        "train_steps": log["steps"], "batch_size": log["batch_size"],
+        "decision_ms": {"p50": select.get("p50"), "p99": select.get("p99"), "what": "select_action"},
+        "per_shape": result["per_position"], "eval_seed": result["seed"], "eval_seconds": round(result["seconds"], 1),
+        "final_loss": log["final_loss_mean_last10"], "lerobot": log["lerobot_version"], "model": result["model_dir"],
+    }
+
+
+def _plot(rows: list[dict], path: Path) -> None:
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from seqmotion.io import save_figure
+    from seqmotion.lfd.evaluation import wilson_interval
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, method in enumerate(sorted({r["method"] for r in rows if r["demonstrations"]})):
+        mine = [r for r in rows if r["method"] == method]
+        counts = sorted({r["demonstrations"] for r in mine})
+        # pool the seeds' trials at each count; the interval is the pooled Wilson interval
+        ok = [sum(r["successes"] for r in mine if r["demonstrations"] == n) for n in counts]
+        total = [sum(r["trials"] for r in mine if r["demonstrations"] == n) for n in counts]
+        rate = np.array(ok) / np.array(total)
+        ci = np.array([wilson_interval(k, t) for k, t in zip(ok, total, strict=True)])
+        shifted = np.array(counts) * (1 + 0.04 * i)  # side by side, not on top of each other
+        ax.errorbar(shifted, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="o", capsize=3, label=method)
+    for r in rows:
+        if not r["demonstrations"]:
+            ax.axhline(r["success_rate"], ls=":", color="grey", label=f"{r['method']} (six positions)")
+    ax.set_xscale("log")
+    ax.set_xlabel("demonstrations")
+    ax.set_ylabel("success on held-out trials")
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend(fontsize=8)
+    ax.set_title("hard pushing benchmark (95 % Wilson intervals, seeds pooled)")
+    save_figure(fig, path, close=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("run")
+    p.add_argument("--data", required=True, help="directory with hard.h5 (seqmotion lfd collect --benchmark hard)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--demos", type=int, nargs="+", default=[10, 25, 50, 100])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    p.add_argument("--preset", default="smaller")
+    p.add_argument("--trials", type=int, default=30)
+    p.add_argument("--eval-seed", type=int, default=0)
+    p.set_defaults(func=run)
+    p = sub.add_parser("chapter")
+    p.add_argument("--out", required=True)
+    p.add_argument("--trials", type=int, default=30)
+    p.add_argument("--eval-seed", type=int, default=0)
+    p.set_defaults(func=chapter)
+    p = sub.add_parser("merge")
+    p.add_argument("--out", required=True)
+    p.add_argument("--act", nargs="*", help="ACT's evaluations (eval_act.py --json files, benchmarks/peers/act/)")
+    p.add_argument("--json", required=True)
+    p.add_argument("--plot")
+    p.set_defaults(func=merge)
+    args = parser.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
