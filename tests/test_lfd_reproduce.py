@@ -17,7 +17,7 @@ from seqmotion.reproduce import ch5  # noqa: E402
 def workdir(tmp_path_factory):
     """Short demonstrations (1 per position and set), and tiny policies in every slot ch5 needs."""
     out = tmp_path_factory.mktemp("ch5")
-    one = {name: 1 for name in dataset.SETS}
+    one = {name: 1 for name in dataset.CHAPTER_SETS}
     dataset.collect(out / "data", seed=0, duration=0.6, per_position=one, progress=False)
     dataset.collect(
         out / "data_unseen",

@@ -29,6 +29,7 @@ _EXPORTS = {
     "load_dataset": "dataset",
     "PushingDataset": "dataset",
     "SETS": "dataset",
+    "CHAPTER_SETS": "dataset",
     "MOTION_KEYS": "dataset",
     "episode_rng": "dataset",
     "teleoperate": "teleop",

@@ -101,11 +101,11 @@ def _needed() -> list[tuple[str, str, str]]:
 def ensure_data(out: Path, seed: int, quick: bool, training: bool = True) -> tuple[Path, Path]:
     """Collect the training sets into ``out/data`` (only for ``training``) and the unseen images into
     ``out/data_unseen`` if missing."""
-    from ..lfd.dataset import SETS, collect
+    from ..lfd.dataset import CHAPTER_SETS, collect
 
     data, unseen = out / "data", out / "data_unseen"
-    per = {name: 1 for name in SETS} if quick else None
-    missing = [name for name in SETS if not (data / f"{name}.h5").is_file()]
+    per = {name: 1 for name in CHAPTER_SETS} if quick else None
+    missing = [name for name in CHAPTER_SETS if not (data / f"{name}.h5").is_file()]
     if missing and training:
         collect(data, missing, seed=seed, per_position={k: v for k, v in (per or {}).items() if k in missing} or None)
     if not (unseen / "pairs_default.h5").is_file():
