@@ -281,9 +281,10 @@ def test_export_writes_a_model_card(trained, tmp_path):
     assert "2-core CPU container" not in card
     assert json.loads((target / "evaluations.json").read_text())[0]["seed"] == 2
     assert "most typical demonstration without images at its block position" in card
+    low, high = result.wilson_interval
     assert (
         f"proposed (tiny), default camera: **{result.success_rate:.1%}** ({result.successes}/1 trials, "
-        "evaluation seed 2)"
+        f"95 % Wilson {low:.0%}–{high:.0%}, evaluation seed 2)"
     ) in card
     shipped = sm.load(target)
     for key, value in policy.state_dict().items():
