@@ -157,7 +157,9 @@ def _plot(rows: list[dict], path: Path) -> None:
         rate = np.array(ok) / np.array(total)
         ci = np.array([wilson_interval(k, t) for k, t in zip(ok, total, strict=True)])
         shifted = np.array(counts) * (1 + 0.04 * i)  # side by side, not on top of each other
-        ax.errorbar(shifted, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="o", capsize=3, label=method)
+        steps = sorted({r["train_steps"] for r in mine})
+        label = f"LeRobot ACT ({', '.join(map(str, steps))} steps: budget-limited)" if method == "act" else method
+        ax.errorbar(shifted, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="o", capsize=3, label=label)
     for r in rows:
         if not r["demonstrations"]:
             ax.axhline(r["success_rate"], ls=":", color="grey", label=f"{r['method']} (six positions)")

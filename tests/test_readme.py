@@ -100,6 +100,12 @@ CHECKS: dict[str, tuple[str, str | None]] = {
         "tests/test_lerobot_other_robot.py", None),
     "seqmotion lfd train --data my_robot_dataset --out my_models --seqae-from my_models/seqae --cnn-targets pair "
     "[--map ...]": ("tests/test_lerobot_other_robot.py", None),
+    "seqmotion lfd collect --benchmark hard --out hard_demos": (
+        "tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
+    "seqmotion lfd train --data hard_demos --benchmark hard --demos 25 --out hard_policies --methods proposed "
+    "end_to_end": ("tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
+    "seqmotion lfd evaluate hard_policies/proposed_default --benchmark hard --trials 30 --json hard.json": (
+        "tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
     "pip install -e \".[view]\" && seqmotion view": ("tests/test_view.py::test_page_loads", None),
     "pip install -e \".[robots]\" && pip install --no-deps \"robosuite>=1.5,<1.6\"": (
         "tests/test_robots.py (.ci/run installs both, as the README's test command does)", None),
