@@ -71,6 +71,7 @@ from ..sim.observers import LowPass, PseudoDerivative
 from ..sim.render import Renderer
 from ..sim.robot_models import Robot, resolve_robot, solve_pose, tool_mount
 from ..sim.scene import Scene, robot_prefix
+from .evaluation import Evaluation
 
 PEN_LENGTH = 0.10
 """Flange to the pen tip [m]: the Touch's 5 cm pen would leave the Panda's flange housing (≈ 9 cm across)
@@ -698,8 +699,8 @@ def track_tip(scene: RobotPushingScene, path: np.ndarray, position: pushing.Bloc
 # The evaluation protocol
 # ----------------------------------------------------------------------------------------------------------------
 @dataclass
-class RobotEvaluation:
-    """Result of :func:`run_on_robot` (the fields of :class:`seqmotion.lfd.evaluation.Evaluation`, plus the robot's).
+class RobotEvaluation(Evaluation):
+    """Result of :func:`run_on_robot`: an :class:`seqmotion.lfd.evaluation.Evaluation` plus the robot's fields.
 
     Attributes:
         success_rate, successes, n_trials, per_position, outcomes, camera, seed, seconds: as ``Evaluation``
@@ -718,14 +719,6 @@ class RobotEvaluation:
         twin_clamped: periods (all trials) whose tip was beyond the Touch's reach.
     """
 
-    success_rate: float
-    successes: int
-    n_trials: int
-    per_position: dict[str, tuple[int, int]]
-    outcomes: list[Any] = field(default_factory=list)
-    camera: str = "default"
-    seed: int = 0
-    seconds: float = 0.0
     robot: str = ""
     latents: str = "cnn"
     mode: str = "command"
