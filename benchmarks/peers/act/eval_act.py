@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--benchmark", choices=["chapter", "hard"], default="chapter")
     p.add_argument("--image", choices=["auto", "live", "first"], default="auto",
                    help="auto: 'first' if the training episodes had one image each (train_log.json), else 'live'")
-    p.add_argument("--duration", type=float, default=4.0)
+    p.add_argument("--duration", type=float, help="episode length [s] (default: the benchmark's, 4 chapter, 6 hard)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
@@ -160,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
                                      benchmark=args.benchmark).as_dict()
         result["evaluator"] = "seqmotion.lfd.evaluation.evaluate"
     else:
-        result = _evaluate_here(policy, args.trials, args.seed, args.benchmark, args.duration, not args.quiet)
+        duration = args.duration or {"chapter": 4.0, "hard": 6.0}[args.benchmark]  # pushing.EPISODE_SECONDS
+        result = _evaluate_here(policy, args.trials, args.seed, args.benchmark, duration, not args.quiet)
     result.update({
         "benchmark": args.benchmark, "trials_per_position": args.trials, "model_dir": str(args.model_dir),
         "image_mode": policy.image, "threads": args.threads,

@@ -111,7 +111,8 @@ CHAPTER_SETS = tuple(name for name, spec in SETS.items() if spec.benchmark == "c
 """The dissertation's four sets: what :func:`collect` records by default."""
 
 DEFAULT_DURATION = 4.0
-"""Recorded length of one demonstration [s] (4000 samples at 1 ms, 200 at 20 ms)."""
+"""Recorded length of one chapter demonstration [s] (4000 samples at 1 ms, 200 at 20 ms); the hard
+benchmark's are 6 s (:data:`seqmotion.sim.pushing.EPISODE_SECONDS`)."""
 
 
 @dataclass
@@ -165,10 +166,11 @@ def collect_set(
     seed: int = 0,
     per_position: int | None = None,
     camera: str | None | bool = True,
-    duration: float = DEFAULT_DURATION,
+    duration: float | None = None,
     progress: bool = False,
     overwrite: bool = False,
     episodes: int | None = None,
+    video: bool = True,
 ) -> SetReport:
     """Record one dataset of scripted-operator demonstrations into an HDF5 file.
 
@@ -178,10 +180,15 @@ def collect_set(
         seed: base seed; the same seed gives the same file.
         per_position: episodes per block position (default: the set's, e.g. 15 for ``motions``).
         camera: ``True`` for the set's camera, ``None``/``False`` for no images, or a camera name.
-        duration: recorded length of each episode [s].
+        duration: recorded length of each episode [s] (default: the benchmark's,
+            :data:`seqmotion.sim.pushing.EPISODE_SECONDS`: 4 s chapter, 6 s hard).
         progress: print a progress line to stderr.
         overwrite: replace an existing file (otherwise an existing file is an error).
         episodes: a hard set's number of episodes (default: the set's, 140).
+        video: film a hard set with a camera at 50 fps (``/video``, what ACT trains on; about 4 s of
+            rendering per episode). ``False`` keeps only each episode's first image, which is all the
+            proposed policy and the end-to-end baseline read (about 0.4 s per episode); the episodes
+            themselves are the same either way.
 
     Returns:
         A :class:`SetReport`.
@@ -215,6 +222,8 @@ def collect_set(
         camera = None
     if camera is not None and camera not in pushing.CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)} or None")
+    if duration is None:
+        duration = pushing.EPISODE_SECONDS[spec.benchmark]
     duration = check_number("duration [s]", duration, minimum=0.5, maximum=60.0)
     path = Path(path)
     if path.exists() and not overwrite:
@@ -223,7 +232,7 @@ def collect_set(
 
     gains = BilateralGains()
     steps = round(duration / gains.dt)
-    video_every = samples_per_command(gains.dt) if hard and camera is not None else 0
+    video_every = samples_per_command(gains.dt) if hard and camera is not None and video else 0
     frames = -(-steps // video_every) if video_every else 0
     scene, master = pushing.PushingScene(benchmark=spec.benchmark), pushing.MasterArm()
     slots = 1 if hard else len(pushing.POSITIONS)
@@ -339,11 +348,12 @@ def collect(
     out_dir: str | Path,
     sets: Iterable[str] = CHAPTER_SETS,
     seed: int = 0,
-    duration: float = DEFAULT_DURATION,
+    duration: float | None = None,
     per_position: dict[str, int] | None = None,
     progress: bool = True,
     overwrite: bool = False,
     episodes: int | None = None,
+    video: bool = True,
 ) -> dict[str, SetReport]:
     """Collect the chapter-5 datasets into ``out_dir/<name>.h5``.
 
@@ -352,11 +362,12 @@ def collect(
         sets: which of :data:`SETS` to collect (default the chapter's four, :data:`CHAPTER_SETS`: 90
             motions and 3 × 18 pairs).
         seed: base seed of every set.
-        duration: recorded length of each episode [s].
+        duration: recorded length of each episode [s] (default: each set's benchmark's, 4 s or 6 s).
         per_position: optional ``{set name: episodes per position}`` overrides (for quick runs).
         progress: print progress lines to stderr.
         overwrite: replace existing files.
         episodes: episodes of the hard set (default its 140).
+        video: film the hard set at 50 fps (see :func:`collect_set`).
 
     Returns:
         ``{set name: SetReport}`` in collection order.
@@ -377,7 +388,7 @@ def collect(
         hard = SETS[name].benchmark == "hard"
         reports[name] = collect_set(
             out_dir / f"{name}.h5", name, seed, per_position.get(name), True, duration, progress, overwrite,
-            episodes if hard else None,
+            episodes if hard else None, video,
         )
     return reports
 

@@ -172,7 +172,7 @@ def evaluate(
     positions: Sequence[int] | None = None,
     trials: int = 5,
     seed: int = 0,
-    duration: float = 4.0,
+    duration: float | None = None,
     progress: bool = False,
     keep_runs: bool = False,
     scene: Any = None,
@@ -190,7 +190,8 @@ def evaluate(
         trials: trials **per position** (default 5: 30 in all, as in the dissertation); on the hard
             benchmark the number of trials in all.
         seed: evaluation seed; trial seeds never coincide with the datasets' (see module doc).
-        duration: episode length [s].
+        duration: episode length [s] (default: the benchmark's, 4 s chapter, 6 s hard: see
+            :data:`seqmotion.sim.pushing.EPISODE_SECONDS`).
         progress: print a progress line to stderr.
         keep_runs: keep each trial's run and image in its outcome (memory: ~0.5 MB per trial).
         scene: a :class:`~seqmotion.sim.pushing.PushingScene` of this benchmark to reuse (one is made
@@ -238,6 +239,8 @@ def evaluate(
         raise ValueError(f"trials must be a positive integer, got {trials!r}")
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if duration is None:
+        duration = pushing.EPISODE_SECONDS[benchmark]
     if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
         raise ValueError(f"duration must be a positive number of seconds, got {duration!r}")
     if scene is not None and getattr(scene, "benchmark", "chapter") != benchmark:

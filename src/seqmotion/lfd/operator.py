@@ -33,11 +33,13 @@ What the operator does (dissertation Fig. 5.4), with ``s = ±1`` the side of the
    the block turns away from the pen — so, like a person, the operator steers: the pen
    slides along the face towards the side that turns the block back (``steer_gain`` metres
    per radian of block yaw, integrated with time constant ``steer_lag``).
-5. ``check``     — pause and look. If the block has not clearly crossed the centre line, push
-   again (up to ``max_pushes`` pushes in all): if the pen is still behind the block's outer
-   face, ``back_off`` a centimetre, ``realign`` with the face as it is now and push; if it
-   slipped past or onto the block, ``back_off`` by lifting it clear, then approach and
-   descend again. A push that stalls for ``STALL_TIME`` is abandoned and checked.
+5. ``check``     — pause and look. If the block has not clearly crossed the centre line (on the
+   hard benchmark, if its centre does not look inside the goal band: the operator is told to put
+   it on the goal line, :data:`seqmotion.sim.pushing.GOAL_PAST`), push again (up to
+   ``max_pushes`` pushes in all): if the pen is still behind the block's outer face,
+   ``back_off`` a centimetre, ``realign`` with the face as it is now and push; if it slipped
+   past or onto the block, ``back_off`` by lifting it clear, then approach and descend again.
+   A push that stalls for ``STALL_TIME`` is abandoned and checked.
 6. ``retract``   — lift the pen away, then ``hold``.
 
 The operator sees the slave-side block (its true pose) with Gaussian perception noise each
@@ -208,6 +210,9 @@ class ScriptedOperator(Operator):
         # chapter's operators treat the block as square to the push (its ±3° fit in the standoff),
         # which keeps the chapter's recorded demonstrations as they were.
         self.shape, self._turn_aware = position.shape, position.index < 0
+        # on the hard benchmark a push is redone while the centre looks short of the goal band's near
+        # edge, with 5 mm to spare (the operator's look is noisy)
+        self._done_past = pushing.GOAL_PAST - pushing.GOAL_TOLERANCE + 0.005
         self._seen_yaw = 0.0
         self.n_pushes = 0
         self.phase = _P["wait"]
@@ -336,7 +341,10 @@ class ScriptedOperator(Operator):
             self._move("check", t, here, here, 0.15 / p.speed)
         elif phase == "check":
             block = self._look(block_pose)
-            if s * block[1] < -0.004 or self.n_pushes >= p.max_pushes:
+            # What "done" looks like: in the chapter, the block clearly across the centre line; on the
+            # hard benchmark (told to put it at the goal line), its centre inside the goal band.
+            done = -self._done_past if self._turn_aware else -0.004
+            if s * block[1] < done or self.n_pushes >= p.max_pushes:
                 lifted = here + np.array([-0.015, s * 0.01, 0.0])
                 lifted[2] = p.approach_height
                 self._move("retract", t, here, lifted, 0.4 / p.speed)
