@@ -47,8 +47,15 @@ def _row(method: str, demos: int | None, seed: int | None, result, train_seconds
         "successes": result.successes, "trials": result.n_trials, "wilson_95": [low, high],
         "train_seconds": train_seconds, "train_steps": train_steps, "decision_ms": result.decision_ms,
         "per_shape": {k: list(v) for k, v in result.per_position.items()}, "eval_seed": result.seed,
-        "eval_seconds": round(result.seconds, 1), **extra,
+        "eval_seconds": round(result.seconds, 1), "episode_seconds": _episode_seconds(), **extra,
     }
+
+
+def _episode_seconds() -> float:
+    """The hard benchmark's episode length [s] (demonstrations and trials): 6 s since v2, 4 s before."""
+    from seqmotion.sim.pushing import EPISODE_SECONDS
+
+    return EPISODE_SECONDS["hard"]
 
 
 def _steps(policy_dir: Path, part: str) -> int | None:
@@ -137,6 +144,8 @@ def _act_row(path: Path) -> dict:
         "decision_ms": {"p50": select.get("p50"), "p99": select.get("p99"), "what": "select_action"},
         "per_shape": result["per_position"], "eval_seed": result["seed"], "eval_seconds": round(result["seconds"], 1),
         "final_loss": log["final_loss_mean_last10"], "lerobot": log["lerobot_version"], "model": result["model_dir"],
+        # evaluations before eval_act.py recorded it ran the hard benchmark's v1 episodes (4 s, on 4 s demonstrations)
+        "episode_seconds": result.get("duration", 4.0),
     }
 
 
@@ -159,6 +168,9 @@ def _plot(rows: list[dict], path: Path) -> None:
         shifted = np.array(counts) * (1 + 0.04 * i)  # side by side, not on top of each other
         steps = sorted({r["train_steps"] for r in mine})
         label = f"LeRobot ACT ({', '.join(map(str, steps))} steps: budget-limited)" if method == "act" else method
+        older = sorted({r["episode_seconds"] for r in mine} - {_episode_seconds()})
+        if older:  # trained and scored on an earlier version of the benchmark: say so on the plot
+            label += f", on {'/'.join(f'{s:g}' for s in older)} s episodes (v1)"
         ax.errorbar(shifted, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="o", capsize=3, label=label)
     for r in rows:
         if not r["demonstrations"]:
@@ -168,7 +180,7 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.set_ylabel("success on held-out trials")
     ax.set_ylim(-0.02, 1.02)
     ax.legend(fontsize=8)
-    ax.set_title("hard pushing benchmark (95 % Wilson intervals, seeds pooled)")
+    ax.set_title(f"hard pushing benchmark, {_episode_seconds():g} s episodes (95 % Wilson, seeds pooled)", fontsize=10)
     save_figure(fig, path, close=True)
 
 

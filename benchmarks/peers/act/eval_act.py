@@ -154,16 +154,19 @@ def main(argv: list[str] | None = None) -> int:
 
     policy = ActPolicy(args.model_dir, args.image)
     params = inspect.signature(evaluation.evaluate).parameters
+    from seqmotion.sim.pushing import EPISODE_SECONDS
+
+    duration = args.duration or EPISODE_SECONDS[args.benchmark]
     if "benchmark" in params:  # the generalised evaluate: any object with run()
         result = evaluation.evaluate(policy, camera=policy.camera, trials=args.trials, seed=args.seed,
-                                     duration=args.duration, progress=not args.quiet,
+                                     duration=duration, progress=not args.quiet,
                                      benchmark=args.benchmark).as_dict()
         result["evaluator"] = "seqmotion.lfd.evaluation.evaluate"
     else:
-        duration = args.duration or {"chapter": 4.0, "hard": 6.0}[args.benchmark]  # pushing.EPISODE_SECONDS
         result = _evaluate_here(policy, args.trials, args.seed, args.benchmark, duration, not args.quiet)
     result.update({
-        "benchmark": args.benchmark, "trials_per_position": args.trials, "model_dir": str(args.model_dir),
+        "benchmark": args.benchmark, "duration": duration, "trials_per_position": args.trials,
+        "model_dir": str(args.model_dir),
         "image_mode": policy.image, "threads": args.threads,
         "select_action_ms": _ms_stats(policy.select_ms), "call_ms": _ms_stats(policy.call_ms),
         "train": {k: policy.train_log.get(k) for k in ("steps", "batch_size", "seed", "episodes_used", "data",
