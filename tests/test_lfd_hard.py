@@ -294,7 +294,7 @@ def test_the_shipped_hard_policy_loads_and_the_demo_shows_it(tmp_path, capsys):
 
     policy = sm.load_pretrained("pushing-hard")
     assert policy.config.kind == "proposed" and policy.config.training["benchmark"] == "hard"
-    assert policy.config.training["demos"] == 100
+    assert policy.config.training["demos"] == 279
     outcomes = _pushing_hard(tmp_path, trials=1)
     assert len(outcomes) == 1 and (tmp_path / "pushing_hard.png").is_file()
     assert "pushing-hard:" in capsys.readouterr().out
