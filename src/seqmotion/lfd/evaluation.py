@@ -166,6 +166,40 @@ def trial_rng(seed: int, position_index: int, trial: int) -> np.random.Generator
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(EVAL_STREAM, position_index, trial)))
 
 
+def check_trial_plan(
+    policy: Any,
+    camera: str | None,
+    positions: Sequence[int] | None,
+    trials: Any,
+    seed: Any,
+    trials_name: str = "trials",
+) -> tuple[str, list[Any]]:
+    """Check an evaluation's camera, block positions, trial count and seed (shared by :func:`evaluate`
+    and the robot arm's evaluation).
+
+    Returns:
+        The camera (the policy's own when ``camera`` is None) and the chosen block positions (all six
+        when ``positions`` is None).
+
+    Raises:
+        ValueError: naming the bad argument.
+    """
+    from ..sim import pushing
+
+    camera = policy.config.camera if camera is None else camera
+    if camera not in pushing.CAMERAS:
+        raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")
+    positions = list(range(len(pushing.POSITIONS))) if positions is None else list(positions)
+    if not positions:
+        raise ValueError("positions is empty; give block position indices 0..5")
+    chosen = [pushing.block_position(i) for i in positions]  # ValueError names a bad index
+    if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or trials < 1:
+        raise ValueError(f"{trials_name} must be a positive integer, got {trials!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return camera, chosen
+
+
 def evaluate(
     policy: Any,
     camera: str | None = None,
@@ -228,17 +262,7 @@ def evaluate(
     hard = benchmark == "hard"
     if hard and (positions is not None or latents is not None):
         raise ValueError("the hard benchmark draws every placement itself: positions and latents are chapter-only")
-    camera = policy.config.camera if camera is None else camera
-    if camera not in pushing.CAMERAS:
-        raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")
-    positions = list(range(len(pushing.POSITIONS))) if positions is None else list(positions)
-    if not positions:
-        raise ValueError("positions is empty; give block position indices 0..5")
-    chosen = [pushing.block_position(i) for i in positions]  # ValueError names a bad index
-    if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or trials < 1:
-        raise ValueError(f"trials must be a positive integer, got {trials!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    camera, chosen = check_trial_plan(policy, camera, positions, trials, seed)
     if duration is None:
         duration = pushing.EPISODE_SECONDS[benchmark]
     if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):

@@ -785,24 +785,14 @@ def run_on_robot(
     Raises:
         ValueError: as ``evaluate`` (bad policy, camera, positions, trials, seed, latents), or an unknown robot.
     """
-    from .evaluation import EVAL_STREAM, TrialOutcome, trial_rng
+    from .evaluation import EVAL_STREAM, TrialOutcome, check_trial_plan, trial_rng
 
     _check_policy(policy)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if policy.cnn is None and latents is None:
         raise ValueError("a 'seqae' model has no CNN to turn the webcam image into z: pass latents")
-    camera = policy.config.camera if camera is None else camera
-    if camera not in pushing.CAMERAS:
-        raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")
-    positions = list(range(len(pushing.POSITIONS))) if positions is None else list(positions)
-    if not positions:
-        raise ValueError("positions is empty; give block position indices 0..5")
-    chosen = [pushing.block_position(i) for i in positions]
-    if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or trials < 1:
-        raise ValueError(f"trials (per position) must be a positive integer, got {trials!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    camera, chosen = check_trial_plan(policy, camera, positions, trials, seed, "trials (per position)")
     touch_view = isinstance(latents, str)
     if touch_view and latents != "touch":
         raise ValueError(f"latents must be a (6, latent) array or 'touch', got {latents!r}")
