@@ -43,6 +43,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from seqmotion.io import atomic_write_bytes
 from seqmotion.lfd.dataset import load_dataset
 from seqmotion.lfd.evaluation import evaluate
 from seqmotion.lfd.models import (
@@ -71,10 +72,6 @@ MASTER, SLAVE = slice(0, 9), slice(9, 18)
 STEPS = 300  # 20 ms decoder steps in a 6 s hard episode
 
 
-def _text(values: np.ndarray) -> np.ndarray:
-    return np.array([v if isinstance(v, str) else v.decode() for v in values])
-
-
 def features(sign: np.ndarray, is_box: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """Object features ``(..., 5)``: side sign, sign·y (distance from the centre line), x (reach), is box, yaw if a box.
 
@@ -86,8 +83,8 @@ def features(sign: np.ndarray, is_box: np.ndarray, pose: np.ndarray) -> np.ndarr
 
 
 def _side_and_shape(data, episodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    sign = np.where(_text(data.episodes["side"])[episodes] == "left", 1.0, -1.0)
-    is_box = (_text(data.episodes["shape"])[episodes] == "box").astype(float)
+    sign = np.where(data.episodes["side"][episodes] == "left", 1.0, -1.0)  # load_dataset gives str
+    is_box = (data.episodes["shape"][episodes] == "box").astype(float)
     return sign, is_box
 
 
@@ -122,7 +119,7 @@ def _evaluate(args: argparse.Namespace, make, mode: str, errors: list | None = N
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     payload = {"args": vars(args), **result.as_dict()}
-    (out / f"eval_{mode}.json").write_text(json.dumps(payload, indent=1, default=float) + "\n")
+    atomic_write_bytes(out / f"eval_{mode}.json", (json.dumps(payload, indent=1, default=float) + "\n").encode())
 
 
 # ----------------------------------------------------------------------------------------------
