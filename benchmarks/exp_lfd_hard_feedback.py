@@ -106,6 +106,11 @@ def _side_and_shape(data, episodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return sign, is_box
 
 
+def _side_shape(side: float, box: float) -> tuple[float, float]:
+    """An estimate's side sign (+1 left: ``side`` > 0) and is-box (``box`` > 0.5) as the features' 1.0 / 0.0."""
+    return (1.0 if side > 0 else -1.0, 1.0 if box > 0.5 else 0.0)
+
+
 def _command(decoded: torch.Tensor, scaler: MotionScaler) -> ArmState:
     m = scaler.denormalize(decoded, MASTER)[0, 0].double().numpy()
     return ArmState(m[0:3], m[3:6], m[6:9])
@@ -491,8 +496,8 @@ def feedback(args: argparse.Namespace) -> None:
                         opening.append(est)
                         if len(opening) == args.opening_frames:
                             m = np.mean(opening, 0)
-                            first[0] = (1.0 if m[1] > 0 else -1.0, 1.0 if m[2] > 0.5 else 0.0)
-                    s, b = first[0] or (1.0 if est[1] > 0 else -1.0, 1.0 if est[2] > 0.5 else 0.0)
+                            first[0] = _side_shape(m[1], m[2])
+                    s, b = first[0] or _side_shape(est[1], est[2])
                     c_now = (np.array([s, s * est[1], est[0], b, b * est[3]]) - mean) / std
                     errors.append((c_now - true) * std)
                 elif mode != "oracle":  # the webcam's frame now → the object's estimated pose
@@ -503,7 +508,7 @@ def feedback(args: argparse.Namespace) -> None:
                     else:
                         raw = seen * t_std + t_mean
                         if first[0] is None:
-                            first[0] = (1.0 if raw[0] > 0 else -1.0, 1.0 if raw[3] > 0.5 else 0.0)
+                            first[0] = _side_shape(raw[0], raw[3])
                         s, b = first[0]
                         c_now = (np.array([s, s * raw[1], raw[2], b, b * raw[4]]) - mean) / std
                     errors.append((c_now - true) * std)
