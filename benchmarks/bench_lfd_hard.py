@@ -8,7 +8,16 @@
     python benchmarks/bench_lfd_hard.py merge --out runs/curve --act runs/act/*/eval.json \
         --json benchmarks/results_lfd_act.json --plot benchmarks/figures/lfd_hard_curve.png
 
-``run`` trains each method (``proposed``: SeqAE + CNN; ``end_to_end``: the baseline) with
+    # the object-feedback policy (the shipped pushing-hard's kind) on the same trials: 3 x 64 decoder, 700 epochs,
+    # a pose network on 15,000 rendered frames of the N demonstrations' states
+    python benchmarks/bench_lfd_hard.py run --data runs/v2big --out runs/curve_fb --methods feedback \
+        --demos 10 25 50 100 --seeds 0 1
+    # ... merged with the rows already in the JSON (--keep) whose jobs are not in --out
+    python benchmarks/bench_lfd_hard.py merge --out runs/curve_fb --keep benchmarks/results_lfd_act.json \
+        --json benchmarks/results_lfd_act.json --plot benchmarks/figures/lfd_hard_curve.png
+
+``run`` trains each method (``proposed``: SeqAE + CNN; ``end_to_end``: the baseline; ``feedback``: the
+decoder reading the object's pose every 20 ms, with its keypoint pose network) with
 ``seqmotion.lfd.train.train(..., benchmark="hard", demos=N)`` and evaluates it on the same
 held-out trials (``seqmotion.lfd.evaluation.evaluate(..., benchmark="hard")``, evaluation seed
 ``--eval-seed``: the trials' seeds never coincide with the demonstrations'). One JSON per job,
@@ -29,7 +38,9 @@ import sys
 import time
 from pathlib import Path
 
-METHODS = ("proposed", "end_to_end")
+METHODS = ("proposed", "end_to_end", "feedback")
+PARTS = {"proposed": ("seqae", "cnn"), "end_to_end": ("end_to_end",), "feedback": ("feedback_decoder", "pose")}
+"""The training parts of each method whose optimiser updates a row counts."""
 
 
 def _write(path: Path, payload: dict) -> None:
@@ -62,7 +73,8 @@ def _steps(policy_dir: Path, part: str) -> int | None:
     """Optimiser updates of one training part, from the policy's recorded settings and data size."""
     config = json.loads((policy_dir / "config.json").read_text())
     record = config["policy"].get("training", {}).get(part, {})
-    settings, n = record.get("settings", {}), record.get("motions") or record.get("pairs")
+    settings = record.get("settings", {})
+    n = record.get("motions") or record.get("pairs") or record.get("demos") or record.get("frames")
     if not settings or not n:
         return None
     batches = -(-int(n) // int(settings["batch_size"]))
@@ -72,7 +84,7 @@ def _steps(policy_dir: Path, part: str) -> int | None:
 def run(args: argparse.Namespace) -> int:
     from seqmotion.lfd.evaluation import evaluate
     from seqmotion.lfd.models import PushingPolicy
-    from seqmotion.lfd.train import train
+    from seqmotion.lfd.train import SeqAETraining, train
     from seqmotion.training.provenance import command_line
 
     out = Path(args.out)
@@ -85,13 +97,15 @@ def run(args: argparse.Namespace) -> int:
                 model_dir = out / "models" / f"{method}_{demos}_{seed}"
                 load = os.getloadavg()[0]
                 start = time.perf_counter()
-                report = train(args.data, model_dir, args.preset, (method,), ("default",), seed, progress=False,
+                feedback = {"seqae_settings": SeqAETraining(epochs=args.feedback_epochs), "pose_frames":
+                            args.pose_frames, "workers": args.workers} if method == "feedback" else {}
+                report = train(args.data, model_dir, args.feedback_preset if feedback else args.preset, (method,),
+                               ("default",), seed, progress=False,
                                command=command_line("python benchmarks/bench_lfd_hard.py"), benchmark="hard",
-                               demos=demos)
+                               demos=demos, **feedback)
                 seconds = time.perf_counter() - start
                 policy_dir = report.policies[f"{method}_default"]
-                steps = sum(s for part in (("seqae", "cnn") if method == "proposed" else ("end_to_end",))
-                            if (s := _steps(Path(policy_dir), part)) is not None)
+                steps = sum(s for part in PARTS[method] if (s := _steps(Path(policy_dir), part)) is not None)
                 result = evaluate(PushingPolicy.from_pretrained(policy_dir), trials=args.trials, seed=args.eval_seed,
                                   benchmark="hard")
                 row = _row(method, demos, seed, result, round(seconds, 1), steps,
@@ -116,6 +130,10 @@ def chapter(args: argparse.Namespace) -> int:
 
 def merge(args: argparse.Namespace) -> int:
     rows = [json.loads(p.read_text())["row"] for p in sorted((Path(args.out) / "jobs").glob("*.json"))]
+    if args.keep:  # rows measured earlier, into another --out, unless a job here measured them again
+        ran = {(r["method"], r["demonstrations"], r["seed"]) for r in rows}
+        kept = json.loads(Path(args.keep).read_text())["rows"]
+        rows = [r for r in kept if (r["method"], r["demonstrations"], r["seed"]) not in ran] + rows
     for path in args.act or []:
         rows.append(_act_row(Path(path)))
     from seqmotion.training.provenance import machine_record
@@ -194,6 +212,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--preset", default="smaller")
+    p.add_argument("--feedback-preset", default="wide64", help="feedback: the decoder's layers and width (3 x 64)")
+    p.add_argument("--feedback-epochs", type=int, default=700, help="feedback: the decoder's epochs")
+    p.add_argument("--pose-frames", type=int, default=15000, help="feedback: frames its pose network trains on")
+    p.add_argument("--workers", type=int, default=1, help="feedback: processes rendering the frames")
     p.add_argument("--trials", type=int, default=30)
     p.add_argument("--eval-seed", type=int, default=0)
     p.set_defaults(func=run)
@@ -206,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--act", nargs="*", help="ACT's evaluations (eval_act.py --json files, benchmarks/peers/act/)")
     p.add_argument("--json", required=True)
+    p.add_argument("--keep", help="a results JSON whose rows stay, except those the jobs in --out measured again")
     p.add_argument("--plot")
     p.set_defaults(func=merge)
     args = parser.parse_args(argv)

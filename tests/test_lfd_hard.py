@@ -286,6 +286,18 @@ def test_cli_collect_train_evaluate_hard(tmp_path, capsys):
     saved = json.loads(out.read_text())
     assert saved["n_trials"] == 2 and saved["benchmark"] == "hard" and len(saved["outcomes"]) == 2
     assert {"success_rate", "wilson_95"} <= set(saved)
+    # the object-feedback policy (what pushing-hard ships), as the README trains and evaluates it: no film needed
+    still = tmp_path / "hard_big"
+    assert main(["lfd", "collect", "--benchmark", "hard", "--episodes", "2", "--duration", "0.5", "--no-video",
+                 "--out", str(still), "--quiet"]) == 0
+    assert "hard: 2 episodes" in capsys.readouterr().out
+    assert main(["lfd", "train", "--data", str(still), "--out", str(tmp_path / "fb"), "--benchmark", "hard",
+                 "--methods", "feedback", "--keep-failed", "--preset", "tiny", "--seqae-epochs", "1", "--pose-frames",
+                 "4", "--pose-epochs", "1", "--workers", "1", "--quiet"]) == 0
+    assert "feedback_default:" in capsys.readouterr().out
+    assert main(["lfd", "evaluate", str(tmp_path / "fb" / "feedback_default"), "--benchmark", "hard", "--trials",
+                 "1", "--seed", "3", "--quiet"]) == 0
+    assert "hard benchmark" in capsys.readouterr().out
 
 
 def test_the_shipped_hard_policy_loads_and_the_demo_shows_it(tmp_path, capsys):
@@ -293,8 +305,10 @@ def test_the_shipped_hard_policy_loads_and_the_demo_shows_it(tmp_path, capsys):
     from seqmotion.reproduce.demo import _pushing_hard
 
     policy = sm.load_pretrained("pushing-hard")
-    assert policy.config.kind == "proposed" and policy.config.training["benchmark"] == "hard"
-    assert policy.config.training["demos"] == 279
+    assert policy.config.kind == "feedback" and policy.config.training["benchmark"] == "hard"
+    assert policy.config.training["demos"] == 825 and policy.config.training["pose"]["frames"] == 60000
+    with pytest.raises(ValueError, match="feedback"):  # it reads the object every step: no one-z verbs
+        policy.latent(np.zeros((64, 64, 3), np.uint8))
     outcomes = _pushing_hard(tmp_path, trials=1)
     assert len(outcomes) == 1 and (tmp_path / "pushing_hard.png").is_file()
     assert "pushing-hard:" in capsys.readouterr().out
@@ -318,3 +332,73 @@ def test_extra_motions_without_images_train_the_seqae(hard_dir, tmp_path):
     assert config["training"]["extra_motions"] is True
     with pytest.raises(ValueError, match="hard"):
         train(tmp_path, tmp_path / "n", "tiny", progress=False, extra_motions=True)
+
+
+def test_object_features_and_the_per_step_decoder():
+    """The features a feedback decoder reads, and its z slot taking a value per step (a constant one as before)."""
+    import torch
+
+    from seqmotion.lfd.models import CommandDecoder, PoseNet, SeqAEConfig, object_features
+
+    yaw = 0.3
+    pose = np.array([0.17, -0.06, 0.02, math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    np.testing.assert_allclose(object_features(-1.0, 1.0, pose), [-1.0, 0.06, 0.17, 1.0, yaw], atol=1e-12)
+    np.testing.assert_allclose(object_features(1.0, 0.0, pose), [1.0, -0.06, 0.17, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(PoseNet.targets(pose[None], np.array([1.0]))[0], [1.0, -6.0, 1.0, yaw], atol=1e-6)
+    torch.manual_seed(0)
+    decoder = CommandDecoder(SeqAEConfig(1, 8, latent=5))
+    z, slave = torch.randn(2, 5), torch.randn(2, 4, 9)
+    constant, _ = decoder(z, slave)
+    per_step, _ = decoder(z[:, None].expand(-1, 4, -1), slave)
+    torch.testing.assert_close(constant, per_step)
+    varying, _ = decoder(z[:, None].expand(-1, 4, -1) + torch.arange(4.0)[None, :, None], slave)
+    assert not torch.allclose(varying[:, 1:], constant[:, 1:])
+
+
+def test_feedback_policy_trains_round_trips_and_runs_closed_loop(hard_dir, tmp_path, scene):
+    """``methods=("feedback",)``: decoder + pose network from the hard set, saved and loaded as one policy that
+    looks at the webcam every 20 ms; the one-z verbs and the chapter benchmark refuse it."""
+    import torch
+
+    import seqmotion as sm
+    from seqmotion.lfd.models import PushingPolicy
+    from seqmotion.lfd.train import SeqAETraining, pose_training, render_pose_frames, train
+
+    pose_settings = pose_training()
+    pose_settings.epochs = 1
+    report = train(hard_dir, tmp_path / "m", "tiny", ("feedback",), seed=1, seqae_settings=SeqAETraining(epochs=2),
+                   pose_settings=pose_settings, pose_frames=12, progress=False, successful_only=False,
+                   benchmark="hard", demos=2)
+    policy = sm.load(report.policies["feedback_default"])
+    assert isinstance(policy, PushingPolicy) and policy.config.kind == "feedback" and policy.pose_net is not None
+    training = policy.config.training
+    assert training["feedback_decoder"]["demos"] == 2 and training["pose"]["frames"] == 12
+    again = PushingPolicy.from_pretrained(report.policies["feedback_default"])
+    for key, value in policy.state_dict().items():
+        torch.testing.assert_close(value, again.state_dict()[key])
+    assert torch.all(policy.feature_std > 0) and "object feedback" in policy.model_card("fb")
+
+    result = evaluation.evaluate(policy, trials=1, seed=2, benchmark="hard", duration=0.3, scene=scene)
+    first = result.outcomes[0].latent
+    assert first.shape == (5,) and np.all(np.isfinite(first)) and first[0] in (-1.0, 1.0)
+    assert result.outcomes[0].decision_ms > 0
+
+    data = dataset.load_dataset(hard_dir / "hard.h5")
+    images, tips, targets = render_pose_frames(data, frames=3, seed=1)
+    again_images, _, again_targets = render_pose_frames(data, frames=3, seed=1)
+    assert images.shape == (3, 64, 64, 3) and tips.shape == (3, 2) and targets.shape == (3, 4)
+    np.testing.assert_array_equal(images, again_images)  # seeded: the same frames again
+    np.testing.assert_array_equal(targets, again_targets)
+    assert set(targets[:, 2]) <= {0.0, 1.0}
+
+    with pytest.raises(ValueError, match="feedback"):
+        policy.latent(images[0])
+    with pytest.raises(ValueError, match="feedback"):
+        policy.source(np.zeros(5))
+    with pytest.raises(ValueError, match="takes no latent"):
+        policy.run(scene, *pushing.sample_hard_placement(np.random.default_rng(0)), latent=np.zeros(5))
+    robot = pytest.importorskip("seqmotion.lfd.robot")
+    with pytest.raises(ValueError, match="feedback"):  # the standard arms run one z from the first image
+        robot.run_trial(policy, None, *pushing.sample_hard_placement(np.random.default_rng(0)))
+    with pytest.raises(ValueError, match="hard"):
+        train(hard_dir, tmp_path / "n", "tiny", ("feedback",), progress=False)

@@ -106,6 +106,12 @@ CHECKS: dict[str, tuple[str, str | None]] = {
     "end_to_end": ("tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
     "seqmotion lfd evaluate hard_policies/proposed_default --benchmark hard --trials 30 --json hard.json": (
         "tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
+    "seqmotion lfd collect --benchmark hard --episodes 900 --no-video --out hard_big": (
+        "tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
+    "seqmotion lfd train --data hard_big --benchmark hard --methods feedback --preset wide64 --seqae-epochs 700 "
+    "--out hard_fb": ("tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
+    "seqmotion lfd evaluate hard_fb/feedback_default --benchmark hard --trials 100 --seed 2": (
+        "tests/test_lfd_hard.py::test_cli_collect_train_evaluate_hard", None),
     "pip install -e \".[view]\" && seqmotion view": ("tests/test_view.py::test_page_loads", None),
     "pip install -e \".[robots]\" && pip install --no-deps \"robosuite>=1.5,<1.6\"": (
         "tests/test_robots.py (.ci/run installs both, as the README's test command does)", None),

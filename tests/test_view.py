@@ -528,6 +528,8 @@ def test_cli_registers_view_and_refuses_a_bad_port(capsys):
     assert "--port" in capsys.readouterr().err
     assert main(["view", "no-such-model", "--port", "0"]) == 2
     assert "no-such-model" in capsys.readouterr().err
+    assert main(["view", "pushing-hard", "--port", "0"]) == 2  # a feedback policy has no z to show
+    assert "'feedback' policy" in capsys.readouterr().err
     assert main(["view", "--robot", "no-such-robot", "--port", "0"]) == 2  # refused before any server starts
     assert "no-such-robot" in capsys.readouterr().err
     assert main(["view", "--robot", "menagerie:ur5e", "--no-sim", "--port", "0"]) == 2

@@ -6,9 +6,11 @@
 * :mod:`seqmotion.lfd.operator` — the scripted human operator.
 * :mod:`seqmotion.lfd.dataset` — the HDF5 datasets (:func:`collect`, :func:`load_dataset`).
 * :mod:`seqmotion.lfd.models` — the SeqAE, the CNN and the combined :class:`PushingPolicy`
-  (saved and loaded like every trained model: ``save_pretrained`` / ``PushingPolicy.from_pretrained``).
+  (saved and loaded like every trained model: ``save_pretrained`` / ``PushingPolicy.from_pretrained``);
+  for the hard benchmark also its ``feedback`` kind (the keypoint :class:`PoseNet` reading the
+  object's pose from every frame, :class:`FeedbackSource`).
 * :mod:`seqmotion.lfd.train` — training (``train.train`` from a dataset directory;
-  :func:`train_seqae`, :func:`train_cnn`, :func:`train_end_to_end`).
+  :func:`train_seqae`, :func:`train_cnn`, :func:`train_end_to_end`, :func:`train_feedback`).
 * :mod:`seqmotion.lfd.evaluation` — closed-loop success rates (:func:`evaluate`).
 * :mod:`seqmotion.lfd.export` — shipping a policy with its model card (:func:`export_policy`).
 * :mod:`seqmotion.lfd.lerobot` — LeRobotDataset v3.0 export and import (:func:`to_lerobot`,
@@ -49,11 +51,16 @@ _EXPORTS = {
     "PushingPolicy": "models",
     "PolicyConfig": "models",
     "PRESETS": "models",
+    "PoseNet": "models",
+    "PoseNetConfig": "models",
+    "FeedbackSource": "models",
+    "object_features": "models",
     "motion_loss": "models",
     "COMMAND_INTERVAL": "timing",
     "train_seqae": "train",
     "train_cnn": "train",
     "train_end_to_end": "train",
+    "train_feedback": "train",
     "SeqAETraining": "train",
     "CNNTraining": "train",
     "evaluate": "evaluation",

@@ -63,9 +63,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "wide64 (3x64, z in R^16) | tiny (1x16, for tests); default: seqmotion.lfd.train.DEFAULT_PRESET (smaller)",
     )
     p.add_argument(
-        "--methods", nargs="+", default=["proposed"], choices=["proposed", "end_to_end", "seqae"],
+        "--methods", nargs="+", default=["proposed"], choices=["proposed", "end_to_end", "seqae", "feedback"],
         help="proposed (SeqAE, then a CNN per camera; default), end_to_end (the baseline), seqae (the SeqAE alone, "
-        "into OUT/seqae/: motions only, e.g. another robot's LeRobot dataset without 64x64 images or block positions)",
+        "into OUT/seqae/: motions only, e.g. another robot's LeRobot dataset without 64x64 images or block "
+        "positions), feedback (hard benchmark: a decoder that reads the object's pose, estimated from every webcam "
+        "frame by a keypoint network, every 20 ms; into OUT/feedback_default/)",
     )
     p.add_argument(
         "--map", action="append", default=[], metavar="FIELD=KEY",
@@ -85,7 +87,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--extra-motions", action="store_true",
                    help="hard benchmark: the SeqAE also trains on the hard_motions set (motions without images)")
     p.add_argument(
-        "--seqae-epochs", type=int, help="SeqAE epochs (default 2000, as in the dissertation; tiny 200)"
+        "--seqae-epochs", type=int,
+        help="SeqAE (and feedback decoder) epochs (default 2000, as in the dissertation; tiny 200)"
     )
     p.add_argument("--e2e-epochs", type=int, help="end-to-end epochs (default 2000, as in the dissertation)")
     p.add_argument("--cnn-epochs", type=int, help="CNN epochs (default 100, as in the dissertation)")
@@ -95,6 +98,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         help="what the CNN regresses per image: the z of the most typical motion at its block position (the one "
         "nearest their mean; default), their mean z, or its own demonstration's z (pair: the dissertation's eq. 5.2)",
     )
+    p.add_argument("--pose-frames", type=int, default=60000,
+                   help="feedback: frames rendered to train its pose network (default 60000)")
+    p.add_argument("--pose-epochs", type=int, help="feedback: the pose network's epochs (default 12)")
+    p.add_argument("--workers", type=int, default=2, help="feedback: processes rendering the frames (default 2)")
     p.add_argument("--state-noise", type=float, help="decoder input noise [normalised units] (default 0.3)")
     p.add_argument("--latent-noise", type=float, help="noise added to z in training (default 0.1)")
     p.add_argument("--latent-penalty", type=float, help="weight of the 1/2 |z|^2 bottleneck term (default 0)")
@@ -297,7 +304,10 @@ def _train(args: argparse.Namespace) -> int:
         cnn.epochs = args.cnn_epochs
     if args.cnn_targets is not None:
         cnn.targets = args.cnn_targets
-    for settings in (seqae, e2e, cnn):
+    pose = training.pose_training()
+    if args.pose_epochs is not None:
+        pose.epochs = args.pose_epochs
+    for settings in (seqae, e2e, cnn, pose):
         settings.__post_init__()  # re-validate the overridden values
     from ..training.provenance import command_line
 
@@ -321,6 +331,9 @@ def _train(args: argparse.Namespace) -> int:
         benchmark=args.benchmark,
         demos=args.demos,
         extra_motions=args.extra_motions,
+        pose_settings=pose,
+        pose_frames=args.pose_frames,
+        workers=args.workers,
     )
     for name, path in report.policies.items():
         print(f"{name}: {path}")

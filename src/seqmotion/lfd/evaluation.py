@@ -253,7 +253,7 @@ def evaluate(
         )
     if isinstance(policy, PushingPolicy):
         require_arm(policy.seqae_config, "the closed-loop evaluation in MuJoCo")
-        if policy.cnn is None and latents is None:
+        if policy.config.kind == "seqae" and latents is None:
             raise ValueError(
                 "a 'seqae' model has no CNN to turn the webcam image into z: pass latents (--oracle-latents)"
             )

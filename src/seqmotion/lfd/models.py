@@ -18,6 +18,11 @@ shapes below are written for J = 3 (18 = 6J columns, 9 = 3J state or command val
   the dissertation states), then a linear layer: a 64 × 64 RGB image → ``ẑ`` ``(B, 8)``.
 * **Policy** — the CNN in the encoder's place in front of the decoder (Fig. 5.2). The same
   class holds the end-to-end baseline (same layers, trained directly on image–motion pairs).
+* **Object feedback** (kind ``feedback``, beyond the dissertation) — the decoder's z slot carries
+  the object's features *now* (:data:`FEATURES`), read every 20 ms from the webcam frame by a
+  keypoint network (:class:`PoseNet`), so the decoder sees the object move as it pushes it
+  (:class:`FeedbackSource`). On the hard benchmark the one-z policy cannot: it decodes the first
+  image's z for the whole episode.
 
 All networks work on *normalised* columns (per-column mean and standard deviation of the
 SeqAE's training motions, stored with the weights as buffers), which keeps the LSTM inputs
@@ -32,11 +37,13 @@ dissertation gives 7 layers but no width; 64 sits between its ``smaller`` and ``
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from ..errors import CheckpointError
@@ -281,9 +288,11 @@ class CommandDecoder(nn.Module):
         """``z (B, latent)``, ``slave_n (B, K, 3J)`` → commands ``(B, K, 3J)`` and the LSTM state.
 
         Called with the whole recorded sequence in training (one fused LSTM call) and with
-        ``K = 1`` plus the carried state in closed loop.
+        ``K = 1`` plus the carried state in closed loop. ``z`` may also be ``(B, K, latent)``, a
+        different value at every step (the object features of a ``feedback`` policy).
         """
-        inputs = torch.cat([z.unsqueeze(1).expand(-1, slave_n.shape[1], -1), slave_n], dim=-1)
+        z_steps = z if z.dim() == 3 else z.unsqueeze(1).expand(-1, slave_n.shape[1], -1)
+        inputs = torch.cat([z_steps, slave_n], dim=-1)
         y, state = self.lstm(inputs, state)
         return self.out(y), state
 
@@ -309,6 +318,109 @@ class ImageEncoder(nn.Module):
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         x = images.to(torch.float32).permute(0, 3, 1, 2) / 255.0 - 0.5
         return self.out(self.features(x).flatten(1))
+
+
+
+FEATURES = ("side", "distance", "reach", "is_box", "yaw")
+"""The object features a ``feedback`` policy's decoder reads every step (:func:`object_features`)."""
+
+
+def object_yaw(pose: np.ndarray) -> np.ndarray:
+    """The object's turn about z [rad] from its poses ``(..., 7)`` (centre, quaternion w, x, y, z)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    return 2.0 * np.arctan2(pose[..., 6], pose[..., 3])
+
+
+def object_features(sign: Any, is_box: Any, pose: Any) -> np.ndarray:
+    """The features ``(..., 5)`` of :data:`FEATURES`: side sign (+1 left), sign·y (distance from the centre line
+    [m]), x (reach [m]), 1.0 for a box (0.0 a cylinder), the box's yaw [rad] (0 for a cylinder).
+
+    ``pose (..., 7)``: the object's centre [m] and quaternion (w, x, y, z), turning about z only;
+    ``sign`` and ``is_box`` broadcast against ``pose[..., 0]``.
+    """
+    pose = np.asarray(pose, dtype=np.float64)
+    yaw = object_yaw(pose)
+    sign = np.broadcast_to(np.asarray(sign, dtype=np.float64), yaw.shape)
+    is_box = np.broadcast_to(np.asarray(is_box, dtype=np.float64), yaw.shape)
+    return np.stack([sign, sign * pose[..., 1], pose[..., 0], is_box, is_box * yaw], -1)
+
+
+POSE_REACH_OFFSET = 0.16
+"""[m] subtracted from the object's x before :class:`PoseNet` regresses it (the middle of the placements)."""
+
+
+@dataclass(frozen=True)
+class PoseNetConfig:
+    """Shape of the keypoint network of a ``feedback`` policy, and how its estimates are used.
+
+    Attributes:
+        keypoints: spatial soft-argmax keypoints (each an expected image position).
+        width: channels of its three convolutions.
+        opening_frames: the side (left or right) and the shape (box or cylinder) are the mean of
+            this many first frames' estimates, then held: they do not change during a push, and a
+            single frame with the pen over the object can misjudge them.
+    """
+
+    keypoints: int = 16
+    width: int = 24
+    opening_frames: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("keypoints", "width", "opening_frames"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"PoseNetConfig.{name} must be a positive integer, got {value!r}")
+
+
+class PoseNet(nn.Module):
+    """Keypoint CNN (spatial soft-argmax, Levine et al. 2016): one webcam frame → the object's pose.
+
+    ``forward(images (B, 64, 64, 3) uint8, tip_xy (B, 2))`` → ``(B, 4)``: the object's
+    ``x − 0.16 m`` and ``y`` [cm], a box-or-cylinder logit and the box's yaw [rad]. ``tip_xy`` is
+    the pen tip's ``x, y`` [m], known from the slave's measured angles: a point in the world to read
+    the jittered camera against. Its keypoints are expected image coordinates, so it locates to a
+    fraction of a pixel where a flattening CNN (:class:`ImageEncoder`, the chapter's) does not:
+    1.6 mm in closed loop against the chapter CNN's 14 mm (``benchmarks/RESULTS_lfd.md``).
+    """
+
+    def __init__(self, config: PoseNetConfig | None = None) -> None:
+        super().__init__()
+        config = config or PoseNetConfig()
+        width = config.width
+        self.conv = nn.Sequential(
+            nn.Conv2d(3, width, 5, stride=2, padding=2), nn.ReLU(),
+            nn.Conv2d(width, width, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(width, width, 3, padding=1), nn.ReLU(),
+        )
+        self.keypoints = nn.Conv2d(width, config.keypoints, 1)
+        self.temperature = nn.Parameter(torch.ones(1))
+        grid = torch.linspace(-1, 1, 32)  # the 32 × 32 feature map's image coordinates
+        self.register_buffer("gx", grid[None, :].expand(32, 32).reshape(-1).clone())
+        self.register_buffer("gy", grid[:, None].expand(32, 32).reshape(-1).clone())
+        self.head = nn.Sequential(nn.Linear(2 * config.keypoints + width + 2, 128), nn.ReLU(),
+                                  nn.Linear(128, 128), nn.ReLU(), nn.Linear(128, 4))
+
+    def forward(self, images: torch.Tensor, tip_xy: torch.Tensor) -> torch.Tensor:
+        x = images.to(torch.float32).permute(0, 3, 1, 2) / 255.0 - 0.5
+        f = self.conv(x)
+        attention = F.softmax(self.keypoints(f).flatten(2) / self.temperature, -1)  # (B, K, 32·32)
+        points = torch.cat([attention @ self.gx, attention @ self.gy], -1)  # (B, 2K)
+        return self.head(torch.cat([points, f.mean((2, 3)), tip_xy.to(torch.float32) * 10.0], -1))
+
+    @staticmethod
+    def targets(pose: np.ndarray, is_box: np.ndarray) -> np.ndarray:
+        """What :meth:`forward` regresses ``(N, 4)`` for object poses ``(N, 7)`` and is-box flags ``(N,)``."""
+        pose = np.asarray(pose, dtype=np.float64)
+        return np.stack([(pose[:, 0] - POSE_REACH_OFFSET) * 100, pose[:, 1] * 100, np.asarray(is_box, np.float64),
+                         object_yaw(pose)], -1).astype(np.float32)
+
+    @torch.no_grad()
+    def estimate(self, image: np.ndarray, tip_xy: np.ndarray) -> np.ndarray:
+        """One frame ``(64, 64, 3)`` uint8 and pen tip ``(2,)`` [m] → ``(4,)``: the object's ``x, y`` [m], P(box),
+        box yaw [rad]."""
+        e = self(torch.as_tensor(image)[None], torch.as_tensor(np.asarray(tip_xy), dtype=torch.float32)[None])[0]
+        e = e.double().numpy()
+        return np.array([e[0] / 100 + POSE_REACH_OFFSET, e[1] / 100, 0.5 * (1.0 + math.tanh(0.5 * e[2])), e[3]])
 
 
 def check_images(images: Any) -> np.ndarray:
@@ -397,10 +509,11 @@ CNN_TARGET_TEXT = {
 }
 """How a model card describes each choice of :attr:`seqmotion.lfd.train.CNNTraining.targets`."""
 
-KINDS = ("proposed", "end_to_end", "seqae")
+KINDS = ("proposed", "end_to_end", "seqae", "feedback")
 """``proposed``: SeqAE on motions, then CNN → z; ``end_to_end``: CNN + decoder trained on pairs;
 ``seqae``: the SeqAE alone, no CNN (``seqmotion lfd train --methods seqae``: motions without the
-images or block positions a CNN needs, e.g. another robot's LeRobot dataset)."""
+images or block positions a CNN needs, e.g. another robot's LeRobot dataset); ``feedback``: a decoder
+reading the object's features every step from a keypoint network (:class:`PoseNet`; hard benchmark)."""
 
 
 def require_arm(config: SeqAEConfig, what: str) -> None:
@@ -424,6 +537,8 @@ class PolicyConfig:
         camera: webcam pose the CNN was trained on (a key of ``seqmotion.sim.pushing.CAMERAS``).
         command_interval: Δt_NN [s] (the decoder's period).
         training: how it was trained (data, seeds, epochs, wall time...), for the record.
+        pose: kind ``feedback``: its :class:`PoseNetConfig` as a dict (empty for the other kinds,
+            whose ``seqae`` latent is then z; a feedback policy's is the 5 :data:`FEATURES`).
     """
 
     kind: str = "proposed"
@@ -433,10 +548,14 @@ class PolicyConfig:
     camera: str = "default"
     command_interval: float = COMMAND_INTERVAL
     training: dict = field(default_factory=dict)
+    pose: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"unknown policy kind {self.kind!r}; choose one of {KINDS}")
+        if self.kind == "feedback" and self.seqae.get("latent") != len(FEATURES):
+            raise ValueError(f"a 'feedback' policy's decoder reads the {len(FEATURES)} object features {FEATURES} in "
+                             f"its z slot: seqae latent must be {len(FEATURES)}, got {self.seqae.get('latent')!r}")
 
 
 class PushingPolicy(nn.Module, PretrainedModel):
@@ -465,7 +584,9 @@ class PushingPolicy(nn.Module, PretrainedModel):
     task: ClassVar[str] = "pushing"
     config_class: ClassVar[type] = PolicyConfig
 
-    def __init__(self, config: PolicyConfig, seqae: SeqAE | None = None, cnn: ImageEncoder | None = None) -> None:
+    def __init__(
+        self, config: PolicyConfig, seqae: SeqAE | None = None, cnn: ImageEncoder | PoseNet | None = None,
+    ) -> None:
         super().__init__()
         self.config = config
         seq_cfg = SeqAEConfig(**config.seqae)
@@ -474,11 +595,31 @@ class PushingPolicy(nn.Module, PretrainedModel):
             raise ValueError(f"the SeqAE's shape {seqae.config} differs from the config's {seq_cfg}")
         self.scaler = seqae.scaler
         self.decoder = seqae.decoder
-        self.encoder = seqae.encoder if config.kind != "end_to_end" else None
+        self.encoder = seqae.encoder if config.kind in ("proposed", "seqae") else None
         if config.kind == "seqae" and cnn is not None:
             raise ValueError("a 'seqae' model is the SeqAE alone: it takes no CNN")
-        self.cnn = None if config.kind == "seqae" else cnn if cnn is not None else ImageEncoder(CNNConfig(**config.cnn))
+        self.pose_net: PoseNet | None = None
+        if config.kind == "feedback":  # the eye is the keypoint network; the features' statistics travel along
+            if cnn is not None and not isinstance(cnn, PoseNet):
+                raise ValueError(f"a 'feedback' policy's eye is a PoseNet, got {type(cnn).__name__}")
+            self.pose_net = cnn if cnn is not None else PoseNet(PoseNetConfig(**config.pose))
+            self.register_buffer("feature_mean", torch.zeros(len(FEATURES)))
+            self.register_buffer("feature_std", torch.ones(len(FEATURES)))
+            self.cnn = None
+        elif config.kind == "seqae":
+            self.cnn = None
+        else:
+            self.cnn = cnn if cnn is not None else ImageEncoder(CNNConfig(**config.cnn))
         self.eval()
+
+    def _one_latent(self, what: str) -> None:
+        """``ValueError`` for a ``feedback`` policy, which has no single z: ``what`` needs one."""
+        if self.config.kind == "feedback":
+            raise ValueError(
+                f"{what} needs one z for the whole episode; a 'feedback' policy reads the object's pose from "
+                "every webcam frame instead: run it with policy.run(scene, position, variation) or "
+                "sm.lfd.evaluate(policy, benchmark='hard'), or drive it with policy.feedback_source(scene)"
+            )
 
     @property
     def seqae_config(self) -> SeqAEConfig:
@@ -487,7 +628,7 @@ class PushingPolicy(nn.Module, PretrainedModel):
     def seqae(self) -> SeqAE:
         """A :class:`SeqAE` view sharing this policy's scaler, encoder and decoder (not ``end_to_end``)."""
         if self.encoder is None:
-            raise ValueError("an end-to-end policy has no motion encoder (it never saw motions without images)")
+            raise ValueError(f"a {self.config.kind!r} policy has no motion encoder (it was trained without one)")
         model = SeqAE(self.seqae_config)
         model.scaler, model.encoder, model.decoder = self.scaler, self.encoder, self.decoder
         return model
@@ -531,6 +672,26 @@ class PushingPolicy(nn.Module, PretrainedModel):
                 f"seqae = sm.load_pretrained({name!r}).seqae()",
                 "command, z = seqae(motions)   # teacher-forced reconstruction of (B, K, 6J) motions",
                 "```",
+            ]
+        if cfg.kind == "feedback":
+            pose = PoseNetConfig(**cfg.pose)
+            return [
+                f"Task `pushing` (dissertation ch. 5, hard benchmark) — object feedback, kind `feedback`: every "
+                f"{cfg.command_interval * 1000:g} ms a keypoint network ({pose.keypoints} spatial soft-argmax "
+                f"keypoints over 3 convolutions of {pose.width} channels, plus the pen tip from the slave's angles) "
+                "estimates the object's position, shape and yaw from the webcam frame, and a decoder "
+                f"({seq['layers']} × {seq['hidden']} LSTM) reads those 5 features with the slave state and emits the "
+                f"next master command. Side and shape: the mean of the first {pose.opening_frames} frames.",
+                "",
+                "```python",
+                "import seqmotion as sm",
+                f"policy = sm.load_pretrained({name!r})",
+                "result = sm.lfd.evaluate(policy, trials=30, benchmark='hard')   # 30 held-out hard scenes",
+                "```",
+                "",
+                f"Webcam pose: `{cfg.camera}`. It has no single z: `latent(image)` and `source(z)` refuse it, and so "
+                "do the standard arms of `seqmotion.lfd.robot` (robosuite's, Menagerie's), which run one z from the "
+                "first image.",
             ]
         encoder = (
             "the SeqAE's motion encoder is kept"
@@ -584,6 +745,21 @@ class PushingPolicy(nn.Module, PretrainedModel):
                 f"{CNN_TARGET_TEXT.get(cnn.get('settings', {}).get('targets', 'pair'), '')}; "
                 f"settings {json.dumps(cnn.get('settings', {}), sort_keys=True)}"
             )
+        decoder, pose = training.get("feedback_decoder", {}), training.get("pose", {})
+        if decoder:
+            lines.append(
+                f"- Decoder: teacher-forced eq. 5.1 on {decoder.get('demos')} demonstrations of the hard set, its z "
+                "slot each step's recorded object features (normalised, with the latent noise); settings "
+                f"{json.dumps(decoder.get('settings', {}), sort_keys=True)}; final loss "
+                f"{decoder.get('final_loss', float('nan')):.4f}"
+            )
+        if pose:
+            lines.append(
+                f"- Pose network: {pose.get('frames')} frames of those demonstrations' recorded states re-rendered "
+                "under fresh camera jitter, lighting, colours and distractors (half with the object moved ±1.5 cm and "
+                f"turned ±10°); settings {json.dumps(pose.get('settings', {}), sort_keys=True)}; final loss "
+                f"{pose.get('final_loss', float('nan')):.4f}; rendering {pose.get('render_seconds', 0):.0f} s"
+            )
         if e2e:
             settings = json.dumps(e2e.get("settings", {}), sort_keys=True)
             lines.append(
@@ -593,7 +769,9 @@ class PushingPolicy(nn.Module, PretrainedModel):
             )
         seconds = {
             name: part["seconds"]
-            for name, part in (("SeqAE", seqae), ("CNN", cnn), ("end to end", e2e))
+            for name, part in (("SeqAE", seqae), ("CNN", cnn), ("end to end", e2e), ("decoder", decoder),
+                               ("rendering the pose frames", {"seconds": pose.get("render_seconds")}),
+                               ("pose network", pose))
             if part.get("seconds") is not None
         }
         if seconds:
@@ -615,6 +793,7 @@ class PushingPolicy(nn.Module, PretrainedModel):
     @torch.no_grad()
     def latent(self, images: Any) -> np.ndarray:
         """ẑ of ``(64, 64, 3)`` → ``(latent,)`` or ``(B, 64, 64, 3)`` → ``(B, latent)`` images (uint8 RGB)."""
+        self._one_latent("latent(images)")
         if self.cnn is None:
             raise ValueError("a 'seqae' model has no CNN: it maps motions to z (encode), not images")
         arr = check_images(images)
@@ -625,14 +804,23 @@ class PushingPolicy(nn.Module, PretrainedModel):
     def encode(self, motions: Any) -> np.ndarray:
         """z of recorded motions ``(K, 6J)`` → ``(latent,)`` or ``(B, K, 6J)`` → ``(B, latent)`` (20 ms samples)."""
         if self.encoder is None:
-            raise ValueError("an end-to-end policy has no motion encoder (it never saw motions without images)")
+            raise ValueError(f"a {self.config.kind!r} policy has no motion encoder (it was trained without one)")
         arr = check_motions(motions, joints=self.seqae_config.joints)
         z = self.encoder(self.scaler.normalize(torch.as_tensor(arr, dtype=torch.float32))).double().numpy()
         return z[0] if np.ndim(motions) == 2 else z
 
     def source(self, z: Any) -> DecoderSource:
         """A command source for :func:`~seqmotion.lfd.teleop.run_autonomous` decoding latent ``z`` ``(latent,)``."""
+        self._one_latent("source(z)")
         return DecoderSource(self, z)
+
+    def feedback_source(self, scene: Any, camera: str | None = None) -> FeedbackSource:
+        """A ``feedback`` policy's command source for one episode in ``scene`` (reset it first): every 20 ms it
+        renders the webcam (``camera``, default the trained one), estimates the object's pose and decodes."""
+        if self.config.kind != "feedback":
+            raise ValueError(f"feedback_source is a 'feedback' policy's; this one is {self.config.kind!r}: "
+                             "use source(latent(image))")
+        return FeedbackSource(self, scene, camera or self.config.camera)
 
     def run(
         self,
@@ -663,6 +851,15 @@ class PushingPolicy(nn.Module, PretrainedModel):
         variation = variation or SceneVariation()
         scene.reset(position, variation)
         image = scene.render(camera or self.config.camera)
+        if self.config.kind == "feedback":
+            if latent is not None:
+                raise ValueError("a 'feedback' policy decodes the object features it sees every step: it takes no "
+                                 "latent")
+            source = self.feedback_source(scene, camera)
+            run = run_autonomous(
+                scene, source, position, duration, variation, self.config.command_interval, reset=False
+            )
+            return run, image, source.first_features
         z = self.latent(image) if latent is None else np.asarray(latent, dtype=np.float64)
         if z.shape != (self.seqae_config.latent,):
             raise ValueError(f"latent must have shape ({self.seqae_config.latent},), got {z.shape}")
@@ -707,6 +904,55 @@ class DecoderSource:
         s = torch.as_tensor(slave_state.as_vector(), dtype=torch.float32)[None, None]
         p = self.policy
         slave_n = p.scaler.normalize(s, SLAVE)
-        out, self.state = p.decoder(self.z, slave_n, self.state)
+        out, self.state = p.decoder(self.latent_now(slave_state), slave_n, self.state)
         m = p.scaler.denormalize(out, MASTER)[0, 0].double().numpy()
         return ArmState(m[0:3], m[3:6], m[6:9])
+
+    def latent_now(self, slave_state: Any) -> torch.Tensor:
+        """What the decoder's z slot reads at this step ``(1, latent)``: the episode's one z."""
+        return self.z
+
+
+class FeedbackSource(DecoderSource):
+    """A ``feedback`` policy's command source: the same decoder step, its z slot the object features seen now.
+
+    Every call renders the scene's webcam, estimates the object's ``x, y``, shape and yaw with the
+    policy's :class:`PoseNet` (given the pen tip from the slave's measured angles) and feeds the
+    normalised :func:`object_features` to the decoder. The side and the shape are the mean of the
+    first ``opening_frames`` estimates, then held (:class:`PoseNetConfig`).
+
+    Attributes:
+        first_features: the features ``(5,)`` of the first step (unnormalised; :data:`FEATURES`).
+        estimates: every step's raw estimate ``(4,)`` (x, y [m], P(box), yaw [rad]).
+    """
+
+    def __init__(self, policy: PushingPolicy, scene: Any, camera: str) -> None:
+        super().__init__(policy, np.zeros(policy.seqae_config.latent))
+        self.scene, self.camera = scene, camera
+        self.opening = int(policy.config.pose.get("opening_frames", PoseNetConfig.opening_frames))
+        self.side_shape: tuple[float, float] | None = None
+        self.first_features = np.full(len(FEATURES), np.nan)
+        self.estimates: list[np.ndarray] = []
+
+    @staticmethod
+    def _side_shape(estimate: np.ndarray) -> tuple[float, float]:
+        """An estimate's side sign (+1 left: y > 0) and is-box (P(box) > 0.5) as the features' values."""
+        return (1.0 if estimate[1] > 0 else -1.0, 1.0 if estimate[2] > 0.5 else 0.0)
+
+    def latent_now(self, slave_state: Any) -> torch.Tensor:
+        from ..sim.pushing import forward_kinematics
+
+        p = self.policy
+        assert p.pose_net is not None
+        estimate = p.pose_net.estimate(self.scene.render(self.camera), forward_kinematics(slave_state.theta)[:2])
+        if not np.all(np.isfinite(estimate)):
+            raise ValueError(f"the pose network's estimate is not finite ({estimate}): the policy's weights are broken")
+        self.estimates.append(estimate)
+        if self.side_shape is None and len(self.estimates) == self.opening:  # the object has not moved yet
+            self.side_shape = self._side_shape(np.mean(self.estimates, 0))
+        sign, box = self.side_shape or self._side_shape(estimate)
+        features = np.array([sign, sign * estimate[1], estimate[0], box, box * estimate[3]])
+        if len(self.estimates) == 1:
+            self.first_features = features
+        c = torch.as_tensor(features, dtype=torch.float32)
+        return ((c - p.feature_mean) / p.feature_std)[None]

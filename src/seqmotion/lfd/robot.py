@@ -547,6 +547,11 @@ def _check_policy(policy: Any) -> None:
         raise ValueError(
             f"policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')), got {type(policy).__name__}")
     require_arm(policy.seqae_config, "the closed loop on a standard arm (the decoder speaks the Touch's joints)")
+    if policy.config.kind == "feedback":  # its eye is trained on the Touch scene's webcam and pen tip
+        raise ValueError(
+            "a 'feedback' policy reads the object's pose from the Touch scene's webcam every 20 ms; the standard arms "
+            "run one z from the first image (kinds 'proposed' and 'end_to_end'): not supported yet"
+        )
 
 
 def run_trial(

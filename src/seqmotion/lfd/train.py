@@ -66,15 +66,20 @@ from ..training.config import Optimization
 from ..training.loop import TrainingLoop
 from ..training.provenance import machine_record
 from .models import (
+    FEATURES,
     CNNConfig,
     ImageEncoder,
     PolicyConfig,
+    PoseNet,
+    PoseNetConfig,
     PushingPolicy,
     SeqAE,
     SeqAEConfig,
     check_images,
     check_motions,
     motion_loss,
+    object_features,
+    object_yaw,
     preset,
 )
 from .task import PushingTask
@@ -476,11 +481,231 @@ def train_end_to_end(
 
 
 # ----------------------------------------------------------------------------------------------
+# Object feedback (kind "feedback", hard benchmark; beyond the dissertation)
+# ----------------------------------------------------------------------------------------------
+POSE_STREAM = 2000
+"""Seed stream of a feedback policy's rendered training frames: never the evaluation's
+(:data:`seqmotion.lfd.evaluation.EVAL_STREAM`, 1000) or the demonstrations' own."""
+POSE_SHARD = 2500
+"""Frames per rendering job: the frames depend on the seed and the count, not on the number of workers."""
+POSE_FRAMES = 60000
+"""Default number of frames the pose network trains on (9 min of rendering on two cores)."""
+
+
+def pose_training(seed: int = 0) -> CNNTraining:
+    """The pose network's default settings: 12 epochs of 64 frames, Adam at 2e-3 decaying to 2 % (cosine).
+
+    (``targets`` is the CNN's notion and means nothing here; each frame's target is its own pose.)
+    """
+    return CNNTraining(epochs=12, batch_size=64, lr=2e-3, lr_final_fraction=0.02, targets="pair", seed=seed)
+
+
+def _render_shard(job: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One rendering job of :func:`render_pose_frames`: ``(states, seed, shard, n)`` → frames, tips, targets."""
+    from ..sim.pushing import BlockPosition, PushingScene, sample_hard_placement
+
+    states, seed, shard, n = job
+    theta, poses, tips, side, shape = (states[k] for k in ("theta", "pose", "tip", "side", "shape"))
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(POSE_STREAM, shard)))
+    scene = PushingScene(benchmark="hard")
+    images, tip_xy, pose = np.zeros((n, 64, 64, 3), np.uint8), np.zeros((n, 2)), np.zeros((n, 7))
+    is_box = np.zeros(n)
+    try:
+        for i in range(n):
+            e, k = int(rng.integers(len(side))), int(rng.integers(theta.shape[1]))
+            pose[i] = poses[e, k]
+            if rng.random() < 0.5:  # a state a closed loop reaches and the demonstrations did not
+                pose[i, :2] += rng.uniform(-0.015, 0.015, 2)
+                yaw = float(object_yaw(pose[i])) + rng.uniform(-0.17, 0.17)
+                pose[i, 3:] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+            _, variation = sample_hard_placement(rng)  # a fresh camera jitter, lighting, colours, distractors
+            scene.reset(BlockPosition(-1, str(side[e]), 0.08, 0.16, str(shape[e])), variation)
+            scene.set_state(theta[e, k], pose[i])
+            images[i], tip_xy[i], is_box[i] = scene.render("default"), tips[e, k, :2], float(shape[e] == "box")
+    finally:
+        scene.close()
+    return images, tip_xy, PoseNet.targets(pose, is_box)
+
+
+def render_pose_frames(
+    data: Any, frames: int = POSE_FRAMES, seed: int = 0, workers: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Training frames for the pose network: the demonstrations' own states, re-rendered under fresh variation.
+
+    Each frame is a random demonstration's arm and object at a random 20 ms step; in half of them
+    the object is moved ±1.5 cm and turned ±10° off where it was; every frame has a new webcam
+    jitter, lighting, colours and distractors (:func:`~seqmotion.sim.pushing.sample_hard_placement`),
+    drawn from the seed stream :data:`POSE_STREAM`. No film is needed: the hard set's recorded
+    states (``hard.h5``, with or without video) are enough.
+
+    Args:
+        data: a hard-benchmark ``PushingDataset`` (the demonstrations to train on).
+        frames: how many frames.
+        seed: the training seed.
+        workers: rendering processes (the frames do not depend on it); more than one are spawned, so a
+            script calling this needs the ``if __name__ == "__main__":`` guard.
+
+    Returns:
+        ``(images (frames, 64, 64, 3) uint8, pen tips (frames, 2) [m], targets (frames, 4))``: the targets
+        as :meth:`PoseNet.targets`.
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from .timing import samples_per_command
+
+    frames = check_number("frames", frames, minimum=1, integer=True)
+    workers = check_number("workers", workers, minimum=1, integer=True)
+    every = samples_per_command(data.dt)
+    states = {"theta": data.motions["slave_theta"][:, ::every], "pose": data.motions["block_pose"][:, ::every],
+              "tip": data.motions["slave_tip"][:, ::every], "side": np.asarray(data.episodes["side"]).astype(str),
+              "shape": np.asarray(data.episodes["shape"]).astype(str)}
+    jobs = [(states, seed, shard, min(POSE_SHARD, frames - start))
+            for shard, start in enumerate(range(0, frames, POSE_SHARD))]
+    if workers == 1:
+        parts = [_render_shard(job) for job in jobs]
+    else:
+        # spawned, not forked: a fork after torch has run can hang in OpenMP
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            parts = list(pool.map(_render_shard, jobs))
+    images, tips, targets = (np.concatenate(x) for x in zip(*parts, strict=True))
+    return images, tips, targets
+
+
+def train_pose_net(
+    images: np.ndarray, tips: np.ndarray, targets: np.ndarray, config: PoseNetConfig | None = None,
+    settings: CNNTraining | None = None, progress: bool = False, checkpoint_dir: str | Path | None = None,
+    resume: bool = True,
+) -> tuple[PoseNet, dict]:
+    """Fit the :class:`PoseNet` to frames ``(N, 64, 64, 3)``, pen tips ``(N, 2)`` [m] and targets ``(N, 4)``.
+
+    Loss per frame: the squared position error [cm²], the shape's cross-entropy and, for a box,
+    the yaw error with 0.2 rad weighing as 1 cm. Photometric augmentation as the CNN's
+    (``settings.augment``). ``checkpoint_dir`` and ``resume`` as in :func:`train_seqae`.
+    """
+    settings = settings or pose_training()
+    images = check_images(images)
+    tips, targets = np.asarray(tips, dtype=np.float32), np.asarray(targets, dtype=np.float32)
+    if tips.shape != (len(images), 2) or targets.shape != (len(images), 4):
+        raise ValueError(f"tips must be ({len(images)}, 2) and targets ({len(images)}, 4), got {tips.shape} and "
+                         f"{targets.shape}")
+    if not (np.all(np.isfinite(tips)) and np.all(np.isfinite(targets))):
+        raise ValueError("tips and targets must be finite")
+    torch.manual_seed(settings.seed)
+    gen = torch.Generator().manual_seed(settings.seed)
+    net = PoseNet(config)
+    x, tip, y = torch.as_tensor(images), torch.as_tensor(tips), torch.as_tensor(targets)
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        batch = augment_images(x[idx], gen) if settings.augment else x[idx]
+        out, t = net(batch, tip[idx]), y[idx]
+        position = ((out[:, :2] - t[:, :2]) ** 2).sum(-1)  # [cm²]
+        shape = torch.nn.functional.binary_cross_entropy_with_logits(out[:, 2], t[:, 2], reduction="none")
+        yaw = t[:, 2] * ((out[:, 3] - t[:, 3]) / 0.2) ** 2  # a box's yaw: 0.2 rad weighs as 1 cm
+        return (position + shape + yaw).mean()
+
+    history = _fit(net, list(net.parameters()), len(x), settings, gen, batch_loss, "pose network", progress,
+                   checkpoint_dir=checkpoint_dir, data=(images, tips, targets), resume=resume, part="pose")
+    return net.eval(), history
+
+
+def train_feedback_decoder(
+    motions: np.ndarray, features: np.ndarray, config: SeqAEConfig, settings: SeqAETraining | None = None,
+    progress: bool = False, checkpoint_dir: str | Path | None = None, resume: bool = True,
+) -> tuple[SeqAE, np.ndarray, np.ndarray, dict]:
+    """Teacher-forced eq.-5.1 training of a decoder whose z slot reads each step's object features.
+
+    Args:
+        motions: ``(N, K, 18)`` at 20 ms (raw units).
+        features: ``(N, K, 5)`` the recorded object's :func:`~seqmotion.lfd.models.object_features` at the
+            same samples.
+        config: the decoder's shape (``latent`` must be 5).
+        settings: as the SeqAE's; ``latent_noise`` is added to the (normalised) features, ``state_noise``
+            to the slave states.
+
+    Returns:
+        ``(model, feature mean (5,), feature std (5,), history)``: the model's scaler and decoder are
+        trained (its motion encoder is not used).
+    """
+    settings = settings or SeqAETraining()
+    motions = check_motions(motions, joints=config.joints)
+    features = np.asarray(features, dtype=np.float64)
+    if config.latent != len(FEATURES):
+        raise ValueError(f"the feedback decoder's z slot holds the {len(FEATURES)} features {FEATURES}; "
+                         f"config.latent is {config.latent}")
+    if features.shape != (*motions.shape[:2], len(FEATURES)) or not np.all(np.isfinite(features)):
+        raise ValueError(f"features must be finite and shaped {(*motions.shape[:2], len(FEATURES))}, got "
+                         f"{features.shape}")
+    if len(motions) < 2:
+        raise ValueError(f"need at least 2 demonstrations to train the decoder, got {len(motions)}")
+    mean = features.reshape(-1, len(FEATURES)).mean(0)
+    std = features.reshape(-1, len(FEATURES)).std(0)
+    std = np.where(std < 1e-3, 1.0, std)  # a feature constant in training (one side, one shape) is left unscaled
+    torch.manual_seed(settings.seed)
+    gen = torch.Generator().manual_seed(settings.seed)
+    model = SeqAE(config)
+    model.scaler.fit(motions)
+    data = torch.as_tensor(motions, dtype=torch.float32)
+    c_all = torch.as_tensor((features - mean) / std, dtype=torch.float32)
+
+    def batch_loss(idx: torch.Tensor) -> torch.Tensor:
+        batch, c = data[idx], c_all[idx, :-1]
+        if settings.latent_noise > 0:
+            c = c + settings.latent_noise * torch.randn(c.shape, generator=gen)
+        slave = batch[:, :-1, config.slave]
+        command, _ = model.decode(c, slave, slave_noise=state_noise(tuple(slave.shape), settings, gen))
+        return motion_loss(command, batch[:, 1:, config.master], model.scaler.variance)
+
+    history = _fit(model, list(model.decoder.parameters()), len(data), settings, gen, batch_loss,
+                   f"feedback decoder {config.layers}x{config.hidden}", progress, checkpoint_dir=checkpoint_dir,
+                   data=(motions, features), resume=resume, part="feedback_decoder")
+    return model.eval(), mean, std, history
+
+
+def train_feedback(
+    data: Any, config: SeqAEConfig, settings: SeqAETraining, pose_settings: CNNTraining, pose_frames: int,
+    workers: int, progress: bool, checkpoints: Path, resume: bool, preset_name: str = "",
+) -> tuple[PushingPolicy, dict[str, Any], dict[str, Any]]:
+    """A ``feedback`` policy from a hard set's demonstrations ``data``: the decoder, then the pose network.
+
+    Returns ``(policy, decoder history, pose history)`` (the pose history adds ``render_seconds``).
+    """
+    import time
+
+    from .timing import samples_per_command
+
+    motions = data.motion()
+    sign = np.where(np.asarray(data.episodes["side"]).astype(str) == "left", 1.0, -1.0)
+    is_box = (np.asarray(data.episodes["shape"]).astype(str) == "box").astype(float)
+    pose = data.motions["block_pose"][:, :: samples_per_command(data.dt)]
+    features = object_features(sign[:, None], is_box[:, None], pose)
+    config = replace(config, latent=len(FEATURES), readout="top", normalize_latent=False)
+    model, mean, std, decoder_history = train_feedback_decoder(
+        motions, features, config, settings, progress, checkpoints / "feedback_decoder", resume)
+    start = time.perf_counter()
+    images, tips, targets = render_pose_frames(data, pose_frames, pose_settings.seed, workers)
+    render_seconds = time.perf_counter() - start
+    pose_config = PoseNetConfig()
+    net, pose_history = train_pose_net(images, tips, targets, pose_config, pose_settings, progress,
+                                       checkpoints / "feedback_pose", resume)
+    pose_history["render_seconds"] = render_seconds
+    policy = PushingPolicy(
+        PolicyConfig("feedback", preset_name, asdict(config), asdict(CNNConfig()), pose=asdict(pose_config)),
+        model, net,
+    )
+    policy.feature_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+    policy.feature_std.copy_(torch.as_tensor(std, dtype=torch.float32))
+    return policy.eval(), decoder_history, pose_history
+
+
+# ----------------------------------------------------------------------------------------------
 # From a dataset directory to policy directories
 # ----------------------------------------------------------------------------------------------
-METHODS = ("proposed", "end_to_end", "seqae")
+METHODS = ("proposed", "end_to_end", "seqae", "feedback")
 """``proposed`` (SeqAE, then a CNN per camera), ``end_to_end`` (the baseline), ``seqae`` (the SeqAE
-alone, written to ``out/seqae/``: for motions without the images or block positions a CNN needs)."""
+alone, written to ``out/seqae/``: for motions without the images or block positions a CNN needs),
+``feedback`` (hard benchmark: a decoder reading the object's features every step and the pose
+network that estimates them, :func:`train_feedback`; written to ``out/feedback_default/``)."""
 
 
 @dataclass
@@ -523,6 +748,9 @@ def train(
     benchmark: str = "chapter",
     demos: int | None = None,
     extra_motions: bool = False,
+    pose_settings: CNNTraining | None = None,
+    pose_frames: int = POSE_FRAMES,
+    workers: int = 1,
 ) -> TrainReport:
     """Train policies from ``data_dir`` (``motions.h5``, ``pairs_<camera>.h5``) into ``out/<method>_<camera>/``.
 
@@ -560,6 +788,10 @@ def train(
         extra_motions: hard benchmark: the SeqAE also trains on the ``hard_motions`` set's usable
             demonstrations (motions without images, as the chapter's SeqAE trains on 90 motions and
             its CNN on 18 pairs); the CNN still pairs the ``demos`` images with their own z.
+        pose_settings, pose_frames, workers: method ``feedback``: the pose network's settings (default
+            :func:`pose_training`), how many frames it trains on and how many processes render them
+            (``workers`` > 1 spawns them: a script calling this needs the ``if __name__ == "__main__":``
+            guard). Its decoder takes ``seqae_settings`` and the preset's layers and width.
     """
     data_dir, out = Path(data_dir), Path(out)
     seed = check_number("seed", seed, minimum=0, integer=True)
@@ -576,6 +808,9 @@ def train(
     if benchmark not in ("chapter", "hard"):
         raise ValueError(f"unknown benchmark {benchmark!r}; choose 'chapter' or 'hard'")
     hard = benchmark == "hard"
+    if "feedback" in methods and not hard:
+        raise ValueError("method 'feedback' reads the object's pose every step, which the hard benchmark's "
+                         "demonstrations record with the scene variation it renders: pass benchmark='hard'")
     if demos is not None and not hard:
         raise ValueError("demos picks the hard set's first demonstrations; the chapter's sets are fixed (5.3.3)")
     if hard and tuple(cameras) != ("default",):
@@ -609,7 +844,8 @@ def train(
     else:
         pairs = {c: _open_set(data_dir, f"pairs_{c}", mapping) for c in cameras} if needs_pairs else {}
         motions_data = _open_set(data_dir, "motions", mapping) if needs_motions else None
-    config = replace(config, joints=_joint_count({"motions": motions_data, **pairs}))
+    config = replace(config, joints=_joint_count({"motions": motions_data, **pairs,
+                                                  **({"hard": hard_data} if hard else {})}))
 
     report = TrainReport(out)
     checkpoints = out / "checkpoints"
@@ -684,6 +920,21 @@ def train(
                 cnn,
             )
             report.policies[f"proposed_{camera}"] = policy.save_pretrained(out / f"proposed_{camera}")
+
+    if "feedback" in methods:
+        pose_settings = _with_seed(pose_settings or pose_training(), seed)
+        policy, decoder_history, pose_history = train_feedback(
+            hard_data, config, seqae_settings, pose_settings, pose_frames, workers, progress, checkpoints, resume,
+            preset_name,
+        )
+        policy.config.training = {
+            **record,
+            "feedback_decoder": _record(report, "feedback_decoder", seqae_settings, decoder_history,
+                                        demos=len(hard_data)),
+            "pose": {**_record(report, "pose", pose_settings, pose_history, frames=int(pose_frames)),
+                     "render_seconds": pose_history["render_seconds"]},
+        }
+        report.policies["feedback_default"] = policy.save_pretrained(out / "feedback_default")
 
     if "end_to_end" in methods:
         for camera, data in pairs.items():

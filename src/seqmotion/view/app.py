@@ -243,6 +243,9 @@ class ViewerApp:
         self.errors: list[str] = []
         self.robot = check_robot(robot, simulate)  # like the models: a bad robot starts nothing
         main = resolve_model(model)  # every model is loaded before the server starts: a bad name starts nothing
+        if getattr(getattr(main, "config", None), "kind", "") == "feedback":
+            raise ValueError("the viewer's pushing panel shows each webcam image's z; a 'feedback' policy (e.g. "
+                             "pushing-hard) has none, it reads the object's pose every 20 ms: view 'pushing' instead")
         task = getattr(getattr(main, "task_def", None), "name", None)
         if sliding_model is not None and sliding_model.lower() == "none":
             sliding_model = None
