@@ -253,3 +253,21 @@ def test_rank_slices_of_the_coins_are_the_single_process_coins():
             torch.testing.assert_close(run(slice(rank, None, 2), rank), whole[rank::2], rtol=1e-5, atol=1e-9)
         # without the slice a rank's own draws are other coins: other states
         assert float((run(slice(1, None, 2)) - whole[1::2]).abs().max()) > 1e-5
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_a_non_finite_loss_stops_the_loop_before_it_reaches_the_weights(bad):
+    """Every training runs on the one loop, which refuses a non-finite loss (FloatingPointError, which the CLI
+    reports in one line, exit 1) before its backward pass: the weights stay as they were, never NaN."""
+    from seqmotion.training.loop import TrainingLoop
+
+    layer = torch.nn.Linear(3, 2)
+    before = {k: v.clone() for k, v in layer.state_dict().items()}
+    loop = TrainingLoop(layer, layer.parameters(), lr=1e-2, total_steps=4)
+    loop.step(layer(torch.ones(1, 3)).pow(2).mean())  # a finite step moves the weights
+    moved = {k: v.clone() for k, v in layer.state_dict().items()}
+    assert any(not torch.equal(before[k], moved[k]) for k in before)
+    with pytest.raises(FloatingPointError, match="non-finite loss at step 1 .epoch 3."):
+        loop.step(layer(torch.ones(1, 3)).sum() * bad, about=" (epoch 3)")
+    assert all(torch.equal(moved[k], v) for k, v in layer.state_dict().items())
+    assert loop.steps == 1

@@ -391,3 +391,28 @@ def test_resume_keeps_the_learning_rate_when_a_short_batch_is_skipped(tmp_path, 
     assert history["loss"] == straight_history["loss"]
     for key, value in straight.state_dict().items():
         torch.testing.assert_close(resumed.state_dict()[key], value, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("value", [3e38, 1e20, float("nan")])
+def test_training_on_corrupt_motions_is_refused_and_writes_nothing(data_dir, tmp_path, capsys, value):
+    """One action value of 3e38 trained a NaN policy and exited 0 (1e20: an infinite final loss, and that policy
+    was used). The motions are checked before training: one line naming the file and the field, exit 2, no
+    output folder."""
+    import shutil
+
+    import h5py
+
+    from seqmotion.cli import main
+
+    data = tmp_path / "d"
+    data.mkdir()
+    shutil.copy(data_dir / "motions.h5", data / "motions.h5")
+    with h5py.File(data / "motions.h5", "r+") as f:
+        f["motions/master_tau"][0, 40, 1] = value  # sample 40: taken at the decoder's 20 ms (every 20th)
+    out = tmp_path / "t"
+    rc = main(["lfd", "train", "--data", str(data), "--out", str(out), "--preset", "tiny", "--methods", "seqae",
+               "--seqae-epochs", "2", "--keep-failed", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert "motions.h5: master_tau" in err and "episode 0, sample 2" in err, err
+    assert not out.exists()

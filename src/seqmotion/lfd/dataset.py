@@ -439,7 +439,29 @@ class PushingDataset:
         if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
             raise ValueError(f"every must be a positive integer, got {every!r}")
         index = slice(None) if episodes is None else np.asarray(episodes)
-        return np.concatenate([self.motions[k][index, ::every] for k in MOTION_KEYS], axis=-1)
+        parts = [np.asarray(self.motions[k][index, ::every]) for k in MOTION_KEYS]
+        for key, values in zip(MOTION_KEYS, parts, strict=True):
+            check_motion_values(values, f"{self.path}: {key}", None if episodes is None else np.asarray(episodes))
+        return np.concatenate(parts, axis=-1)
+
+
+MAX_MOTION_VALUE = 1e6
+"""The largest magnitude a recorded angle [rad], velocity [rad/s] or torque [N m] may have. Physical values are
+orders of magnitude below it; a larger one (1e20, 3e38) is a corrupt file, and its square overflows float32 into
+an infinite loss."""
+
+
+def check_motion_values(values: np.ndarray, where: str, episodes: np.ndarray | None = None) -> None:
+    """``ValueError`` naming ``where`` and the first bad entry if ``values`` ``(N, K, ...)`` hold a NaN, an
+    infinity or a magnitude above :data:`MAX_MOTION_VALUE`: training on them would write a NaN policy.
+    ``episodes`` ``(N,)``: the episode numbers of the rows (default ``0..N-1``), for the message."""
+    values = np.asarray(values)
+    bad = ~np.isfinite(values) | (np.abs(values) > MAX_MOTION_VALUE)
+    if bad.any():
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        episode = first[0] if episodes is None else int(episodes[first[0]])
+        raise ValueError(f"{where} holds {float(values[first])!r} at episode {episode}, sample {first[1]} "
+                         f"(values must be finite and within ±{MAX_MOTION_VALUE:g}): the data are corrupt")
 
 
 def load_dataset(path: str | Path) -> PushingDataset:

@@ -316,7 +316,7 @@ def _epochs(
             if len(idx) < min_batch:
                 continue
             loss = batch_loss(idx)
-            loop.step(loss)
+            loop.step(loss, about=f" ({desc}, epoch {epoch + 1})")
             total += loss.item() * len(idx)
         history["loss"].append(total / n)
         bar.set_postfix(loss=f"{history['loss'][-1]:.4f}")

@@ -264,8 +264,16 @@ class TrainingLoop:
             self.lr, self.lr_final_fraction, self.steps if step is None else step, self.total_steps
         )
 
-    def step(self, loss: torch.Tensor) -> None:
-        """Backpropagate ``loss``, reduce and clip the gradients, take one Adam step at the scheduled rate."""
+    def step(self, loss: torch.Tensor, about: str = "") -> None:
+        """Backpropagate ``loss``, reduce and clip the gradients, take one Adam step at the scheduled rate.
+
+        Raises:
+            FloatingPointError: ``loss`` is not finite (``about`` is added to the message, e.g. the loss terms).
+                No step is taken, so the weights stay as they were: a non-finite loss (from non-finite or
+                overflowing data, or a diverged run) must never reach the weights and then be saved.
+        """
+        if not bool(torch.isfinite(loss.detach()).all()):
+            raise FloatingPointError(f"non-finite loss at step {self.steps}{about}: {loss.detach().tolist()}")
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if self.reduce_gradients is not None:

@@ -281,9 +281,7 @@ def _run(
                 loss, terms = step_loss(task, model, batch, params, options, coins, dynamics)
         else:
             loss, terms = step_loss(task, model, batch, params, options, coins, dynamics)
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"non-finite loss at step {step} (epoch {epoch}): {terms}")
-        loop.step(loss)
+        loop.step(loss, about=f" (epoch {epoch}): {terms}")
         step = loop.steps
 
         terms = {"loss": float(loss.detach()), **terms}
