@@ -25,7 +25,7 @@ if importlib.util.find_spec("viser") is None:
 
 import msgspec
 import viser
-from websockets.exceptions import InvalidStatus
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
 from seqmotion.view import guard
@@ -126,6 +126,115 @@ def test_the_allowed_origins_follow_the_host_and_the_address_served():
     assert "http://192.168.1.5:8080" in guard.allowed_origins("::", ("::ffff:192.168.1.5", 8080, 0, 0))
     assert not guard.origin_allowed(["http://localhost:8080", "http://localhost:8080"], "127.0.0.1",
                                     ("127.0.0.1", 8080))  # one Origin only
+
+
+# --- connections and messages -----------------------------------------------------------------------
+
+
+@pytest.fixture
+def bare_server():
+    """A server of its own (no panels): a test that counts connections sees only its own."""
+    server = guard.start_server("127.0.0.1", 0, verbose=False)
+    try:
+        yield server
+    finally:
+        server.stop()
+        thread = server._websock_server._server_thread
+        thread.join(30)
+        assert not thread.is_alive()
+
+
+def closed(ws: ClientConnection, timeout: float = 5.0) -> int | None:
+    """The code the server closed ``ws`` with (what it sends before is read and dropped); None: still open after
+    ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    try:
+        while (left := end - time.monotonic()) > 0:
+            ws.recv(timeout=left)
+    except TimeoutError:
+        return None
+    except ConnectionClosed as exc:
+        return None if exc.rcvd is None else exc.rcvd.code
+    return None
+
+
+def test_connections_beyond_the_cap_are_refused_before_the_upgrade(bare_server, monkeypatch):
+    monkeypatch.setattr(guard, "MAX_CONNECTIONS", 3)
+    port = bare_server.get_port()
+
+    def opened() -> ClientConnection:
+        return connect(f"ws://127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", proxy=None, open_timeout=10,
+                       subprotocols=[f"viser-v{viser.__version__}"], compression=None)
+
+    held = [opened() for _ in range(3)]
+    try:
+        with pytest.raises(InvalidStatus) as refused:
+            opened().close()
+        assert refused.value.response.status_code == 503
+        page = http.client.HTTPConnection("127.0.0.1", port, timeout=5)  # the page itself is still served
+        page.request("GET", "/")
+        assert page.getresponse().status == 200
+        page.close()
+        held.pop().close()
+
+        def admitted() -> bool:
+            try:
+                held.append(opened())
+            except InvalidStatus:
+                return False
+            return True
+
+        wait_for(admitted, timeout=10, what="a connection in the place of one that ended")
+    finally:
+        for ws in held:
+            ws.close()
+
+
+def test_a_message_over_the_cap_is_refused_before_it_is_decoded(app, monkeypatch):
+    decoded: list[int] = []
+    decode = msgspec.msgpack.decode
+
+    def spy(raw: bytes, *args: Any, **kwargs: Any) -> Any:  # every message the server decodes, by its size
+        decoded.append(len(raw))
+        return decode(raw, *args, **kwargs)
+
+    monkeypatch.setattr(msgspec.msgpack, "decode", spy)
+    panel = app.panels["pancake"]
+    big = 1 << 20  # over the cap, far under viser's own 50 MiB
+    with client(app) as other:
+        ws = client(app)
+        send(ws, panel.length, "x" * big)
+        assert closed(ws) == 1009  # message too big: the frame's header is enough to refuse it
+        ws.close()
+        assert all(n < big for n in decoded)
+        since = time.perf_counter()  # the other page is still served
+        send(other, panel.length, 600)
+        settle(app, "pancake.event", since)
+        assert panel.frame.controls.length == 600
+    panel.length.value = 500
+    assert app.wait_idle(60)
+
+
+def test_a_message_that_does_not_decode_is_refused_quietly(app, caplog, capfd):
+    encode = msgspec.msgpack.encode
+    uuid = app.panels["pancake"].length._impl.uuid
+    nested = (b"\x83" + encode("type") + encode("GuiUpdateMessage") + encode("uuid") + encode(uuid)
+              + encode("updates") + b"\x81" + encode("value") + b"\x91" * 5000 + b"\xc0")
+    hostile = {"a value nested 5,000 deep": nested, "an array nested 20,000 deep": b"\x91" * 20_000 + b"\xc0",
+               "not msgpack": b"\xc1", "not a map": encode(7), "no such message": encode({"type": "NoSuchMessage"}),
+               "a message with wrong fields": encode({"type": "GuiUpdateMessage", "nonsense": 1}),
+               "a text frame": '{"type": "GuiUpdateMessage"}'}
+    capfd.readouterr()
+    for name, raw in hostile.items():
+        ws = client(app, camera=False)
+        ws.send(raw)
+        assert closed(ws) == 1007, name  # invalid data
+        ws.close()
+    client(app).close()  # and the next page is let in
+    assert app.wait_idle(60)
+    assert not [r for r in caplog.records if r.exc_info or r.levelno >= 40], caplog.text
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "RecursionError" not in err, err
 
 
 # --- files ------------------------------------------------------------------------------------------
@@ -278,8 +387,10 @@ def test_a_page_may_change_a_controls_value_only(app):
 
 
 HOSTILE = [1e308, -1e308, 1e8, -1e8, math.nan, math.inf, -math.inf, 0, -1, "x/../../../victim.csv", "../victim",
-           "", [1, 2, 3], [math.nan, 0.0, 0.0], [1e9, -1e9, 1e9], {"a": 1}, None, True, "9" * 5000, "x" * 100_000]
-"""Out of range, NaN, wrong types and huge values, as a client can send them to any control."""
+           "", [1, 2, 3], [math.nan, 0.0, 0.0], [1e9, -1e9, 1e9], {"a": 1}, None, True, "9" * 5000,
+           "x" * (guard.MAX_MESSAGE // 2)]
+"""Out of range, NaN, wrong types and huge values, as a client can send them to any control (a message over
+``guard.MAX_MESSAGE`` closes its connection: see the tests of the connections)."""
 
 
 def test_every_control_survives_hostile_values(app):

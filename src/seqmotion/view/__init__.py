@@ -12,8 +12,9 @@ path of its first two metre fields where it has them, and export. Only the built
 
 What is drawn is computed by plain classes in :mod:`.sessions` (testable without a browser); the
 viser layer (:mod:`.app`, imported only when the server starts) only moves their arrays to the page.
-What a page sends is checked on the server (:mod:`.guard`): a WebSocket from a foreign origin is refused,
-a control's value is clamped to its slider or must be one of its options, and exports stay in ``out``.
+What a page sends is checked on the server (:mod:`.guard`): a WebSocket from a foreign origin is refused, so
+are connections beyond a cap and messages too long or not viser's (before they are decoded), a control's value
+is clamped to its slider or must be one of its options, and exports stay in ``out``.
 """
 
 from __future__ import annotations

@@ -6,8 +6,10 @@ a ``GuiUpdateMessage`` may rewrite any property of a control (``disabled``, ``op
 Each defence is in one place here:
 
 * :func:`start_server` — a viser server whose WebSocket handshake answers **403** to a page of a foreign
-  origin (:func:`checking_origin`) and whose pages may change a control's ``value`` and nothing else
-  (:func:`values_only`).
+  origin and **503** beyond :data:`MAX_CONNECTIONS` open connections, which closes a connection whose message
+  is over :data:`MAX_MESSAGE` bytes before reading it, or is not one of viser's messages (undecodable,
+  nested too deep) before viser decodes it (:func:`guarding`), and whose pages may change a control's
+  ``value`` and nothing else (:func:`values_only`).
 * :class:`Controls` — every control the server reads is declared with its range (sliders, vectors),
   options (dropdowns) or length (text); :meth:`Controls.read` clamps a number into its range and
   refuses, by the control's name, what is not a number or not an option.
@@ -33,6 +35,15 @@ WILDCARD_HOSTS = ("", "0.0.0.0", "::")
 """Bind addresses that mean "every interface" (not a host a page can be served from)."""
 MAX_TEXT = 2000
 """The most characters a text control takes unless declared otherwise (the spline's 50 points fit easily)."""
+MAX_CONNECTIONS = 32
+"""The most WebSocket connections one viewer keeps open (a page holds one): a further handshake is answered
+HTTP 503 before the upgrade, so idle connections cannot pile up (1,500 held half a gigabyte). A program that
+holds them all keeps pages out, as it could by any other load on this machine. Read at each handshake."""
+MAX_MESSAGE = 64 * 1024
+"""The most bytes one message from a page may have (viser allows 50 MiB; the largest a page of this viewer
+sends, a text of :data:`MAX_TEXT` characters, is under 8 kB): a longer one closes its connection (code 1009)
+on its frame's header, before its payload is read. With websockets' queue of 16 messages a connection, the
+open connections buffer about 32 MiB at most. Read when a server starts."""
 
 
 # --- the WebSocket handshake -----------------------------------------------------------------------
@@ -84,19 +95,24 @@ _log = logging.getLogger(__name__)
 
 def start_server(host: str, port: int, controls: Controls | None = None,
                  on_refused: Callable[[str], None] | None = None, **kwargs: Any) -> Any:
-    """A ``viser.ViserServer`` at ``host:port`` (``kwargs``: its other arguments) that refuses foreign origins
-    (:func:`checking_origin`) and lets a page change values only, each checked on arrival against ``controls``
-    (:func:`values_only`; ``on_refused`` gets the message of a value refused); RuntimeError, and no server left
-    running, where either cannot be installed (a viser version that works differently)."""
+    """A ``viser.ViserServer`` at ``host:port`` (``kwargs``: its other arguments) that refuses foreign origins,
+    connections beyond :data:`MAX_CONNECTIONS` and messages that are too long or not viser's (:func:`guarding`),
+    and lets a page change values only, each checked on arrival against ``controls`` (:func:`values_only`;
+    ``on_refused`` gets the message of a value refused); RuntimeError, and no server left running, where either
+    cannot be installed (a viser version that works differently)."""
     import viser
+    from viser._messages import Message
 
     wrapped: list[int] = []
-    with checking_origin(host, wrapped):
+    with guarding(host, wrapped):
         server = viser.ViserServer(host=host, port=port, **kwargs)
     try:
         if not wrapped:
             raise RuntimeError("viser did not start its server through websockets.asyncio.server.serve: the "
                                "viewer's Origin check could not be installed (an unsupported viser version?)")
+        if getattr(server._websock_server, "_message_class", None) is not Message:
+            raise RuntimeError("viser decodes its messages with another class than viser._messages.Message: the "
+                               "viewer's message check could not be installed (an unsupported viser version?)")
         values_only(server, controls, on_refused)
     except BaseException:
         server.stop()
@@ -105,21 +121,31 @@ def start_server(host: str, port: int, controls: Controls | None = None,
 
 
 @contextlib.contextmanager
-def checking_origin(host: str, wrapped: list[int]) -> Iterator[None]:
-    """Start a ``viser.ViserServer`` inside this block and its WebSocket handshake refuses foreign origins.
+def guarding(host: str, wrapped: list[int]) -> Iterator[None]:
+    """Start a ``viser.ViserServer`` inside this block and its WebSocket connections are bounded and checked.
 
     viser has no hook for its handshake: its server thread calls ``websockets.asyncio.server.serve(...,
     process_request=...)`` (every attempt at a port, before the constructor returns). While this block
-    runs, that function is replaced by one that wraps viser's ``process_request``: a WebSocket upgrade
-    whose Origin :func:`origin_allowed` refuses gets HTTP 403 before viser sees it. Each wrapped call
-    appends to ``wrapped`` (empty afterwards: viser started its server some other way, unchecked).
+    runs, that function is replaced by one that
+
+    * wraps viser's ``process_request``: a WebSocket upgrade whose Origin :func:`origin_allowed` refuses
+      gets HTTP 403, one beyond :data:`MAX_CONNECTIONS` open connections HTTP 503, before viser sees it;
+    * sets ``max_size`` to :data:`MAX_MESSAGE` (websockets refuses a longer message on its frame's header);
+    * checks each message of an admitted connection before viser's reader gets it (:func:`checking_messages`).
+
+    Each wrapped call appends to ``wrapped`` (empty afterwards: viser started its server some other way,
+    unchecked).
     """
     import websockets.asyncio.server as ws_server
+    from websockets.protocol import State
 
     original = ws_server.serve
 
     def serve(*args: Any, **kwargs: Any) -> Any:
         inner = kwargs.get("process_request")
+        # this server's upgrades let through, until their connection is closed: counted from the handshake on,
+        # since a burst of handshakes all pass this check before any of them reaches viser's handler
+        admitted: set[Any] = set()
 
         def process_request(connection: Any, request: Any) -> Any:
             if any("websocket" in v.lower() for v in request.headers.get_all("Upgrade")):
@@ -127,9 +153,16 @@ def checking_origin(host: str, wrapped: list[int]) -> Iterator[None]:
                 if not origin_allowed(origins, host, connection.local_address):
                     return connection.respond(http.HTTPStatus.FORBIDDEN,
                                               f"seqmotion view: origin {', '.join(origins)} refused\n")
+                admitted.difference_update([c for c in admitted if c.state is State.CLOSED])
+                if len(admitted) >= MAX_CONNECTIONS:
+                    return connection.respond(http.HTTPStatus.SERVICE_UNAVAILABLE,
+                                              f"seqmotion view: {MAX_CONNECTIONS} connections are open already\n")
+                admitted.add(connection)
+                checking_messages(connection)
             return None if inner is None else inner(connection, request)
 
         kwargs["process_request"] = process_request
+        kwargs["max_size"] = MAX_MESSAGE
         wrapped.append(1)
         return original(*args, **kwargs)
 
@@ -139,6 +172,50 @@ def checking_origin(host: str, wrapped: list[int]) -> Iterator[None]:
             yield
         finally:
             ws_server.serve = original
+
+
+def checking_messages(connection: Any) -> None:
+    """Close ``connection`` (code 1007, one warning logged) at its first message that is not one of viser's:
+    a text frame, bytes that are not msgpack, msgpack nested too deep to decode (msgspec recurses once per
+    level: a kilobyte of nested arrays, far under :data:`MAX_MESSAGE`, raises RecursionError), an unknown
+    message type, wrong fields.
+
+    viser's reader (``recv()``, then ``Message.deserialize``) lets such a message's exception end the
+    connection's handler, which websockets logs with its traceback. Here ``recv`` is wrapped: a message is
+    passed on only once ``Message.deserialize`` has taken it, and viser's own call on the same bytes,
+    from a shallower stack, cannot fail then. After a refusal nothing more is passed on, messages already
+    queued included: the wrapper waits for the end of the connection, whose ConnectionClosed viser expects.
+    """
+    from viser._messages import Message
+    from websockets.frames import CloseCode
+
+    recv = connection.recv
+
+    async def checked_recv(*args: Any, **kwargs: Any) -> Any:
+        raw = await recv(*args, **kwargs)
+        if not isinstance(raw, bytes):
+            why = "a text message (viser's are binary)"
+        else:
+            try:
+                Message.deserialize(raw)
+                return raw
+            except RecursionError:
+                why = "a message nested too deep"
+            except Exception as exc:  # whatever viser's decoder raises on it, viser's reader would raise too
+                why = f"not a viser message ({type(exc).__name__}: {_short(str(exc))})"
+        _log.warning("seqmotion view: closed a connection from %s: %s", _peer(connection), why)
+        await connection.close(CloseCode.INVALID_DATA, "seqmotion view: not a viser message")
+        while True:  # ends in ConnectionClosed
+            await recv(*args, **kwargs)
+
+    connection.recv = checked_recv
+
+
+def _peer(connection: Any) -> str:
+    try:
+        return str(connection.remote_address[0])
+    except Exception:  # a connection already gone has no address
+        return "?"
 
 
 def values_only(server: Any, controls: Controls | None = None,
