@@ -237,6 +237,8 @@ def _unpack(node: Any, arrays: dict[str, np.ndarray], home: Any) -> Any:
         if array.dtype.kind not in "biuf":
             raise ValueError(f"array {node['array']!r} holds {array.dtype}, not numbers")
         kind = node.get("as")
+        if kind != "ndarray" and array.ndim:  # saved from one number: a file holding more was not written so
+            raise ValueError(f"array {node['array']!r} has shape {array.shape}, expected () (one value)")
         return array if kind == "ndarray" else array[()] if kind == "numpy" else array.item()
     if "str" in node:
         return _text(arrays[node["str"]], node["str"])
@@ -287,7 +289,8 @@ def load_result(path: str | Path) -> TrustSignals:
     Raises:
         ValueError: a missing file, not an ``.npz``, a file that ``result.save`` did not write (e.g.
             ``np.savez`` of ``vars(result)``, whose object arrays need pickle), an array that holds objects
-            (naming it), an unknown result class, or a malformed layout.
+            (naming it), an unknown result class, a malformed layout, or arrays that do not fit the task's
+            layout or each other (:func:`check_arrays`: naming the array, expected vs got shape).
     """
     path = Path(path)
     if not path.is_file():
@@ -326,9 +329,113 @@ def load_result(path: str | Path) -> TrustSignals:
         raise
     try:
         values = {name: _unpack(node, arrays, sys.modules[cls.__module__]) for name, node in nodes.items()}
-        return cls(**_join_views(values, views))
+        result = cls(**_join_views(values, views))
     except (ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
         raise ValueError(f"{path}: cannot rebuild the {cls.__name__}: {exc}") from None
+    check_arrays(result, path)
+    return result
+
+
+def _dims(*dims: object) -> str:
+    """``(2, K, 6)`` / ``(9,)``: a shape for messages, with symbols where a size is free."""
+    return f"({', '.join(map(str, dims))}{',' if len(dims) == 1 else ''})"
+
+
+def _task_of(name: str | None) -> Any:
+    """The installed task called ``name``, or None (no name, or a task not installed here)."""
+    if not name:
+        return None
+    try:
+        return registry.get(name)
+    except ValueError:
+        return None
+
+
+def check_arrays(result: TrustSignals, source: str | Path) -> None:
+    """``ValueError`` naming ``source`` and the array unless a result's arrays belong together: ``states``
+    ``([B,] K, S)`` (floats, finite, K ≥ 2; S the task's state columns when the task is installed), ``accel``
+    ``([B,] K-1, d)`` (d its accel columns), ``latent`` ``([B,] L)``, ``violation`` and the class's other
+    :attr:`Motion.per_transition` fields ``([B,] K-1)``, ``uncertainty`` ``([B,] K, P)`` (≥ 0), and each error,
+    ``out_of_distribution``, ``exact`` and ``length`` (2 … K) one value per motion.
+
+    :func:`load_result` calls it: a file is data from anywhere, and arrays that do not fit each other would
+    otherwise be plotted, written to CSV or fed to a robot as if they did. A result without ``states`` and
+    ``accel`` has nothing sharing their time and is left as it is.
+    """
+    values = {f.name: getattr(result, f.name) for f in fields(result)}
+    if "states" not in values or "accel" not in values:
+        return
+    task = _task_of(result.task)
+    state_layout, accel_layout = (getattr(task, name, None) for name in ("state_layout", "accel_layout"))
+    uncertainty_fields = getattr(task, "uncertainty_fields", None)
+
+    def refuse(name: str, what: str) -> ValueError:
+        return ValueError(f"{source}: array {name!r} {what}")
+
+    def floats(name: str, finite: bool = True) -> np.ndarray:
+        value = values[name]
+        if not isinstance(value, np.ndarray):
+            raise refuse(name, f"is a {type(value).__name__}, expected an array of floats")
+        if value.dtype.kind != "f":  # bool or integer motions are no generator's output
+            raise refuse(name, f"holds {value.dtype}, expected floats")
+        if finite and not np.isfinite(value).all():
+            raise refuse(name, "holds NaN or inf")
+        return value
+
+    states = floats("states")
+    if states.ndim not in (2, 3):
+        raise refuse("states", f"has shape {_dims(*states.shape)}, expected (K, S) or (B, K, S)")
+    lead, k = states.shape[:-2], states.shape[-2]
+    if k < 2:
+        raise refuse("states", f"has {k} sample{'s' * (k != 1)}, expected K ≥ 2")
+    if isinstance(state_layout, StateLayout) and states.shape[-1] != state_layout.dim:
+        raise refuse("states", f"has shape {_dims(*states.shape)}, expected {_dims(*lead, 'K', state_layout.dim)}: "
+                               f"the columns of {state_layout} (task {result.task!r})")
+    accel = floats("accel")
+    width = accel_layout.dim if isinstance(accel_layout, StateLayout) else None
+    if accel.shape[:-1] != (*lead, k - 1) or width not in (None, accel.shape[-1]):
+        names = "" if width is None else f": the columns of {accel_layout}"
+        raise refuse("accel", f"has shape {_dims(*accel.shape)}, expected {_dims(*lead, k - 1, width or 'd')} (K-1 = "
+                              f"{k - 1} transitions of the states {_dims(*states.shape)}){names}")
+    if values.get("latent") is not None:
+        latent = floats("latent")
+        if latent.ndim != len(lead) + 1 or latent.shape[:-1] != lead:
+            raise refuse("latent", f"has shape {_dims(*latent.shape)}, expected {_dims(*lead, 'L')} (one latent per "
+                                   f"motion of the states {_dims(*states.shape)})")
+    for name in getattr(type(result), "per_transition", ("violation",)):
+        if values.get(name) is not None and floats(name).shape != (*lead, k - 1):
+            raise refuse(name, f"has shape {_dims(*values[name].shape)}, expected {_dims(*lead, k - 1)} (one value "
+                               f"per transition of the states {_dims(*states.shape)})")
+    if values.get("uncertainty") is not None:
+        std = floats("uncertainty", finite=False)  # an overflowed std is inf, and says so honestly
+        # as TrainedModel.uncertainty_names: the task's fields, else the first states, one per accel column
+        p = len(uncertainty_fields) if uncertainty_fields else width
+        if std.shape[:-1] != (*lead, k) or not (std.shape[-1] == p if p else 1 <= std.shape[-1] <= states.shape[-1]):
+            expected = _dims(*lead, k, p or f"P ≤ {states.shape[-1]}")
+            raise refuse("uncertainty", f"has shape {_dims(*std.shape)}, expected {expected} (a std per sample of the "
+                                        f"states {_dims(*states.shape)})")
+        if not (std >= 0).all():
+            raise refuse("uncertainty", "holds negative values or NaN, expected standard deviations")
+    per_motion = {f"errors.{key}": value for key, value in (values.get("errors") or {}).items()}
+    per_motion |= {name: values.get(name) for name in ("out_of_distribution", "exact", "length")}
+    for name, value in per_motion.items():
+        if value is None:
+            continue
+        if not isinstance(value, (np.ndarray, np.generic, bool, int, float)):
+            raise refuse(name, f"is a {type(value).__name__}, expected a number per motion")
+        if np.shape(value) != lead:
+            raise refuse(name, f"has shape {_dims(*np.shape(value))}, expected {_dims(*lead)} (one value per motion "
+                               f"of the states {_dims(*states.shape)})")
+    if values.get("length") is not None:
+        length = np.asarray(values["length"])
+        if length.dtype.kind not in "iu":
+            raise refuse("length", f"holds {length.dtype}, expected integers")
+        wrong = length[(length < 2) | (length > k)]
+        if wrong.size:
+            raise refuse("length", f"is {int(wrong.flat[0])}, expected 2 … K = {k} (the states' samples)")
+    reasons = values.get("ood_reasons")
+    if reasons is not None and lead and (len(reasons) != lead[0] or not all(isinstance(r, list) for r in reasons)):
+        raise refuse("ood_reasons", f"holds {len(reasons)} entries, expected {lead[0]} lists (one per motion)")
 
 
 def _join_views(values: dict[str, Any], views: Mapping[str, View]) -> dict[str, Any]:
@@ -462,6 +569,10 @@ class Motion(TrustSignals):
     accel: np.ndarray
     latent: np.ndarray | None
     violation: np.ndarray | None = None
+
+    per_transition: ClassVar[tuple[str, ...]] = ("violation",)
+    """The fields holding one value per transition, ``([B,] K-1)`` floats (:func:`check_arrays` checks them on
+    load); a task's result class with more of them (an angle per transition, say) lists them all."""
 
     views: ClassVar[Mapping[str, View]] = MappingProxyType({})
     """A task's names for parts of ``states`` and ``accel`` (name → :class:`View`), each readable as an

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -383,6 +383,7 @@ class DeformResult(Motion):
     """
 
     psi: np.ndarray | None = None
+    per_transition: ClassVar[tuple[str, ...]] = ("violation", "psi")  # load_result checks each is (K-1,)
 
 
 class Deformer(TrainedModel):

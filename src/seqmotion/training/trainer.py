@@ -40,6 +40,7 @@ rerunning the command resumes bit for bit and rewrites a top-level model the kil
 
 from __future__ import annotations
 
+import numbers
 import os
 import sys
 from pathlib import Path
@@ -217,15 +218,98 @@ def step_loss(
     """One training step's loss, as the loop computes it: ``task.loss`` with the NumPy ``batch`` moved to the
     model's device, typed curriculum ``params`` (a dict of the curriculum's values is typed here), typed
     ``options`` (a ``TrainConfig``'s are read here) and the task's ``dynamics`` at its physics (built here
-    unless given; the loop builds them once)."""
+    unless given; the loop builds them once).
+
+    Raises:
+        ValueError: the batch is not what ``task.sample`` promises (:func:`check_batch`), or ``task.loss``
+            returned something other than a scalar loss and a dict of floats (:func:`check_loss`); the message
+            names the task, the method and the shapes.
+    """
     if isinstance(options, TrainConfig):
         options = task.options(options)
     if isinstance(params, dict):
         params = task.params(params)
     if dynamics is None:
         dynamics = task.dynamics(options, task.physics(options))
+    check_batch(task, batch)
     device = next(model.parameters()).device
-    return task.loss(model, batch.to(device), dynamics, params, options, generator)
+    return check_loss(task, task.loss(model, batch.to(device), dynamics, params, options, generator))
+
+
+def _shape(shape: tuple[int, ...]) -> str:
+    return f"({', '.join(map(str, shape))}{',' if len(shape) == 1 else ''})"
+
+
+def _described(value: Any) -> str:
+    """``"of shape (8, 200, 3)"`` for an array, ``"of type list"`` for anything else (for messages)."""
+    return f"of shape {_shape(value.shape)}" if isinstance(value, np.ndarray) else f"of type {type(value).__name__}"
+
+
+def check_batch(task: Any, batch: Any) -> None:
+    """``ValueError`` naming the task unless ``batch`` is what :meth:`Task.sample` promises: ``states``
+    ``(B, K, input_dim)`` of numbers, ``lengths`` ``(B,)`` integers in ``[2, K]``, ``accel`` ``(B, K-1, ·)`` or
+    None, every extra with B rows.
+
+    A plug-in's slip otherwise surfaces deep in the model as a broadcasting ``RuntimeError`` — or trains on
+    nonsense without a word (lengths past the padding, accelerations of another length). Shapes and dtypes
+    only, plus the ``(B,)`` lengths' range: the per-step cost is nil and nothing waits for a device."""
+    def refuse(what: str) -> ValueError:
+        return ValueError(f"task {getattr(task, 'name', task)!r}: sample() returned {what}")
+
+    if not all(hasattr(batch, name) for name in ("states", "lengths", "to")):
+        raise refuse(f"a {type(batch).__name__}, expected a TrajectoryBatch (states, lengths, accel, extras)")
+    layout = getattr(task, "input_layout", None)  # the encoder reads the sampled motions in this layout
+    width = "input_dim" if layout is None else layout.dim
+    states, lengths, accel = batch.states, batch.lengths, getattr(batch, "accel", None)
+    if not isinstance(states, np.ndarray) or states.ndim != 3 or (layout is not None and states.shape[2] != width):
+        rows = states.shape[0] if isinstance(states, np.ndarray) and states.ndim == 3 else "B"
+        names = "" if layout is None else f" (the columns of {layout})"
+        raise refuse(f"states {_described(states)}, expected ({rows}, K, {width}){names}")
+    if states.dtype.kind not in "fiu":  # bool or text would be cast silently by the move to the device
+        raise refuse(f"states of dtype {states.dtype}, expected numbers (floats)")
+    n, k = states.shape[:2]
+    if not isinstance(lengths, np.ndarray) or lengths.shape != (n,):
+        raise refuse(f"lengths {_described(lengths)}, expected ({n},): one per trajectory of the states")
+    if lengths.dtype.kind not in "iu":
+        raise refuse(f"lengths of dtype {lengths.dtype}, expected integers")
+    if n and not 2 <= int(lengths.min()) <= int(lengths.max()) <= k:
+        raise refuse(f"lengths from {int(lengths.min())} to {int(lengths.max())}, expected between 2 and K = {k} "
+                     "(the states' padded length)")
+    if accel is not None and (not isinstance(accel, np.ndarray) or accel.ndim != 3 or accel.shape[:2] != (n, k - 1)):
+        raise refuse(f"accel {_described(accel)}, expected ({n}, {k - 1}, accel_dim) or None")
+    for name, value in (getattr(batch, "extras", None) or {}).items():
+        if np.ndim(value) == 0 or np.shape(value)[0] != n:  # rows are selected per data-parallel rank
+            raise refuse(f"extras[{name!r}] {_described(value)}, expected ({n}, ...)")
+
+
+def check_loss(task: Any, out: Any) -> tuple[torch.Tensor, dict[str, float]]:
+    """``out`` — what :meth:`Task.loss` returned — when it is ``(loss, terms)`` with a scalar tensor loss that
+    depends on the weights and a dict of terms; else ``ValueError`` naming the task and what it got.
+
+    Otherwise a vector loss fails in ``backward`` ("grad can be implicitly created only for scalar outputs")
+    and a detached one with "does not require grad". Shape and flags only: no value is read here (whether
+    it is finite is the loop's check, which reads it once anyway)."""
+    def refuse(what: str) -> ValueError:
+        return ValueError(f"task {getattr(task, 'name', task)!r}: loss() returned {what}")
+
+    if not isinstance(out, tuple) or len(out) != 2:
+        raise refuse(f"a {type(out).__name__}, expected (loss, terms): a scalar tensor and a dict of named floats")
+    loss, terms = out
+    if not isinstance(loss, torch.Tensor):
+        raise refuse(f"a loss of type {type(loss).__name__}, expected a scalar torch.Tensor")
+    if loss.numel() != 1:  # (1,) is accepted: backward takes it as a scalar
+        raise refuse(f"a loss of shape {_shape(tuple(loss.shape))}, expected a scalar (shape ()), e.g. its .mean()")
+    if not loss.is_floating_point():
+        raise refuse(f"a loss of dtype {loss.dtype}, expected floats")
+    if torch.is_grad_enabled() and not loss.requires_grad:
+        raise refuse("a loss that does not depend on the model's weights (requires_grad is False: detached, or "
+                     "computed without the model's outputs)")
+    if not isinstance(terms, dict):
+        raise refuse(f"terms of type {type(terms).__name__}, expected a dict of named floats")
+    for name, value in terms.items():  # logged to metrics.csv and written into the checkpoints' JSON
+        if not isinstance(name, str) or isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise refuse(f"terms[{name!r}] of type {type(value).__name__}, expected a float (e.g. float(t.detach()))")
+    return loss, terms
 
 
 def _run(
