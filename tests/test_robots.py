@@ -241,7 +241,7 @@ def test_robot_sags_without_torque_and_mujoco_clamps_torque_at_the_limit():
 def test_menagerie_arm_from_a_local_tree_loads_through_mujoco_menagerie_with_motors(menagerie_root):
     mujoco = import_mujoco()
     name = f"menagerie:{TINY_NAME}"
-    assert (name, "menagerie", 6) in {(r.name, r.source, r.dof) for r in rb.robots()}
+    assert (name, "menagerie", None) in {(r.name, r.source, r.dof) for r in rb.robots()}  # listed unread
     robot = rb.get_robot(name)
     assert robot.source == "menagerie" and robot.path == menagerie_root / TINY_NAME / robot.path.name
     assert robot.joints == ("s", "l", "u", "r", "b", "t") and robot.flange == "link6"

@@ -67,7 +67,10 @@ def list_robots(args: argparse.Namespace) -> int:
         return 0
     width = max(len(r.name) for r in found)
     for r in found:
-        print(f"{r.name:<{width}}  {r.source:<9}  {r.dof} joints  {r.path or 'built in (the default arm)'}")
+        dof = "?" if r.dof is None else r.dof  # not known without reading the file, which the listing never does
+        print(f"{r.name:<{width}}  {r.source:<9}  {dof} joints  {r.path or 'built in (the default arm)'}")
+    if any(r.dof is None for r in found):
+        print("? joints: read (and checked) when the robot is used, e.g. seqmotion simulate --robot NAME")
     if not any(r.source != "seqmotion" for r in found):
         print("no standard arms here: pip install 'seqmotion[robots]' && pip install --no-deps 'robosuite>=1.5,<1.6'")
     return 0
