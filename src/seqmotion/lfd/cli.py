@@ -176,8 +176,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "image) from the dataset's feature KEY (default: action, observation.state, observation.effort, "
         "observation.environment_state, observation.images.webcam); 'image=' imports no camera",
     )
-    p.add_argument("--set", dest="set_name", help="set name, i.e. the file name (default: the folder's name if it is "
-                   "a seqmotion set, else pairs_default with a camera, motions without)")
+    p.add_argument("--set", dest="set_name", help="set name, i.e. the file name: letters, digits, '_', '.', '-' "
+                   "(default: the folder's name if it is a seqmotion set, else pairs_default with a camera, motions "
+                   "without)")
     p.add_argument("--trim", action="store_true", help="cut every episode to the shortest (else unequal lengths "
                    "are an error)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
@@ -259,8 +260,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name}: LeRobot v3.0 dataset -> {path}")
         return 0
     if args.lfd_command == "import-lerobot":
-        from .lerobot import import_lerobot, parse_map
+        from .lerobot import check_set_name, import_lerobot, parse_map
 
+        if args.set_name is not None:  # before the folder is made: a path here would write elsewhere
+            check_set_name(args.set_name, "--set")
         check_writable_dir(args.out_dir, "OUT_DIR")
         path = import_lerobot(args.lerobot_dir, args.out_dir, parse_map(args.map), args.set_name, args.trim,
                               args.overwrite)

@@ -446,9 +446,9 @@ class PushingDataset:
 
 
 MAX_MOTION_VALUE = 1e6
-"""The largest magnitude a recorded angle [rad], velocity [rad/s] or torque [N m] may have. Physical values are
-orders of magnitude below it; a larger one (1e20, 3e38) is a corrupt file, and its square overflows float32 into
-an infinite loss."""
+"""The largest magnitude a recorded value may have (angles [rad], velocities [rad/s], torques [N m], positions
+[m]), checked before training and on a LeRobot import. A real arm's values are below 1e4; a larger one (1e20,
+3e38) is a corrupt or crafted file, and its square overflows float32 into an infinite loss."""
 
 
 def check_motion_values(values: np.ndarray, where: str, episodes: np.ndarray | None = None) -> None:
