@@ -216,7 +216,8 @@ def test_the_int8_runner_closes_the_loop_through_the_same_dynamics(bundles):
 
 
 def test_the_standalone_runner_takes_physics_too(bundles):
-    """Without seqmotion (no physics classes) the runner checks the names and that the values are finite numbers."""
+    """Without seqmotion (no physics classes) the runner checks the names, that the values are finite numbers, and
+    the ranges the contract records (the package's check: test_hardening_bundle.py)."""
     folder = bundles / "sliding"
     code = f"""
 import sys
@@ -227,7 +228,7 @@ import numpy as np
 from onnx_stepper import OnnxModel, OnnxStepper
 model = OnnxModel({str(folder)!r})
 motion = np.zeros((150, 4)); motion[:, 0] = np.linspace(0.0, 0.03, 150)
-a = model.generate(motion, physics={{"mu": 0.3}})["states"]
+a = model.generate(motion, physics={{"mu": 0.3, "mu_dyn": 0.1}})["states"]
 b = model.generate(motion)["states"]
 gen = OnnxStepper(model, motion, physics={{"mu_dyn": 0.1}})
 print(model.physics_inputs, bool(np.abs(a - b).max() > 0), gen.physics)

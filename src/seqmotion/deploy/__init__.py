@@ -10,7 +10,9 @@ The task's dynamics are a graph of the bundle, traced from the PyTorch code the 
 so any task's physics deploys (a plug-in's too) and runs at other values of the physics fields the
 graph reads. The folder is self-contained: its ``onnx_stepper.py`` runs with NumPy and onnxruntime alone. It is
 written whole (a re-export swaps it in) and sealed: ``contract.json`` carries the SHA-256 of each
-graph and of itself, and loading refuses an edited, invalid or mixed bundle (``bundle.py``).
+graph and of itself, and loading refuses an edited, invalid or mixed bundle (``bundle.py``). The seal detects
+corruption, not intent (anyone can re-seal a bundle): loading also checks each graph against the contract and
+bounds what it may run, so load only bundles you trust.
 Needs the optional extra ``pip install 'seqmotion[deploy]'`` (onnx, onnxruntime).
 """
 

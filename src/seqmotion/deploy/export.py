@@ -33,7 +33,13 @@
 * with ``int8=True`` also ``decoder_step.int8.onnx``: onnxruntime's dynamic quantisation (int8
   weights per output channel) of the layers ≥ 256 wide, like ``TrainedModel.quantized()``.
 
-OUT/ is replaced whole (:func:`write_bundle`): the bundle is written into a temporary sibling
+``contract.json`` also carries ``physics_ranges`` (:func:`physics_ranges`): the ranges and orderings of the
+physics fields the dynamics graph reads, read off the task's physics class, which the runner checks an override
+against (:func:`seqmotion.deploy.bundle.check_physics`; the standalone copy has no physics classes).
+
+With a ``check`` (``seqmotion export-onnx`` passes its parity check), the new bundle is first written
+into a folder beside OUT and checked there; only a bundle that passed is swapped in. OUT/ is
+replaced whole (:func:`write_bundle`): the bundle is written into a temporary sibling
 folder, flushed to disk, and swapped in (the old bundle renamed aside to ``.OUT.previous``, the
 new one renamed into place, the old one removed). A failure at any step leaves the old bundle; a
 kill leaves the old bundle or the new one — between the two renames the old one under its aside
@@ -45,8 +51,10 @@ from __future__ import annotations
 
 import io
 import json
+import sys
 import tempfile
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -56,9 +64,9 @@ from torch import nn
 
 from ..core.stepper import DYNAMICS_GRAPH, OUTPUTS_FOR_GRAPH, stepper_contract
 from ..core.trained import TrainedModel
-from ..io import check_writable_dir, replace_directory
+from ..io import check_writable_dir, remove_path, replace_directory, temp_sibling, write_durable
 from ..physics.parameters import Physics
-from .bundle import CONTRACT, check_contract, previous_path, seal
+from .bundle import CONTRACT, RANGES, check_contract, check_graph, physics_violation, previous_path, seal
 from .scan import expand_contact_loops
 
 OPSET = 17
@@ -314,16 +322,31 @@ def bundle_target(out: str | Path) -> Path:
     return target
 
 
-def write_bundle(out: str | Path, files: dict[str, bytes]) -> None:
+def write_bundle(out: str | Path, files: dict[str, bytes], check: Callable[[Path], None] | None = None) -> None:
     """Replace the folder ``out`` by one holding ``files`` (name → bytes), whole (module docstring;
     :func:`~seqmotion.io.replace_directory`, the old bundle set aside under the name the runner
     knows, :func:`~seqmotion.deploy.bundle.previous_path`).
 
+    Args:
+        check: called with a folder beside ``out`` holding ``files`` before anything at ``out`` changes; what it
+            raises ends the export with the old bundle untouched (the folder is removed either way).
+
     Raises:
-        ValueError: ``out`` is not a folder a bundle may replace (:func:`bundle_target`).
+        ValueError: ``out`` is not a folder a bundle may replace (:func:`bundle_target`), or ``check`` refused.
         OSError: a write, flush or rename failed (the old bundle is left as it was).
     """
     target = bundle_target(out)
+    if check is not None:
+        # a sibling under the temporaries' name: the same file system as OUT, and a killed export's copy is removed
+        # by the next export into OUT (io's orphan clean-up)
+        scratch = temp_sibling(target)
+        try:
+            scratch.mkdir()
+            for name, data in files.items():
+                write_durable(scratch / name, data)
+            check(scratch)
+        finally:
+            remove_path(scratch)
     replace_directory(target, files, previous_path(target))
 
 
@@ -490,7 +513,7 @@ def _check_traced(model: TrainedModel, physics: Physics, inputs: list[str], prot
 
 
 def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, source: str | None = None,
-                physics: Physics | None = None) -> dict[str, Any]:
+                physics: Physics | None = None, check: Callable[[Path], None] | None = None) -> dict[str, Any]:
     """Write ``model``'s encoder, decoder step, dynamics, constraint, sealed contract and runner into ``out``.
 
     Args:
@@ -502,7 +525,10 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
         source: how the model was named (recorded in the contract).
         physics: the physics the contract records as the deployed model's default, a physics of the model's
             kind (default: the model's own, ``model.physics``); the runner may override the fields the
-            dynamics graph reads (``OnnxStepper(..., physics={"mu": 0.8})``).
+            dynamics graph reads (``OnnxStepper(..., physics={"mu": 0.8})``) within the ranges of their class
+            (:func:`physics_ranges`).
+        check: run on the new bundle in a folder beside ``out`` before it replaces ``out``
+            (:func:`write_bundle`; ``seqmotion export-onnx``: the parity check).
 
     Returns:
         The contract written to ``contract.json``.
@@ -511,7 +537,8 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
         ValueError: a model that is not a seq2seq ``TrainedModel``, physics of another kind, dynamics that
             do not trace into a graph that computes what they do (:func:`dynamics_graphs`), a contract the
             runner would refuse (e.g. a non-finite output scale), an output that is a file, not writable,
-            or a folder that is not a previous export.
+            or a folder that is not a previous export; a graph the runner would refuse
+            (:func:`~seqmotion.deploy.bundle.check_graph`); what ``check`` raises (the old bundle is left as it was).
         OSError: writing failed (the previous bundle is left as it was).
     """
     import importlib.util
@@ -596,16 +623,177 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
         },
         "runner": "python: sys.path.insert(0, OUT); from onnx_stepper import OnnxStepper; "
                   "gen = OnnxStepper(OUT, motion); u = gen.step(); u = gen.step(measured)  (numpy + onnxruntime)",
+        RANGES: physics_ranges(type(physics).from_dict(contract["dynamics"]["physics"]["values"]),
+                               contract["dynamics"]["physics"]["inputs"]),
     }
+    if contract[RANGES] is None:
+        warnings.warn(f"the rules of {type(physics).__name__} are not ranges and orderings of its fields: the bundle "
+                      f"runs at the exported physics only ({physics.describe()}); export at another with "
+                      "export_onnx(..., physics=...)", stacklevel=2)
     contract = seal(contract, blobs)
     check_contract(contract, f"the contract exported for {out}")  # what the runner would refuse is not written
+    for key, data in blobs.items():
+        check_graph(data, f"the {key} graph exported for {out} ({model.task_def.name!r} task)")
     here = Path(__file__).resolve().parent
     payload = {GRAPH_FILES[key]: data for key, data in blobs.items()}
     payload.update({name: (here / name).read_bytes() for name in RUNNER_FILES})
     payload["stepper.py"] = (here.parent / "core" / "stepper.py").read_bytes()
     payload[CONTRACT] = (json.dumps(contract, indent=2, sort_keys=True) + "\n").encode()
-    write_bundle(out, payload)
+    write_bundle(out, payload, check)
     return contract
+
+
+def example_inputs(model: TrainedModel, n: int = 2, seed: int = 0) -> np.ndarray:
+    """The task's ``example_inputs(n, seed)`` (a plug-in's own code) as the ``(n, K, input_dim)`` float64 batch a
+    parity check runs on.
+
+    Raises:
+        ValueError: naming the task and the shapes: not numbers, another shape or width, K < 2, NaN or inf.
+    """
+    task, width = model.task_def.name, model.model.cfg.encoder_input_dim
+    where = f"the {task!r} task's example_inputs({n}, seed={seed})"
+    try:
+        batch = np.asarray(model.task_def.example_inputs(n, seed=seed), dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where} are not an array of numbers: {exc}") from None
+    if batch.ndim != 3 or batch.shape[0] != n or batch.shape[2] != width or batch.shape[1] < 2:
+        raise ValueError(f"{where} have shape {batch.shape}; the model reads ({n}, K >= 2, {width}) "
+                         f"({', '.join(model.input_layout.names)})")
+    if not np.all(np.isfinite(batch)):
+        raise ValueError(f"{where} hold NaN or inf (first at {np.argwhere(~np.isfinite(batch))[0].tolist()})")
+    return batch
+
+
+# --- the physics' ranges --------------------------------------------------------------------------------------
+# The standalone runner has no physics classes, so the contract carries what the task's class accepts as data: per
+# field a lower and an upper bound, and orderings between fields (sliding: 0 < mu <= 1000, mu_dyn >= 0,
+# mu_dyn <= mu). They are read off the class itself — the one definition — by bisection over the floats, and
+# checked against it on sampled values; a class whose rules are not of this form records null (the bundle then
+# runs at its own physics only) rather than ranges that would let through what the class refuses.
+
+_FAR = sys.float_info.max
+_SIGN = 1 << 63
+
+
+def _key(value: float) -> int:
+    """An integer that orders the floats as they compare, adjacent floats adjacent (IEEE 754 bits, sign folded)."""
+    bits = int.from_bytes(np.float64(value).tobytes(), "little", signed=True)
+    return bits if bits >= 0 else -(bits & (_SIGN - 1))
+
+
+def _float(key: int) -> float:
+    bits = key if key >= 0 else (-key) | _SIGN
+    return float(np.frombuffer((bits & ((1 << 64) - 1)).to_bytes(8, "little"), dtype=np.float64)[0])
+
+
+def _edge(accepts: Callable[[float], bool], start: float, toward: float) -> tuple[float, float] | None:
+    """From ``start`` (accepted) toward ``toward`` (±the largest float): the last accepted float and the first
+    refused one, adjacent; None where ``toward`` itself is accepted (no bound that way)."""
+    if accepts(toward):
+        return None
+    good, bad = _key(start), _key(toward)
+    while abs(bad - good) > 1:
+        middle = (good + bad) // 2
+        if accepts(_float(middle)):
+            good = middle
+        else:
+            bad = middle
+    return _float(good), _float(bad)
+
+
+def _bound(edge: tuple[float, float], direction: int) -> dict[str, float]:
+    """An edge as the bound a contract states, the shorter number of the two: ``at_most 1000.0`` rather than
+    ``below 1000.0000000000001``, ``above 0.0`` rather than ``at_least 5e-324``."""
+    last, first = edge
+    if len(repr(first)) < len(repr(last)):
+        return {"below" if direction > 0 else "above": first}
+    return {"at_most" if direction > 0 else "at_least": last}
+
+
+def physics_ranges(physics: Physics, inputs: list[str]) -> dict[str, Any] | None:
+    """What ``physics``'s class accepts for the fields ``inputs`` (the others held at ``physics``'s values), as the
+    contract's ``physics_ranges``: ``{"fields": {name: {bound: value}}, "order": [[a, b], ...]}`` (``a <= b``), or
+    None when its rules are not of that form (:func:`~seqmotion.deploy.bundle.physics_violation` and the class
+    disagree on a value)."""
+    cls, base = type(physics), physics.to_dict()
+    point = {name: base[name] for name in inputs}
+
+    def accepts(values: dict[str, float]) -> bool:
+        try:
+            cls.from_dict({**base, **values})
+        except (ValueError, TypeError, ArithmeticError):  # how a physics class refuses a value
+            return False
+        return True
+
+    def edge(name: str, direction: int, at: dict[str, float]) -> tuple[float, float] | None:
+        return _edge(lambda v: accepts({**at, name: v}), at[name], direction * _FAR)
+
+    # orderings: a bound that is another field's value, and moves with it
+    order: set[tuple[str, str]] = set()
+    for name in inputs:
+        for direction in (1, -1):
+            found = edge(name, direction, point)
+            for other in inputs:
+                if other == name or found is None or found[0] != point[other]:
+                    continue
+                small, large = (name, other) if direction > 0 else (other, name)
+                moved = _moved(edge, small, large, point)
+                if moved is False:
+                    return None  # the bound follows the other field, but not as small <= large
+                if moved:
+                    order.add((small, large))
+    # each field's own bounds, with the fields it is ordered against moved out of the way
+    fields: dict[str, dict[str, float]] = {}
+    for name in inputs:
+        for direction in (1, -1):
+            at = dict(point)
+            partners = [b if direction > 0 else a for a, b in order if (a if direction > 0 else b) == name]
+            for other in partners:
+                far = edge(other, direction, at)
+                at[other] = far[0] if far is not None else direction * _FAR
+            found = edge(name, direction, at)
+            if found is not None and not any(found[0] == at[other] for other in partners):
+                fields.setdefault(name, {}).update(_bound(found, direction))
+    ranges = {"fields": fields, "order": [list(pair) for pair in sorted(order)]}
+    return ranges if _agrees(ranges, accepts, point) else None
+
+
+def _moved(edge: Callable, small: str, large: str, point: dict[str, float]) -> bool | None:
+    """Whether ``small <= large`` is an ordering: ``large`` moved up (or ``small`` down) and the bound followed it
+    exactly (True), stayed (None: an own bound that equals the other's value by chance), or moved elsewhere
+    (False: a rule that is not an ordering)."""
+    for mover, follower, direction in ((large, small, 1), (small, large, -1)):
+        far = edge(mover, direction, point)
+        target = (far[0] if far is not None else direction * _FAR)
+        middle = _float((_key(point[mover]) + _key(target)) // 2)
+        if middle == point[mover]:
+            continue  # cannot move this one: try the other
+        at = {**point, mover: middle}
+        found = edge(follower, direction, at)
+        if found is None or found[0] != middle:
+            return None if found is not None and found[0] == point[mover] else False
+        return True
+    return None
+
+
+def _agrees(ranges: dict[str, Any], accepts: Callable[[dict[str, float]], bool], point: dict[str, float]) -> bool:
+    """Whether ``ranges`` and the class agree on values around every bound, ordering and default (sampled)."""
+    candidates = {name: {value, 0.0, -1.0, 1.0, 1e-300, -1e300, 1e300} for name, value in point.items()}
+    for name, bounds in ranges["fields"].items():
+        for limit in bounds.values():
+            candidates[name].update((limit, float(np.nextafter(limit, np.inf)), float(np.nextafter(limit, -np.inf)),
+                                     2 * limit + 1, limit / 2 - 1))
+    for small, large in ranges["order"]:
+        for value in list(candidates[large]):
+            candidates[small].update((value, float(np.nextafter(value, np.inf))))
+        for value in list(candidates[small]):
+            candidates[large].update((value, float(np.nextafter(value, -np.inf))))
+    rng = np.random.default_rng(0)
+    names = list(point)
+    pools = {name: sorted(candidates[name]) for name in names}
+    samples = [dict(point)] + [{name: float(rng.choice(pools[name])) for name in names} for _ in range(400)]
+    samples += [{**point, name: value} for name in names for value in pools[name]]
+    return all(accepts(values) == (physics_violation(ranges, values) is None) for values in samples)
 
 
 def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, physics: Physics | None = None
@@ -628,5 +816,5 @@ def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, physi
             "states": float(np.max(np.abs(mine["states"] - states.cpu().numpy())))}
 
 
-__all__ = ["OPSET", "bundle_target", "check_parity", "dynamics_graph", "encoder_graph", "export_onnx",
-           "outputs_for_graph", "physics_read", "shared_constants", "to_onnx", "write_bundle"]
+__all__ = ["OPSET", "bundle_target", "check_parity", "dynamics_graph", "encoder_graph", "example_inputs", "export_onnx",
+           "outputs_for_graph", "physics_ranges", "physics_read", "shared_constants", "to_onnx", "write_bundle"]

@@ -2,8 +2,10 @@
 
 ``seqmotion export-onnx MODEL OUT/`` writes the graphs, ``contract.json`` and this file (with
 ``bundle.py``, ``stepper.py`` and ``numpy_physics.py``) into OUT/. Loading checks the bundle first (``bundle.py``): the
-contract's seal and schema, and each graph's SHA-256. On a robot computer that has only NumPy and
-onnxruntime::
+contract's seal and schema, each graph's SHA-256, then what a re-sealed bundle could hide — each graph's ops and
+constant shapes, and its inputs and outputs against the contract. The sessions run in a capped arena, and an
+output of the wrong shape or with NaN or inf is refused, in every method. On a robot computer that has only NumPy
+and onnxruntime::
 
     import sys; sys.path.insert(0, "OUT")
     from onnx_stepper import OnnxModel, OnnxStepper
@@ -13,7 +15,8 @@ onnxruntime::
 
 The task's dynamics run as the bundle's ``dynamics.onnx`` graph (traced from the PyTorch code the
 model trained with), at the physics the contract records (``contract["dynamics"]["physics"]``) or
-at other values of the fields that graph reads: ``OnnxStepper("OUT", motion, physics={"mu": 0.8})``.
+at other values of the fields that graph reads: ``OnnxStepper("OUT", motion, physics={"mu": 0.8})``, within the
+ranges the contract records for them (``physics_ranges``: ``bundle.check_physics``, the same check inside seqmotion).
 Dynamics the contract names a closed form of (``"closed_form": "double_integrator"``: the pancake's,
 the tray's) are computed in NumPy instead (``numpy_physics.py``), the same numbers without a session run.
 For a task whose outputs are not accelerations (joint torques), the stop's planned accelerations become
@@ -35,15 +38,53 @@ import numpy as np
 
 try:  # inside the seqmotion package
     from ..core.stepper import StepperCore, check_vectors
-    from ..physics.parameters import Physics
-    from .bundle import locate, read_contract, read_graphs
+    from .bundle import (
+        MAX_RUN_BYTES,
+        check_interface,
+        check_physics,
+        graph_interface,
+        locate,
+        read_contract,
+        read_graphs,
+    )
     from .numpy_physics import integrate
 except ImportError:  # the standalone copy that export-onnx writes beside the graphs
-    from bundle import locate, read_contract, read_graphs  # type: ignore[no-redef]
+    from bundle import (  # type: ignore[no-redef]
+        MAX_RUN_BYTES,
+        check_interface,
+        check_physics,
+        graph_interface,
+        locate,
+        read_contract,
+        read_graphs,
+    )
     from numpy_physics import integrate  # type: ignore[no-redef]
     from stepper import StepperCore, check_vectors  # type: ignore[no-redef]
 
-    Physics = None  # type: ignore[assignment,misc]
+_ARENA: dict[str, bool] = {}
+"""Whether this process registered the capped arena (:func:`_capped_arena`; onnxruntime keeps one per process)."""
+
+
+def _capped_arena(ort: Any) -> bool:
+    """Register, once per process, a CPU arena capped at ``MAX_RUN_BYTES`` that sessions opting in
+    (``session.use_env_allocators``) share: a graph asking for more than the cap fails in onnxruntime, before the
+    memory is taken, where no static scan could see the size (a broadcast of two constants, a shape computed in the
+    graph). False where this onnxruntime has no shared allocators (the scan of ``bundle.py`` still bounds the rest)."""
+    if "registered" not in _ARENA:
+        try:
+            info = ort.OrtMemoryInfo("Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT)
+            # extend strategy 1 (kSameAsRequested): the arena grows by what is asked, not to the next power of two,
+            # so the cap counts what the graphs hold
+            ort.create_and_register_allocator(info, ort.OrtArenaCfg(MAX_RUN_BYTES, 1, -1, -1))
+            _ARENA["registered"] = True
+        except Exception:  # any failure (an older onnxruntime, its own error types): run uncapped
+            _ARENA["registered"] = False
+    return _ARENA["registered"]
+
+
+def _first_line(exc: BaseException) -> str:
+    """onnxruntime's message on one line (its own are several, with a source location)."""
+    return " ".join(str(exc).split())[:400] or type(exc).__name__
 
 
 class OnnxModel:
@@ -60,7 +101,9 @@ class OnnxModel:
 
     Raises:
         ValueError: no bundle there, or one whose contract is unsealed, edited, of another format or invalid,
-            or whose graphs are missing or do not match their hashes (the message names the field or file).
+            whose graphs are missing, do not match their hashes, are larger than any export, hold what the exporter
+            never writes (``bundle.check_graph``), do not load in onnxruntime, or take or give other tensors than
+            the contract says (the message names the field, or the file and the tensor).
     """
 
     def __init__(self, directory: str | Path, *, int8: bool = False, threads: int = 1) -> None:
@@ -76,15 +119,29 @@ class OnnxModel:
         files = self.contract["files"]
         options = ort.SessionOptions()
         options.intra_op_num_threads = options.inter_op_num_threads = int(threads)
-        options.log_severity_level = 3
+        options.log_severity_level = 4  # an error reaches the caller as a ValueError naming the file: no log too
+        if _capped_arena(ort):
+            options.add_session_config_entry("session.use_env_allocators", "1")
 
         def session(key: str) -> Any:
-            return ort.InferenceSession(graphs[key], options, providers=["CPUExecutionProvider"])
+            where = self.where(key)
+            try:
+                # no constant folding: onnxruntime folds constants while it loads a graph, up to 1 GB each and
+                # outside the arena's cap; the exporter's graphs are folded already (torch.onnx's folding)
+                made = ort.InferenceSession(graphs[key], options, providers=["CPUExecutionProvider"],
+                                            disabled_optimizers=["ConstantFolding"])
+            except Exception as exc:  # onnxruntime's own (InvalidProtobuf, InvalidGraph, Fail, ...)
+                raise ValueError(f"{where}: onnxruntime cannot load it: {_first_line(exc)}") from None
+            check_interface(where, graph_interface(self.contract, key),
+                            [(i.name, i.shape, i.type) for i in made.get_inputs()],
+                            [(o.name, o.shape, o.type) for o in made.get_outputs()])
+            return made
 
         if int8 and files.get("decoder_step_int8") is None:
             raise ValueError(f"{self.directory} has no int8 decoder_step graph (export with --int8)")
+        self._decoder_key = "decoder_step_int8" if int8 else "decoder_step"
         self.encoder = session("encoder")
-        self.decoder = session("decoder_step_int8" if int8 else "decoder_step")
+        self.decoder = session(self._decoder_key)
         self.dynamics_session = session("dynamics")
         self.violation_session = session("violation") if files.get("violation") else None
         self.outputs_for_session = session("outputs_for") if files.get("outputs_for") else None
@@ -110,6 +167,29 @@ class OnnxModel:
         self._default_vector = self.physics_vector(None)
         self._pads: dict[int, np.ndarray] = {}
 
+    def where(self, key: str) -> str:
+        """The graph ``key``'s file and key, as messages name it."""
+        return f"{self.directory / self.contract['files'][key]} ({key})"
+
+    def _run(self, key: str, session: Any, feeds: dict[str, np.ndarray], shapes: dict[str, tuple[int, ...]]
+             ) -> list[np.ndarray]:
+        """``session.run`` of the graph ``key``, its outputs checked: each of ``shapes`` (in the graph's order, the
+        contract's), finite. A bundle anyone can re-seal may hold a graph that computes NaN; never hand it on."""
+        try:
+            outs = session.run(None, feeds)
+        except Exception as exc:  # onnxruntime's own: a graph over the arena's cap, a shape it cannot run
+            capped = f" (the sessions hold at most {MAX_RUN_BYTES} bytes: a smaller batch may run)" \
+                if "Available memory" in str(exc) else ""
+            raise ValueError(f"{self.where(key)}: onnxruntime failed running it{capped}: {_first_line(exc)}") from None
+        for (name, shape), out in zip(shapes.items(), outs, strict=True):
+            if out.shape != shape:
+                raise ValueError(f"{self.where(key)}: its output {name!r} has shape {out.shape}, not {shape}: "
+                                 "refused (the graph is not this bundle's)")
+            if not np.isfinite(out).all():
+                raise ValueError(f"{self.where(key)}: its output {name!r} holds NaN or inf: refused (inputs far "
+                                 "outside the model's range, or a graph that is not this model's)")
+        return outs
+
     def __repr__(self) -> str:
         c = self.contract
         return f"OnnxModel({str(self.directory)!r}, task={c['task']!r}, {c['layers']}x{c['hidden']}, C={c['chunk']})"
@@ -121,9 +201,9 @@ class OnnxModel:
         (field name → value) put in; None: the contract's values.
 
         Raises:
-            ValueError: not a dict, a name the graph does not read (the message lists those it reads), or a
-                value that is not a finite real number; inside seqmotion also values the task's physics class
-                refuses (e.g. sliding ``mu_dyn > mu``), when that class is defined.
+            ValueError: not a dict, a name the graph does not read (the message lists those it reads), a
+                value that is not a finite real number, or values the task's physics class refuses (e.g. sliding
+                ``mu_dyn > mu``): ``bundle.check_physics``, the contract's ranges, here and in the standalone copy.
         """
         values = {name: self.physics_defaults[name] for name in self.physics_inputs}
         if physics is not None:
@@ -148,19 +228,11 @@ class OnnxModel:
                 if not math.isfinite(number):
                     raise ValueError(f"physics {name} must be finite, got {number}")
                 values[name] = number
-            self._check_physics(values)
+            # a value equal to the contract's is no override: the bundle runs at its own physics whatever its ranges
+            check_physics(self.contract, {name: values[name] for name in physics
+                                          if values[name] != self.physics_defaults[name]},
+                          str(self.directory / "contract.json"))
         return np.array([values[name] for name in self.physics_inputs], dtype=np.float64)
-
-    def _check_physics(self, values: dict[str, float]) -> None:
-        """Inside seqmotion, ``values`` checked by the task's physics class if this installation defines it (the
-        standalone runner has no classes: there the graph runs at any finite values it is given)."""
-        if Physics is None:
-            return
-        try:
-            cls = Physics.class_named(self.contract["dynamics"]["physics"]["class"])
-        except ValueError:  # a class this process has not defined (its task's package is not imported)
-            return
-        cls.from_dict({**self.physics_defaults, **values})
 
     # --- the graphs ----------------------------------------------------------------------------------
 
@@ -185,7 +257,8 @@ class OnnxModel:
         n = math.ceil(k / self.chunk)
         if n * self.chunk != k:
             x = np.concatenate([x, np.repeat(x[:, -1:], n * self.chunk - k, axis=1)], axis=1)
-        z, x0 = self.encoder.run(None, {"chunks": np.ascontiguousarray(x.reshape(b, n, -1))})
+        z, x0 = self._run("encoder", self.encoder, {"chunks": np.ascontiguousarray(x.reshape(b, n, -1))},
+                          {"z": (b, self.layers * self.hidden), "x0": (b, self.state_dim)})
         return z, x0.astype(np.float64), single
 
     def initial_state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,8 +270,11 @@ class OnnxModel:
 
     def decode_step(self, state: tuple[np.ndarray, np.ndarray], window: np.ndarray) -> tuple[tuple, np.ndarray]:
         """One decoder step: ``window`` ``(B, C, S)`` → new ``(h, c)`` and the means ``(B, C, d)`` float64."""
-        h, c, mean = self.decoder.run(None, {"h": state[0], "c": state[1],
-                                             "window": np.ascontiguousarray(window, dtype=np.float32)})
+        b = window.shape[0]
+        hidden = (self.layers, b, self.hidden)
+        h, c, mean = self._run(self._decoder_key, self.decoder,
+                               {"h": state[0], "c": state[1], "window": np.ascontiguousarray(window, dtype=np.float32)},
+                               {"h_out": hidden, "c_out": hidden, "accel": (b, self.chunk, self.accel_dim)})
         return (h, c), mean.astype(np.float64)
 
     def predict(self, x: np.ndarray, accel: np.ndarray, physics: np.ndarray | None = None) -> np.ndarray:
@@ -230,7 +306,7 @@ class OnnxModel:
             feeds = {"x": np.ascontiguousarray(x), "accel": np.ascontiguousarray(part, dtype=np.float64)}
             if self.physics_inputs:
                 feeds["physics"] = vector
-            (states,) = self.dynamics_session.run(None, feeds)
+            (states,) = self._run("dynamics", self.dynamics_session, feeds, {"states": (b, c, self.state_dim)})
             states = states[:, :m].astype(np.float64, copy=False)
             out.append(states)
             x = states[:, -1]
@@ -259,7 +335,8 @@ class OnnxModel:
             if m < c:  # causal: the first m outputs do not depend on the padding
                 part = np.concatenate([part, np.zeros((b, c - m, self.accel_dim))], axis=1)
             feeds = {"x": np.ascontiguousarray(x), "accel": np.ascontiguousarray(part), "physics": vector}
-            (outputs,) = self.outputs_for_session.run(None, {k: feeds[k] for k in self._outputs_for_inputs})
+            (outputs,) = self._run("outputs_for", self.outputs_for_session,
+                                   {k: feeds[k] for k in self._outputs_for_inputs}, {"outputs": (b, c, self.accel_dim)})
             out.append(outputs[:, :m].astype(np.float64, copy=False))
             if start + c < n:
                 x = self.predict(x, out[-1], physics)[:, -1]
@@ -269,9 +346,9 @@ class OnnxModel:
         """The violation ``(B, N)`` of ``states`` ``(B, N+1, S)``, ``accel`` ``(B, N, d)`` (None: no constraint)."""
         if self.violation_session is None:
             return None
-        feeds = {"states": states, "accel": accel}
-        (out,) = self.violation_session.run(None, {name: np.ascontiguousarray(feeds[name], dtype=np.float32)
-                                                   for name in self._violation_inputs})
+        given = {"states": states, "accel": accel}
+        feeds = {name: np.ascontiguousarray(given[name], dtype=np.float32) for name in self._violation_inputs}
+        (out,) = self._run("violation", self.violation_session, feeds, {"violation": np.shape(accel)[:2]})
         return out.astype(np.float64)
 
     # --- whole motions ---------------------------------------------------------------------------------
