@@ -350,3 +350,13 @@ def test_the_ranges_are_read_off_the_physics_class(rule):
                 raise ValueError(rule)
 
     assert export_module.physics_ranges(Rules(), ["a", "b"]) == ranges
+
+
+def test_an_export_into_a_folder_whose_parent_is_new_is_checked_and_written(tmp_path, capsys):
+    """`seqmotion export-onnx pancake onnx/pancake/` (the README's command) on a fresh machine: the parity check's
+    folder beside OUT is made with OUT's missing parents, as the bundle itself is."""
+    from seqmotion.cli import main
+
+    out = tmp_path / "onnx" / "pancake"
+    assert main(["export-onnx", "pancake", str(out)]) == 0, capsys.readouterr().err
+    assert (out / "contract.json").is_file() and [p.name for p in out.parent.iterdir()] == ["pancake"]

@@ -341,7 +341,7 @@ def write_bundle(out: str | Path, files: dict[str, bytes], check: Callable[[Path
         # by the next export into OUT (io's orphan clean-up)
         scratch = temp_sibling(target)
         try:
-            scratch.mkdir()
+            scratch.mkdir(parents=True)  # OUT's parent may not exist yet (replace_directory makes it too)
             for name, data in files.items():
                 write_durable(scratch / name, data)
             check(scratch)
