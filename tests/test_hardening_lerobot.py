@@ -1,4 +1,4 @@
-"""Hostile LeRobot v3.0 folders for ``seqmotion.lfd.lerobot``'s import: each refused by name, nothing read
+"""Hostile LeRobot v3.0 folders for ``seqmotion.lfd.lerobot_import``: each refused by name, nothing read
 outside the folder, nothing hangs or blows up memory, nothing written.
 
 One tiny synthetic set (3 episodes of 10 frames at 50 fps, no simulation) is exported once as PNGs and as
@@ -27,7 +27,7 @@ av = pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
 from seqmotion.cli import main  # noqa: E402
-from seqmotion.lfd import lerobot  # noqa: E402
+from seqmotion.lfd import lerobot, lerobot_import  # noqa: E402
 from seqmotion.lfd.dataset import MOTION_KEYS, PushingDataset  # noqa: E402
 
 DATA = "data/chunk-000/file-000.parquet"
@@ -189,8 +189,8 @@ def test_hub_cache_snapshot_symlinks_are_read(base, tmp_path):
         shutil.copy(path, blob)
         (snapshot / rel).parent.mkdir(parents=True, exist_ok=True)
         (snapshot / rel).symlink_to(Path(*[".."] * (len(rel.parts) + 1), "blobs", blob.name))
-    back = lerobot.from_lerobot(snapshot, name="pairs_default")
-    np.testing.assert_array_equal(back.motion(), lerobot.from_lerobot(base["videos"]).motion())
+    back = lerobot_import.from_lerobot(snapshot, name="pairs_default")
+    np.testing.assert_array_equal(back.motion(), lerobot_import.from_lerobot(base["videos"]).motion())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -218,9 +218,9 @@ def test_episodes_tasks_bomb_is_refused(base, tmp_path, capsys):
 
 def test_uncompressed_size_is_capped(base, tmp_path, monkeypatch):
     root = _copy(base["images"], tmp_path / "d")
-    monkeypatch.setattr(lerobot, "MAX_PARQUET_BYTES", 1000)
+    monkeypatch.setattr(lerobot_import, "MAX_PARQUET_BYTES", 1000)
     with pytest.raises(ValueError, match=r"file-000.parquet.*uncompressed"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -279,9 +279,9 @@ def test_video_decoding_is_bounded(base, tmp_path, monkeypatch):
     counted: list[int] = []
     fake = types.SimpleNamespace(**{name: getattr(av, name) for name in dir(av) if not name.startswith("__")})
     fake.open = lambda *args, **kwargs: _CountingContainer(av.open(*args, **kwargs), counted)
-    monkeypatch.setattr(lerobot, "_av", lambda: fake)
+    monkeypatch.setattr(lerobot_import, "_av", lambda: fake)
     with pytest.raises(ValueError, match=r"no video frame at the start of episodes \[1, 2\]"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
     assert 0 < len(counted) < 200, len(counted)
 
 
@@ -304,8 +304,9 @@ def test_features_without_names_are_not_duplicated(base, tmp_path, capsys):
     # one feature for one field may be unnamed: it is taken whole
     root = _copy(base["images"], tmp_path / "e")
     _edit_info(root, lambda info: info["features"]["observation.effort"].update(names=None))
-    back = lerobot.from_lerobot(root)
-    np.testing.assert_array_equal(back.motions["slave_tau"], lerobot.from_lerobot(base["images"]).motions["slave_tau"])
+    back = lerobot_import.from_lerobot(root)
+    np.testing.assert_array_equal(back.motions["slave_tau"],
+                                  lerobot_import.from_lerobot(base["images"]).motions["slave_tau"])
 
 
 # ------------------------------------------------------------------------------------------------
@@ -394,7 +395,7 @@ def test_episode_fields_are_not_coerced(base, tmp_path, capsys, column, values, 
 def test_position_range_is_the_simulators():
     from seqmotion.sim.pushing import POSITIONS
 
-    assert lerobot.BLOCK_POSITIONS == len(POSITIONS)
+    assert lerobot_import.BLOCK_POSITIONS == len(POSITIONS)
 
 
 def test_tiny_fps_is_refused(base, tmp_path, capsys):
@@ -444,7 +445,7 @@ def test_set_name_is_a_plain_name(base, tmp_path, capsys, name):
     assert rc == 2 and "--set" in err and err.count("\n") == 1, err
     assert sorted(p.name for p in tmp_path.rglob("*")) == [], "something was written"
     with pytest.raises(ValueError, match="set name"):
-        lerobot.import_lerobot(base["images"], out, name=name)
+        lerobot_import.import_lerobot(base["images"], out, name=name)
     assert sorted(p.name for p in tmp_path.rglob("*")) == []
 
 
@@ -455,7 +456,7 @@ def test_plain_set_names_are_written(base, tmp_path, capsys):
 
 def test_clean_exports_still_import(base):
     """The checks above leave a dataset export-lerobot wrote (PNG and H.264) importable, images included."""
-    images, videos = lerobot.from_lerobot(base["images"]), lerobot.from_lerobot(base["videos"])
+    images, videos = lerobot_import.from_lerobot(base["images"]), lerobot_import.from_lerobot(base["videos"])
     np.testing.assert_array_equal(images.motion(), videos.motion())
     assert images.images is not None and videos.images is not None
     assert np.abs(images.images.astype(int) - videos.images.astype(int)).mean() < 20

@@ -16,6 +16,7 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is first imported: offscreen rendering
 
+from seqmotion.sim import model_files as mf  # noqa: E402
 from seqmotion.sim import robot_models as rb  # noqa: E402
 from seqmotion.sim.backend import import_mujoco  # noqa: E402
 
@@ -199,20 +200,20 @@ def test_the_size_limits_cover_xml_and_asset_files(root, mujoco_reads, monkeypat
     (folder / "m.obj").write_text(OBJ * 40)
     path = folder / ENTRY
     path.write_text(arm(asset='<mesh name="m" file="m.obj"/>'))
-    monkeypatch.setattr(rb, "MAX_ASSET_BYTES", 1000, raising=False)
+    monkeypatch.setattr(mf, "MAX_ASSET_BYTES", 1000, raising=False)
     with pytest.raises(ValueError, match=rf"m\.obj.* {len(OBJ) * 40} bytes.*1000"):
         rb.get_robot(f"menagerie:{NAME}")
-    monkeypatch.setattr(rb, "MAX_XML_BYTES", 500, raising=False)
+    monkeypatch.setattr(mf, "MAX_XML_BYTES", 500, raising=False)
     with pytest.raises(ValueError, match=rf"{path}.* \d+ bytes.*500"):
         rb.get_robot(f"menagerie:{NAME}")
-    monkeypatch.setattr(rb, "MAX_XML_BYTES", 2**20, raising=False)
+    monkeypatch.setattr(mf, "MAX_XML_BYTES", 2**20, raising=False)
     path.write_text(arm(compiler='meshdir="a" texturedir="b"',
                         asset='<mesh name="m" file="m.obj"/><mesh name="n" file="n.obj"/>'))
-    monkeypatch.setattr(rb, "MAX_ASSET_NAMES", 1, raising=False)
+    monkeypatch.setattr(mf, "MAX_ASSET_NAMES", 1, raising=False)
     with pytest.raises(ValueError, match=r"more than 1 asset file names, at mesh file='[mn]\.obj'"):
         rb.get_robot(f"menagerie:{NAME}")
-    monkeypatch.setattr(rb, "MAX_ASSET_NAMES", 100, raising=False)
-    monkeypatch.setattr(rb, "MAX_ASSET_DIRS", 1, raising=False)
+    monkeypatch.setattr(mf, "MAX_ASSET_NAMES", 100, raising=False)
+    monkeypatch.setattr(mf, "MAX_ASSET_DIRS", 1, raising=False)
     with pytest.raises(ValueError, match=r"more than 1 different asset directories, at compiler texturedir='b'"):
         rb.get_robot(f"menagerie:{NAME}")
     assert mujoco_reads == []
@@ -327,7 +328,7 @@ def test_robosuites_arms_pass_the_checks():
     for arm_name in rb.ROBOSUITE_ARMS:
         path = rb.robosuite_root() / arm_name / "robot.xml"
         if path.is_file():
-            rb.check_model_file(path, path.parent)
+            mf.check_model_file(path, path.parent)
 
 
 HANG = f"""

@@ -1,4 +1,4 @@
-"""LeRobotDataset v3.0 export and import (seqmotion.lfd.lerobot) on a tiny collected set.
+"""LeRobotDataset v3.0 export and import (seqmotion.lfd.lerobot, .lerobot_import) on a tiny collected set.
 
 Export -> the third-party validator lerobot-doctor (no FAIL) -> import round trip (states and actions
 exact in float32, images within codec loss) -> training; and every kind of bad input refused by name.
@@ -20,7 +20,7 @@ pytest.importorskip("seqmotion.sim.pushing")
 pa = pytest.importorskip("pyarrow")
 import pyarrow.parquet as pq  # noqa: E402
 
-from seqmotion.lfd import cli, dataset, lerobot, train  # noqa: E402
+from seqmotion.lfd import cli, dataset, lerobot, lerobot_import, train  # noqa: E402
 from seqmotion.lfd.models import PushingPolicy  # noqa: E402
 
 
@@ -169,7 +169,7 @@ def test_round_trip(exported, data_dir, kind):
     """States and actions come back exactly (float32) at the exported rate; images within the codec's loss."""
     for name in ("motions", "pairs_default"):
         src = dataset.load_dataset(data_dir / f"{name}.h5")
-        back = lerobot.from_lerobot(exported[kind] / name)
+        back = lerobot_import.from_lerobot(exported[kind] / name)
         assert back.dt == pytest.approx(0.02) and back.attrs["set_name"] == name
         np.testing.assert_array_equal(back.motion(), src.motion())  # float32 in the h5, float32 in the parquet
         np.testing.assert_array_equal(back.motions["block_pose"], src.motions["block_pose"][:, ::20])
@@ -201,7 +201,7 @@ def test_export_cli(data_dir, tmp_path, capsys):
     info = json.loads((tmp_path / "x/motions/meta/info.json").read_text())
     assert info["fps"] == 100 and info["total_frames"] == 6 * 60
     assert "me/push_motions" in (tmp_path / "x/motions/README.md").read_text()
-    back = lerobot.from_lerobot(tmp_path / "x/motions")  # exact at 100 Hz too
+    back = lerobot_import.from_lerobot(tmp_path / "x/motions")  # exact at 100 Hz too
     src = dataset.load_dataset(data_dir / "motions.h5")
     np.testing.assert_array_equal(back.motion(every=1), src.motion(every=10))
 
@@ -227,20 +227,20 @@ def _edit_info(root: Path, **changes) -> None:
 
 def test_not_a_dataset(tmp_path):
     with pytest.raises(ValueError, match="not a LeRobot dataset: it has no meta/info.json"):
-        lerobot.from_lerobot(tmp_path)
+        lerobot_import.from_lerobot(tmp_path)
     with pytest.raises(ValueError, match="Hub ids are not downloaded"):
-        lerobot.from_lerobot("lerobot/pusht")
+        lerobot_import.from_lerobot("lerobot/pusht")
     (tmp_path / "meta").mkdir()
     (tmp_path / "meta/info.json").write_text("{not json")
     with pytest.raises(ValueError, match="info.json is not valid JSON"):
-        lerobot.from_lerobot(tmp_path)
+        lerobot_import.from_lerobot(tmp_path)
 
 
 def test_v21_dataset_names_version_and_conversion(exported, tmp_path):
     root = _copy(exported["images"] / "motions", tmp_path / "d")
     _edit_info(root, codebase_version="v2.1")
     with pytest.raises(ValueError, match=r"codebase_version is 'v2.1'.*convert_dataset_v21_to_v30"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
 
 
 def test_missing_feature_is_named(exported, tmp_path):
@@ -249,9 +249,9 @@ def test_missing_feature_is_named(exported, tmp_path):
     del info["features"]["observation.effort"]
     (root / "meta/info.json").write_text(json.dumps(info))
     with pytest.raises(ValueError, match="cannot map slave_tau: the dataset has no feature 'observation.effort'"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
     with pytest.raises(ValueError, match="unknown fields"):
-        lerobot.from_lerobot(exported["images"] / "motions", {"gripper": "action"})
+        lerobot_import.from_lerobot(exported["images"] / "motions", {"gripper": "action"})
 
 
 def test_map_takes_other_keys(exported, tmp_path):
@@ -264,10 +264,10 @@ def test_map_takes_other_keys(exported, tmp_path):
     table = pq.read_table(path)
     pq.write_table(table.rename_columns(["observation.torque" if n == "observation.effort" else n
                                          for n in table.column_names]), path)
-    back = lerobot.from_lerobot(root, lerobot.parse_map(["slave_tau=observation.torque"]))
-    np.testing.assert_array_equal(back.motion(), lerobot.from_lerobot(exported["images"] / "motions").motion())
+    back = lerobot_import.from_lerobot(root, lerobot_import.parse_map(["slave_tau=observation.torque"]))
+    np.testing.assert_array_equal(back.motion(), lerobot_import.from_lerobot(exported["images"] / "motions").motion())
     with pytest.raises(ValueError, match="--map needs FIELD=KEY"):
-        lerobot.parse_map(["slave_tau"])
+        lerobot_import.parse_map(["slave_tau"])
 
 
 def test_mismatched_lengths(exported, tmp_path):
@@ -277,11 +277,11 @@ def test_mismatched_lengths(exported, tmp_path):
     rows[2]["length"] = 31
     pq.write_table(pa.Table.from_pylist(rows), path)
     with pytest.raises(ValueError, match="episode 2 has 30 frames in data/ but length 31 in meta/episodes"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
     root = _copy(exported["images"] / "motions", tmp_path / "e")
     _edit_info(root, total_frames=179)
     with pytest.raises(ValueError, match="more frames than total_frames = 179"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
 
 
 def test_unequal_episodes_need_trim(exported, tmp_path):
@@ -296,21 +296,21 @@ def test_unequal_episodes_need_trim(exported, tmp_path):
     pq.write_table(pa.Table.from_pylist(rows), path)
     _edit_info(root, total_frames=179)
     with pytest.raises(ValueError, match="different lengths.*--trim"):
-        lerobot.from_lerobot(root)
-    assert lerobot.from_lerobot(root, trim=True).motion().shape == (6, 29, 18)
+        lerobot_import.from_lerobot(root)
+    assert lerobot_import.from_lerobot(root, trim=True).motion().shape == (6, 29, 18)
 
 
 def test_huge_declared_counts_refused_before_reading(exported, tmp_path):
     root = _copy(exported["images"] / "motions", tmp_path / "d")
     _edit_info(root, total_frames=10**12)
     with pytest.raises(ValueError, match="total_frames"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
     _edit_info(root, total_frames=180, total_episodes=10**9)
     with pytest.raises(ValueError, match="total_episodes"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
     _edit_info(root, total_episodes=6, features={"action": {"dtype": "float32", "shape": [10**9]}})
     with pytest.raises(ValueError, match="feature 'action' has no valid 'shape'"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
 
 
 def test_import_failure_writes_nothing(exported, tmp_path):
@@ -339,12 +339,12 @@ def test_wrong_column_type_is_named(exported, tmp_path):
     i = table.column_names.index("observation.effort")
     pq.write_table(table.set_column(i, "observation.effort", pa.array(["x"] * table.num_rows)), path)
     with pytest.raises(ValueError, match="column 'observation.effort' is not numeric"):
-        lerobot.from_lerobot(root)
+        lerobot_import.from_lerobot(root)
 
 
 def test_imported_dataset_exports_again(exported, tmp_path):
     """An import (no block pose mapped, no camera) exports again to an equal dataset."""
-    back = lerobot.from_lerobot(exported["images"] / "pairs_default", {"image": "", "block_pose": ""})
+    back = lerobot_import.from_lerobot(exported["images"] / "pairs_default", {"image": "", "block_pose": ""})
     assert back.images is None and "block_pose" not in back.motions
     again = lerobot.export_set(back, tmp_path / "again")
-    np.testing.assert_array_equal(lerobot.from_lerobot(again).motion(), back.motion())
+    np.testing.assert_array_equal(lerobot_import.from_lerobot(again).motion(), back.motion())

@@ -20,7 +20,7 @@ pa = pytest.importorskip("pyarrow")
 import pyarrow.parquet as pq  # noqa: E402
 
 import seqmotion as sm  # noqa: E402
-from seqmotion.lfd import cli, lerobot, train  # noqa: E402
+from seqmotion.lfd import cli, lerobot, lerobot_import, train  # noqa: E402
 from seqmotion.lfd.dataset import MOTION_KEYS, PushingDataset  # noqa: E402
 from seqmotion.lfd.models import PushingPolicy, SeqAE, SeqAEConfig, motion_loss  # noqa: E402
 
@@ -97,7 +97,7 @@ def test_train_seqae_on_a_six_joint_lerobot_dataset(robot_dataset, tmp_path, cap
     seqae = policy.seqae()
     assert seqae.scaler.mean.shape == (6 * JOINTS,) and seqae.scaler.variance.shape == (3 * JOINTS,)
 
-    motions = lerobot.from_lerobot(robot_dataset, lerobot.parse_map([torque])).motion()
+    motions = lerobot_import.from_lerobot(robot_dataset, lerobot_import.parse_map([torque])).motion()
     assert motions.shape == (EPISODES, FRAMES, 6 * JOINTS)
     assert policy.encode(motions).shape == (EPISODES, 8)
     torch.manual_seed(3)  # the initial weights training started from (same seed, same config)

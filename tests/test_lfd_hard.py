@@ -179,16 +179,16 @@ def test_a_set_without_video_holds_the_same_episodes(hard_dir, tmp_path):
 
 def test_lerobot_export_holds_every_filmed_frame(hard_dir, tmp_path):
     pytest.importorskip("pyarrow")
-    from seqmotion.lfd import lerobot
+    from seqmotion.lfd import lerobot, lerobot_import
 
     folder = lerobot.to_lerobot(hard_dir, tmp_path / "lr")["hard"]
     import pyarrow.parquet as pq
 
     table = pq.read_table(folder / "data/chunk-000/file-000.parquet")
     data = dataset.load_dataset(hard_dir / "hard.h5")
-    frames = [lerobot._decode_png(b, "test") for b in table.column(lerobot.WEBCAM).to_pylist()]
+    frames = [lerobot_import._decode_png(b, "test") for b in table.column(lerobot.WEBCAM).to_pylist()]
     np.testing.assert_array_equal(np.stack(frames), data.video.reshape(-1, 64, 64, 3))
-    back = lerobot.from_lerobot(folder)
+    back = lerobot_import.from_lerobot(folder)
     np.testing.assert_array_equal(back.images, data.images)  # the import keeps each episode's first frame
     stats = json.loads((folder / "meta/stats.json").read_text())[lerobot.WEBCAM]
     assert stats["count"] == [75]

@@ -13,8 +13,8 @@
   :func:`train_seqae`, :func:`train_cnn`, :func:`train_end_to_end`, :func:`train_feedback`).
 * :mod:`seqmotion.lfd.evaluation` — closed-loop success rates (:func:`evaluate`).
 * :mod:`seqmotion.lfd.export` — shipping a policy with its model card (:func:`export_policy`).
-* :mod:`seqmotion.lfd.lerobot` — LeRobotDataset v3.0 export and import (:func:`to_lerobot`,
-  :func:`from_lerobot`, :func:`import_lerobot`).
+* :mod:`seqmotion.lfd.lerobot` — LeRobotDataset v3.0: the format and the export (:func:`to_lerobot`);
+  :mod:`seqmotion.lfd.lerobot_import` — the hardened import (:func:`from_lerobot`, :func:`import_lerobot`).
 * :mod:`seqmotion.lfd.task` — the ``pushing`` task's registry entry (entry point ``seqmotion.tasks``).
 * :mod:`seqmotion.lfd.timing` — the decoder's period Δt_NN (:data:`COMMAND_INTERVAL`, 20 ms).
 
@@ -69,13 +69,13 @@ _EXPORTS = {
     "position_latents": "evaluation",
     "export_policy": "export",
     "to_lerobot": "lerobot",
-    "from_lerobot": "lerobot",
-    "import_lerobot": "lerobot",
+    "from_lerobot": "lerobot_import",
+    "import_lerobot": "lerobot_import",
     "save_dataset": "dataset",
 }
 
-_SUBMODULES = ("cli", "dataset", "evaluation", "export", "lerobot", "models", "operator", "task", "teleop", "timing",
-               "train")
+_SUBMODULES = ("cli", "dataset", "evaluation", "export", "lerobot", "lerobot_import", "models", "operator", "task",
+               "teleop", "timing", "train")
 # No exported name equals a submodule's name: importing ``seqmotion.lfd.X`` sets the package's
 # attribute X to the module, which would shadow a function of the same name.
 

@@ -4,7 +4,7 @@
 subcommands are ``collect`` (record the datasets), ``info`` (summarise a file), ``train``
 (SeqAE, CNNs and the end-to-end baseline), ``evaluate`` (closed-loop success rate),
 ``export`` (ship a policy with its model card) and ``export-lerobot`` / ``import-lerobot``
-(LeRobot v3.0 datasets, :mod:`seqmotion.lfd.lerobot`). Heavy
+(LeRobot v3.0 datasets, :mod:`seqmotion.lfd.lerobot`, :mod:`seqmotion.lfd.lerobot_import`). Heavy
 modules (MuJoCo, h5py, torch) are imported only when a subcommand runs.
 """
 
@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name}: LeRobot v3.0 dataset -> {path}")
         return 0
     if args.lfd_command == "import-lerobot":
-        from .lerobot import check_set_name, import_lerobot, parse_map
+        from .lerobot_import import check_set_name, import_lerobot, parse_map
 
         if args.set_name is not None:  # before the folder is made: a path here would write elsewhere
             check_set_name(args.set_name, "--set")
@@ -282,7 +282,7 @@ def _set_threads(threads: int) -> None:
 
 def _train(args: argparse.Namespace) -> int:
     from . import train as training
-    from .lerobot import parse_map
+    from .lerobot_import import parse_map
 
     _set_threads(args.threads)
     preset_name = args.preset

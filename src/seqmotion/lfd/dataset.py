@@ -543,7 +543,7 @@ def _check_sizes(path: Path, f: object) -> None:  # f: an open h5py.File
 
 def save_dataset(data: PushingDataset, path: str | Path, overwrite: bool = False) -> Path:
     """Write a :class:`PushingDataset` held in memory (e.g. one read from a LeRobot dataset by
-    :func:`seqmotion.lfd.lerobot.from_lerobot`) in this module's format, atomically.
+    :func:`seqmotion.lfd.lerobot_import.from_lerobot`) in this module's format, atomically.
 
     Writes the attributes, every ``/motions`` array it has (float32), the per-episode values (a
     missing ``side`` as ``""``), ``/operator`` and the images; :func:`load_dataset` reads it back.

@@ -779,7 +779,7 @@ def train(
             ``out/checkpoints/`` (written every :data:`CHECKPOINT_EVERY` epochs) when there are
             some; False has each training this run does remove its own and start over.
         mapping: ``{field: feature key}`` for LeRobot folders (``--map``, see
-            :func:`seqmotion.lfd.lerobot.from_lerobot`): another robot's feature names.
+            :func:`seqmotion.lfd.lerobot_import.from_lerobot`): another robot's feature names.
         benchmark: ``"hard"`` trains every method on the same demonstrations, the ``hard`` set's
             (``hard.h5``), with their images (default camera): the SeqAE on their motions, the CNN
             on their image–motion pairs.
@@ -985,7 +985,7 @@ def _open_set(data_dir: Path, name: str, mapping: Mapping[str, str] | None = Non
     ``mapping`` is given for a seqmotion ``.h5`` set (it has no feature keys to map).
     """
     from .dataset import load_dataset
-    from .lerobot import from_lerobot, is_lerobot_dataset
+    from .lerobot_import import from_lerobot, is_lerobot_dataset
     from .timing import COMMAND_INTERVAL
 
     if (data_dir / f"{name}.h5").is_file():
