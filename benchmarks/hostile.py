@@ -1,8 +1,14 @@
-"""The hostile set of issue 31, rerun as an attacker would: each attempt in its own process, on any source tree.
+"""The hostile sets of the hardening rounds, rerun as an attacker would: each attempt in its own process, on any
+source tree.
 
-    python benchmarks/hostile.py                       # this checkout's src/
+    python benchmarks/hostile.py                       # this checkout's src/, every round
+    python benchmarks/hostile.py --round 3             # the third round's repros only
     python benchmarks/hostile.py --src /tmp/old/src    # another tree (e.g. a worktree of an older commit)
     python benchmarks/hostile.py --json out.json
+
+Round 2 (defects 5-14): inputs, plug-ins, ONNX contracts, checkpoints, friction out of distribution. Round 3
+(defects 1-17 of its own list): LeRobot datasets, robot models under ``MENAGERIE_ROOT``, ONNX bundles, plug-in
+shapes, saved results, the viewer's connections.
 
 Every attempt runs a short Python snippet in a fresh interpreter (``PYTHONPATH=<src>``) in a fresh temporary
 folder, under a 4 GiB address-space limit and a 180 s timeout. The snippet builds the hostile input, attacks the
@@ -60,8 +66,8 @@ import seqmotion as sm
 from seqmotion.data import pancake as sketches, sliding as commands
 """
 
-# defect number → [(name, snippet)]
-ATTEMPTS: dict[int, list[tuple[str, str]]] = {
+# round 2: defect number → [(name, snippet)]
+ROUND_2: dict[int, list[tuple[str, str]]] = {
     5: [(f"{cmd} --output is its --input ({suffix})", f"""
 sketch = sketches.straight((0.1, 0.0, 2.0), 150) if "{cmd}" == "deform" else commands.line(0.05, 300)
 path = Path("in{suffix}")
@@ -235,6 +241,27 @@ except ValueError:
 """)],
 }
 
+# round 3: defect number → [(name, snippet)], one module a surface in hostile_round3/ (each an ATTEMPTS dict)
+ROUND_3_PARTS = ("lerobot", "robots", "bundle", "results", "viewer")
+
+
+def _round_3() -> dict[int, list[tuple[str, str]]]:
+    import importlib.util
+
+    attempts: dict[int, list[tuple[str, str]]] = {}
+    for part in ROUND_3_PARTS:
+        path = Path(__file__).resolve().parent / "hostile_round3" / f"{part}.py"
+        spec = importlib.util.spec_from_file_location(f"hostile_round3_{part}", path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        for defect, found in module.ATTEMPTS.items():
+            attempts.setdefault(defect, []).extend(found)
+    return dict(sorted(attempts.items()))
+
+
+ROUND_3 = _round_3()
+ROUNDS = {2: ROUND_2, 3: ROUND_3}
+
 
 def limit_memory() -> None:
     resource.setrlimit(resource.RLIMIT_AS, (4 * 2**30, 4 * 2**30))
@@ -262,18 +289,22 @@ def attempt(snippet: str, src: Path, timeout: float) -> tuple[bool, str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--src", type=Path, default=Path(__file__).resolve().parents[1] / "src")
+    parser.add_argument("--round", type=int, choices=sorted(ROUNDS), action="append",
+                        help="run this round's repros (repeatable; default: every round)")
     parser.add_argument("--timeout", type=float, default=180.0)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     rows = []
-    for defect, attempts in ATTEMPTS.items():
-        for name, snippet in attempts:
-            ok, what, seconds = attempt(snippet, args.src.resolve(), args.timeout)
-            rows.append({"defect": defect, "attempt": name, "held": ok, "what": what, "seconds": round(seconds, 1)})
-            print(f"{'held  ' if ok else 'DEFECT'} #{defect:<2} {name:<45} {seconds:6.1f} s  {'' if ok else what}",
-                  flush=True)
+    for round_ in args.round or sorted(ROUNDS):
+        for defect, attempts in ROUNDS[round_].items():
+            for name, snippet in attempts:
+                ok, what, seconds = attempt(snippet, args.src.resolve(), args.timeout)
+                rows.append({"round": round_, "defect": defect, "attempt": name, "held": ok, "what": what,
+                             "seconds": round(seconds, 1)})
+                print(f"{'held  ' if ok else 'DEFECT'} {round_}#{defect:<2} {name:<55} {seconds:6.1f} s  "
+                      f"{'' if ok else what}", flush=True)
     held = sum(r["held"] for r in rows)
-    defects = sorted({r["defect"] for r in rows if not r["held"]})
+    defects = sorted({f"{r['round']}#{r['defect']}" for r in rows if not r["held"]})
     print(f"{len(rows)} attempts, {held} held, {len(rows) - held} failed (defects {defects or 'none'})")
     if args.json:
         args.json.write_text(json.dumps({"src": str(args.src), "attempts": rows}, indent=1))
