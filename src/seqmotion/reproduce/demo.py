@@ -94,8 +94,9 @@ def _sliding(out: Path) -> None:
 
 def _robot(out: Path) -> dict[str, tuple[str, list[str]]]:
     """Execute the sketch, the deformed and the keep_end motion on the arm; print what happened to each and
-    write ``robot_snapshots.png``: one row of snapshots per run, titled with the run's name and the line printed
-    for it, each frame labelled with its time and whether the pancake is still on.
+    write ``robot_snapshots.png``: one row of snapshots per run, over the turn itself, titled with the run's name and
+    the line printed for it (the task, whether the turn carried the pancake, what happened after the motion), each
+    frame labelled with its time and whether the pancake is still on.
 
     Returns:
         run name → (row title, frame labels) (empty where offscreen rendering is unavailable).
@@ -139,8 +140,8 @@ def _robot(out: Path) -> dict[str, tuple[str, list[str]]]:
             labelled[name] = (title, labels)
             rows.append((title, labels, strips[name]))
         snapshots = plot_snapshot_rows(rows, out / "robot_snapshots.png")
-        print(f"  snapshots: {snapshots} (a row per run: {', '.join(results)}; each frame says whether the "
-              "pancake is on)")
+        print(f"  snapshots: {snapshots} (a row per run: {', '.join(results)}; frames during the turn, each with its "
+              "time and whether the pancake is on; each row's title says what happened after the motion)")
     return labelled
 
 

@@ -50,6 +50,8 @@ _LAZY = {
     "robots": ("robot_models", "robots"),
     "get_robot": ("robot_models", "get_robot"),
     "JointReport": ("arm", "JointReport"),
+    "LimitCrossing": ("arm", "LimitCrossing"),
+    "JointLimits": ("robot_models", "JointLimits"),
 }
 
 __all__ = sorted(_LAZY)

@@ -29,6 +29,7 @@ from ..errors import as_trajectories, check_number
 from .backend import CONTROL_DT, GRAVITY, control_period, import_mujoco
 from .control import Gains, JointSpaceController, TaskSpaceController, make_controller, solve_ik
 from .kinematics import Reference, quat_to_matrix
+from .robot_models import JointLimits, built_in_limits
 from .scene import (
     FOREARM,
     SHOULDER_HEIGHT,
@@ -160,7 +161,7 @@ def workspace_problem(reference: Reference, kind: str, robot: str | None = None)
     stays above the table. The arm's own wrist singularity is not predicted here; the run
     reports it as lost tracking if it happens. On a standard ``robot`` only the table is checked
     here: its reach and joint limits are judged during the run, by the IK that tracks the path
-    (:class:`JointReport` names the first pose out of reach or limit broken).
+    (:class:`JointReport` names the worst pose out of reach and the worst crossing of each limit).
     """
     rot = quat_to_matrix(reference.quat)
     flange = reference.pos - rot @ SITE_IN_TOOL[kind]
@@ -234,20 +235,98 @@ IK_TOLERANCE = (2e-3, np.radians(1.0))
 """IK residual [m, rad] beyond which a commanded pose counts as out of the robot's reach (its limits or its
 workspace forbid it)."""
 
+CROSSING_KINDS = ("speed", "torque", "range", "reach")
+"""The limits a run's joints are judged against (:class:`LimitCrossing`)."""
+
+
+@dataclass(frozen=True)
+class LimitCrossing:
+    """The worst crossing of one kind of limit during a run (one per kind crossed).
+
+    Attributes:
+        kind: ``"speed"`` (a rated joint speed), ``"torque"`` (the model's torque limit), ``"range"`` (a joint's
+            range) or ``"reach"`` (the commanded tool pose out of the robot's reach: IK residual past
+            :data:`IK_TOLERANCE`).
+        joint: the joint that crossed it worst (``None`` for ``"reach"``).
+        peak: the worst value: |q̇| [rad/s], |τ| [N m], the joint's position [rad], or the IK position residual [m].
+        limit: what it crossed: the rated speed [rad/s], the torque limit [N m], the range end passed [rad], or the
+            IK position tolerance [m].
+        share: how far past, as a share of the limit (> 1: past it). Speed: |q̇| / rated; torque: |τ| / limit
+            (1: the command was clipped at the limit, so the joint needed more); range: the excursion from the
+            range's middle over half the range; reach: the larger IK residual over its tolerance.
+        time: when the worst value was reached [s].
+        first_time: when this joint first crossed the limit [s].
+        duration: how long this joint was past the limit in all [s].
+        others: the other joints past this kind of limit and their peak shares, worst first.
+        detail: more words for people (the reach's attitude residual), or ``""``.
+    """
+
+    kind: str
+    joint: str | None
+    peak: float
+    limit: float
+    share: float
+    time: float
+    first_time: float
+    duration: float
+    others: tuple[tuple[str, float], ...] = ()
+    detail: str = ""
+
+    def describe(self) -> str:
+        """One clause for people: the joint, its peak against the limit, the share, and when."""
+        span = f"{self.duration * 1e3:.0f} ms from t = {self.first_time:.3f} s"
+        if self.others:
+            span += "; other joints past it: " + ", ".join(f"{name!r} {share:.2f}×" for name, share in self.others)
+        if self.kind == "speed":
+            return (f"joint {self.joint!r} turned at {self.peak:.2f} rad/s at t = {self.time:.3f} s, "
+                    f"{self.share:.2f}× its rated {self.limit:.2f} rad/s (over it for {span})")
+        if self.kind == "torque":
+            return (f"joint {self.joint!r} needed more than its {self.limit:.1f} N m (peak {self.peak:.1f} N m, "
+                    f"{self.share:.2f}× the limit: clipped there for {span})")
+        if self.kind == "range":
+            return (f"joint {self.joint!r} reached {self.peak:.3f} rad at t = {self.time:.3f} s, past its range end "
+                    f"{self.limit:.3f} rad ({self.share:.2f}× its half-range from the middle; out of range for "
+                    f"{span})")
+        return (f"the commanded tool pose was out of the robot's reach: IK residual {self.detail} at "
+                f"t = {self.time:.3f} s, {self.share:.1f}× the {IK_TOLERANCE[0] * 1e3:.0f} mm / "
+                f"{np.degrees(IK_TOLERANCE[1]):.0f}° tolerance (for {span})")
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-friendly fields."""
+        return {"kind": self.kind, "joint": self.joint, "peak": self.peak, "limit": self.limit, "share": self.share,
+                "time_s": self.time, "first_time_s": self.first_time, "duration_s": self.duration,
+                "others": [list(o) for o in self.others]}
+
+
+_JUDGED = {"range": "position", "speed": "velocity", "torque": "torque"}
+"""Each limit a run is judged against → the :class:`~seqmotion.sim.robot_models.JointLimits` kind it reads."""
+
 
 @dataclass(frozen=True)
 class JointReport:
-    """What the robot's joints did during a run: its limits kept or not, each named.
+    """What the robot's joints did during a run against its limits: peaks as shares of them, each crossing named.
+
+    Shares are ``(n,)`` arrays, NaN-free, or ``None`` where the limit is unknown (never treated as unlimited:
+    :attr:`unknown` says which and why). A share above 1 is a limit broken. Rated accelerations, where published,
+    are in :attr:`limits` but not judged here (generation is to keep them).
 
     Attributes:
         robot: the robot, ``"name (source)"`` (e.g. ``"panda (robosuite)"``, ``"mh3f (seqmotion)"``).
         joints: the joint names, base to flange.
-        joint_limits_ok: every joint stayed within its range (``None``: the model has no ranges).
-        velocity_limits_ok: every joint speed stayed within the published limit (``None``: none known).
-        torque_limits_ok: no torque command reached the model's limit (``None``: no limits modelled).
-        torque_share: ``(n,)`` peak |torque| / limit per joint (``None`` without limits).
+        joint_limits_ok: every joint stayed within its range (``None``: the ranges are unknown).
+        velocity_limits_ok: every joint speed stayed within its rated speed (``None``: unknown).
+        torque_limits_ok: no torque command reached the model's limit (``None``: unknown).
+        torque_share: ``(n,)`` peak |torque| / limit per joint (``None``: unknown).
         ik_error: largest residual of the IK reference ``(position [m], attitude [rad])`` (0 without IK).
-        problem: the first limit broken or pose out of reach, by joint and time, or ``None``.
+        problem: every crossing (:attr:`crossings`), worst first, each naming its joint, peak, limit, share and
+            time, or ``None``.
+        speed_peak: ``(n,)`` peak |joint speed| [rad/s] (measured; known whatever the limits).
+        torque_peak: ``(n,)`` peak |joint torque| applied [N m].
+        speed_share: ``(n,)`` peak |joint speed| / rated speed (``None``: unknown).
+        range_share: ``(n,)`` peak excursion from the middle of the joint's range over half the range (1: at an
+            end; 0 for a continuous joint, which has none; ``None``: unknown).
+        crossings: the worst crossing of each kind of limit broken (:class:`LimitCrossing`), worst share first.
+        limits: the limits judged against, with their sources.
     """
 
     robot: str
@@ -258,62 +337,137 @@ class JointReport:
     torque_share: np.ndarray | None
     ik_error: tuple[float, float]
     problem: str | None
+    speed_peak: np.ndarray | None = None
+    torque_peak: np.ndarray | None = None
+    speed_share: np.ndarray | None = None
+    range_share: np.ndarray | None = None
+    crossings: tuple[LimitCrossing, ...] = ()
+    limits: JointLimits | None = None
 
     @property
-    def ok(self) -> bool:
-        """No limit broken and every pose reached."""
-        return self.problem is None
+    def ok(self) -> bool | None:
+        """``False``: a limit broken or a pose out of reach; ``None``: none broken, but some limit unknown (not
+        checked); ``True``: every limit known and kept."""
+        if self.problem is not None:
+            return False
+        return None if self.unknown else True
+
+    @property
+    def unknown(self) -> dict[str, str]:
+        """Each limit judged (``"range"``, ``"speed"``, ``"torque"``) whose values are unknown → why."""
+        if self.limits is None:
+            return {}
+        return {kind: why for kind, of in _JUDGED.items() if (why := self.limits.unknown(of)) is not None}
+
+    def describe(self) -> str | None:
+        """One clause for people: ``"<robot>: <problem>"``, the limits that are unknown, or ``None`` (all kept)."""
+        parts = [self.problem] if self.problem else []
+        unknown = self.unknown
+        if unknown:
+            names = [{"range": "joint ranges", "speed": "rated speeds", "torque": "torque limits"}[k] for k in unknown]
+            listed = names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+            parts.append(f"{listed} unknown (not checked)")
+        return f"{self.robot}: {'; '.join(parts)}" if parts else None
 
     def summary(self) -> dict[str, Any]:
-        share = None if self.torque_share is None else [round(float(x), 4) for x in self.torque_share]
-        return {"robot": self.robot, "joint_limits_ok": self.joint_limits_ok,
+        def listed(values: np.ndarray | None) -> list[float] | None:
+            return None if values is None else [round(float(x), 4) for x in values]
+
+        return {"robot": self.robot, "joints": list(self.joints), "joint_limits_ok": self.joint_limits_ok,
                 "velocity_limits_ok": self.velocity_limits_ok, "torque_limits_ok": self.torque_limits_ok,
-                "torque_share": share, "ik_error_m": self.ik_error[0], "ik_error_rad": self.ik_error[1],
-                "limits_problem": self.problem}
+                "speed_peak_rad_s": listed(self.speed_peak), "speed_share": listed(self.speed_share),
+                "torque_peak_nm": listed(self.torque_peak), "torque_share": listed(self.torque_share),
+                "range_share": listed(self.range_share), "limits_unknown": self.unknown,
+                "limit_sources": None if self.limits is None else dict(self.limits.sources),
+                "limit_crossings": [c.summary() for c in self.crossings],
+                "ik_error_m": self.ik_error[0], "ik_error_rad": self.ik_error[1], "limits_problem": self.problem}
 
 
 BUILT_IN_ARM = "mh3f (seqmotion)"
-"""The label of the built-in MH3F-like arm (no joint ranges, speed or torque limits modelled)."""
+"""The label of the built-in MH3F-like arm (no joint ranges, speed or torque limits modelled; the MOTOMAN-MH3F's
+published ones were not found: :func:`~seqmotion.sim.robot_models.built_in_limits`)."""
+
+
+def _crossing(kind: str, names: tuple[str, ...], share: np.ndarray, over: np.ndarray, value: np.ndarray,
+              limit: np.ndarray, dt: float) -> LimitCrossing | None:
+    """The worst crossing in ``over`` ``(N, n)`` (periods × joints past the limit): the joint with the largest
+    ``share`` ``(N, n)`` there (ties: the longest over), its ``value`` ``(N, n)`` at that period and ``limit``
+    ``(N, n)`` it passed; ``None`` if nothing crossed."""
+    if not over.any():
+        return None
+    masked = np.where(over, share, -np.inf)
+    peaks = masked.max(axis=0)
+    counts = over.sum(axis=0)
+    crossed = [j for j in range(len(names)) if counts[j]]
+    j = max(crossed, key=lambda i: (peaks[i], counts[i]))
+    k = int(np.argmax(masked[:, j]))
+    others = tuple((names[i], round(float(peaks[i]), 4)) for i in sorted(crossed, key=lambda i: -peaks[i]) if i != j)
+    return LimitCrossing(kind, names[j], float(value[k, j]), float(limit[k, j]), float(peaks[j]), k * dt,
+                         int(np.argmax(over[:, j])) * dt, float(counts[j]) * dt, others)
 
 
 def joint_report(scene: Scene, log: ExecutionLog, dt: float) -> JointReport:
-    """Judge a run's joints against the scene robot's limits (:class:`JointReport`)."""
+    """Judge a run's joints against the scene robot's limits (:class:`JointReport`); ``dt``: the logged period [s].
+
+    Reads ``log.joint_pos``, ``joint_vel``, ``torque`` ``(N, n)``, ``saturated`` ``(N,)``, ``ik_error`` ``(N, 2)``
+    and ``steps``. Every kind of limit broken is named by its worst crossing (largest share, with its time), not
+    only its first.
+    """
     m = scene.model
     names = tuple(m.joint(int(m.dof_jntid[i])).name for i in scene.arm_dof)
     robot = getattr(scene, "robot", None)
-    if robot is None:
-        return JointReport(BUILT_IN_ARM, names, None, None, None, None, (0.0, 0.0), None)
-    problems: list[tuple[int, str]] = []  # (period, what)
+    limits = built_in_limits(names) if robot is None else robot.limits
+    q, qd, tau = (np.asarray(a, dtype=float) for a in (log.joint_pos, log.joint_vel, log.torque))
+    n = len(names)
+    if not log.steps:  # nothing executed: no peak, nothing crossed
+        q, qd, tau = np.zeros((1, n)), np.zeros((1, n)), np.zeros((1, n))
+    speed_peak, torque_peak = np.abs(qd).max(axis=0), np.abs(tau).max(axis=0)
+    crossings: list[LimitCrossing] = []
 
-    def first(bad: np.ndarray, what: Callable[[int, int], str]) -> bool:
-        if not bad.any():
-            return True
-        k, j = np.argwhere(bad)[0]
-        problems.append((int(k), what(int(k), int(j))))
-        return False
+    def judge(kind: str, share: np.ndarray, over: np.ndarray, value: np.ndarray, limit: np.ndarray) -> bool:
+        crossing = _crossing(kind, names, share, over, value, limit, dt) if log.steps else None
+        if crossing is not None:
+            crossings.append(crossing)
+        return crossing is None
 
-    q, qd, tau = log.joint_pos, log.joint_vel, log.torque
-    lo, hi = np.asarray(robot.joint_range, dtype=float).T
-    joints_ok = first((q < lo) | (q > hi), lambda k, j: f"joint {names[j]!r} left its range "
-                      f"[{lo[j]:.3f}, {hi[j]:.3f}] rad (at {q[k, j]:.3f})")
-    speed_ok = None
-    if robot.velocity_limit is not None:
-        vmax = np.asarray(robot.velocity_limit, dtype=float)
-        speed_ok = first(np.abs(qd) > vmax, lambda k, j: f"joint {names[j]!r} moved at {abs(qd[k, j]):.2f} rad/s "
-                         f"(limit {vmax[j]:.2f})")
-    limit = np.asarray(robot.torque_limit, dtype=float)
-    torque_ok = first(log.saturated[:, None] & (np.abs(tau) >= limit * (1 - 1e-9)),
-                      lambda k, j: f"joint {names[j]!r} needed more than its {limit[j]:.0f} N m")
+    range_share = joints_ok = None
+    if limits.position is not None:
+        lo, hi = limits.position.T
+        finite = np.isfinite(lo) & np.isfinite(hi)
+        # A continuous joint (no ends) uses no share of a range; written without inf - inf, which would be NaN.
+        mid = np.where(finite, (lo + hi) / 2, 0.0)
+        half = np.where(finite, (hi - lo) / 2, 1.0)
+        share = np.where(finite, np.abs(q - mid) / half, 0.0)
+        range_share = share.max(axis=0)
+        end = np.broadcast_to(np.where(q < mid, lo, hi), q.shape)
+        joints_ok = judge("range", share, (q < lo) | (q > hi), q, end)
+    speed_share = speed_ok = None
+    if limits.velocity is not None:
+        share = np.abs(qd) / limits.velocity
+        speed_share = share.max(axis=0)
+        speed_ok = judge("speed", share, share > 1.0, np.abs(qd), np.broadcast_to(limits.velocity, qd.shape))
+    torque_share = torque_ok = None
+    if limits.torque is not None:
+        share = np.abs(tau) / limits.torque
+        torque_share = share.max(axis=0)
+        # The controller clips its command at the limit, so a joint that needed more sits exactly at it.
+        clipped = np.asarray(log.saturated, dtype=bool).reshape(-1, 1) & (share >= 1 - 1e-9)
+        torque_ok = judge("torque", share, clipped, np.abs(tau), np.broadcast_to(limits.torque, tau.shape))
     ik = log.ik_error.max(axis=0) if log.steps else np.zeros(2)
-    first(log.ik_error > np.array(IK_TOLERANCE), lambda k, j: "the commanded tool pose is out of the robot's reach "
-          f"(IK residual {log.ik_error[k, 0] * 1e3:.1f} mm, {np.degrees(log.ik_error[k, 1]):.1f}°)")
-    share = np.abs(tau).max(axis=0) / limit if log.steps else np.zeros(limit.size)
-    problem = None
-    if problems:
-        k, what = min(problems)
-        problem = f"at t = {k * dt:.3f} s: {what}"
-    return JointReport(robot.label, names, joints_ok, speed_ok, torque_ok, share,
-                       (float(ik[0]), float(ik[1])), problem)
+    if log.steps:
+        ik_share = (np.asarray(log.ik_error, dtype=float) / np.array(IK_TOLERANCE)).max(axis=1)
+        if (ik_share > 1).any():
+            k = int(np.argmax(ik_share))
+            over = ik_share > 1
+            crossings.append(LimitCrossing(
+                "reach", None, float(log.ik_error[k, 0]), IK_TOLERANCE[0], float(ik_share[k]), k * dt,
+                int(np.argmax(over)) * dt, float(over.sum()) * dt,
+                detail=f"{log.ik_error[k, 0] * 1e3:.1f} mm, {np.degrees(log.ik_error[k, 1]):.1f}°"))
+    crossings.sort(key=lambda c: -c.share)
+    problem = "; ".join(c.describe() for c in crossings) or None
+    return JointReport(limits.robot, names, joints_ok, speed_ok, torque_ok, torque_share,
+                       (float(ik[0]), float(ik[1])), problem, speed_peak, torque_peak, speed_share, range_share,
+                       tuple(crossings), limits)
 
 
 class ObjectInTool(NamedTuple):
@@ -403,7 +557,8 @@ class Media:
         slow_motion: float,
         camera: str,
     ) -> Media:
-        """A video at ``fps`` ``slow_motion`` × slower than real time, and/or ``n_snapshots`` over the motion."""
+        """A video at ``fps`` ``slow_motion`` × slower than real time, and/or ``n_snapshots`` evenly over the input
+        motion, its first to its last sample (what happens after it, in the stop and the hold, the result says)."""
         video_steps: set[int] = set()
         if video is not None:
             if not (0 < fps <= 1000 and 0 < slow_motion <= 1000):
@@ -415,7 +570,9 @@ class Media:
             whole = isinstance(n_snapshots, int | np.integer) and not isinstance(n_snapshots, bool)
             if not whole or not 1 <= n_snapshots <= 100:
                 raise ValueError(f"n_snapshots must be an integer in [1, 100], got {n_snapshots!r}")
-            last = min(len(ref), ref.n_motion + round(0.1 / ref.dt)) - 1  # the motion and its deceleration
+            # The motion only: frames of the stop and hold after it showed a turned pancake already released,
+            # which read as a failed turn.
+            last = min(len(ref), ref.n_motion) - 1
             snap_steps = sorted(set(np.linspace(0, last, n_snapshots).round().astype(int).tolist()))
         return cls(video, snapshots, video_steps, snap_steps, fps, camera)
 

@@ -16,6 +16,14 @@ Trajectory files:
   predicted object path), ``command`` (the object path asked for) and ``friction`` ``(μ, μ')``
   (what ``seqmotion plan`` planned at: a warning names a friction other than the arm's), or
   ``.csv`` with rows ``x_p, y_p, vx_p, vy_p``.
+
+With ``--robot NAME`` every kind of joint limit the run broke (rated speed, torque, range, reach) is one line
+``seqmotion simulate: warning: …`` on stderr naming its worst joint, peak, limit, share and time, and every limit
+that is unknown for that robot one line ``seqmotion simulate: note: … unknown … (not checked)``.
+
+Exit codes (:func:`seqmotion.cli.main`'s contract): 0 when the simulation ran, whatever it found (a pancake lost, a
+run cut short, a limit broken: results, said on stdout, in ``--json`` and in the warnings); 2 bad input (one line
+``seqmotion simulate: error: …``); 1 the work failed (e.g. an output that cannot be written).
 """
 
 from __future__ import annotations
@@ -97,8 +105,26 @@ def _check_outputs(args: argparse.Namespace) -> None:
             check_not_an_input(value, f"--{option}", {"--trajectory": args.trajectory})
 
 
+def _warn_limits(joints: object) -> None:
+    """On stderr: ``seqmotion simulate: warning: …`` for each kind of limit the run broke (its worst joint: peak,
+    limit, share, time), and ``seqmotion simulate: note: …`` for each limit that is unknown (not checked)."""
+    import sys
+
+    if joints is None:
+        return
+    for crossing in joints.crossings:
+        print(f"seqmotion simulate: warning: {crossing.kind} limit broken on {joints.robot}: {crossing.describe()}",
+              file=sys.stderr)
+    for why in joints.unknown.values():
+        print(f"seqmotion simulate: note: {why} (not checked)", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the simulation named by the parsed arguments; print and optionally save the metrics."""
+    """Run the simulation named by the parsed arguments; print and optionally save the metrics.
+
+    Returns 0 whenever the simulation ran, whatever it found: a pancake lost, a run cut short or a robot's limit
+    broken is a result, said in the printed line, in ``--json`` and (limits, with ``--robot``) in warnings on stderr.
+    Bad input raises ``ValueError`` (exit code 2 through :func:`seqmotion.cli.main`)."""
     from ..io import atomic_write_bytes
     from .pancake import run_pancake
     from .sliding import run_sliding
@@ -151,6 +177,8 @@ def run(args: argparse.Namespace) -> int:
         logged = {"time": result.time, "pan_command": result.pan_command, "pan_response": result.pan_response,
                   "object_path": result.object_path}
     print(f"{args.scene} on {result.robot}: {result.describe()}")
+    if args.robot is not None:
+        _warn_limits(result.joints)
     print(f"simulated {result.time[-1] if len(result.time) else 0:.3f} s at {result.realtime_factor:.1f}x real time")
     for name in ("video", "snapshots"):
         if getattr(args, name):

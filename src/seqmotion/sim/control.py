@@ -298,7 +298,7 @@ class JointSpaceController(ToolController):
        within the joint position limits (``ConfigurationLimit``), a small posture task settles the
        null space of a redundant arm — and is integrated over the period. The published joint speed
        limits are judged, not enforced, by default (:class:`~seqmotion.sim.arm.JointReport` names the
-       first joint over its limit): the pancake motions turn the spatula at up to ~25 rad/s about
+       joint furthest over its limit): the pancake motions turn the spatula at up to ~25 rad/s about
        its own axis, several times what a Panda's or a UR5e's wrist is rated for, and an IK held to
        the rating lags the command by decimetres, so the run would judge the lag instead of the motion.
        ``enforce_velocity_limits=True`` adds mink's ``VelocityLimit``. ``ik_error`` is how far

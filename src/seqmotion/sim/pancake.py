@@ -14,10 +14,16 @@ motions; 3 µm of creep in 1.5 s held still at 40°; the pancake is placed 0.1 m
 blade and drops onto it) and small against the pancake (radius 55 mm, thickness 10 mm): a
 visible slide or a visible gap. They were fixed before any trajectory set was measured;
 ``benchmarks/RESULTS_sim.md`` reports how the counts change with half or twice the limits.
+
+**The task** (:attr:`PancakeResult.task`): a spatula that ends tilted more than atan μ (45°) from level cannot hold
+a pancake at rest, so such a motion asks for the pancake to be carried through the turn and then released (turned
+over where the tilt passes 90°); one that ends within 45° asks for it to be held on the spatula.
+:meth:`PancakeResult.describe` says which, judges the motion by it, and says apart what happened after the motion.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..data.trajectories import tracking_rmse
-from ..physics.pancake import MU, check_mu, violation
+from ..physics.pancake import MU, check_mu, cone_half_angle, violation
 from .arm import (
     ExecutionLog,
     JointReport,
@@ -40,7 +46,7 @@ from .arm import (
 from .backend import GRAVITY
 from .control import Gains, resolve_gains
 from .kinematics import Reference, planar_reference, planar_tilt, quat_to_matrix, rotation_angle
-from .scene import BLADE_HALF, PANCAKE_MASS, PANCAKE_ORIGIN
+from .scene import BLADE_HALF, MU_PANCAKE, PANCAKE_MASS, PANCAKE_ORIGIN
 
 SLIP_LIMIT = 5e-3
 """Slip of the pancake's centre along the blade beyond which contact counts as lost [m]."""
@@ -82,6 +88,8 @@ class PancakeResult(RobotFlags):
         mu: the friction coefficient ``executed_violation`` was judged with.
         joints: what the robot's joints did against its limits (:class:`~seqmotion.sim.arm.JointReport`);
             ``result.robot``, ``result.joint_limits_ok``, ``result.torque_limits_ok`` read it.
+        end_tilt: the input's final tilt θ[K-1] [rad] (``None``: not recorded); it sets :attr:`task`.
+        decel_time: the stop after the input [s] (the rest of the tail is the hold; ``None``: not recorded).
     """
 
     time: np.ndarray
@@ -106,6 +114,28 @@ class PancakeResult(RobotFlags):
     n_motion: int
     mu: float = MU
     joints: JointReport | None = None
+    end_tilt: float | None = None
+    decel_time: float | None = None
+
+    @property
+    def task(self) -> str | None:
+        """What the motion asks of the pancake, read from where the spatula ends: ``"hold"`` (it ends tilted at most
+        atan μ from level, where a pancake can rest: carry it and keep it on the spatula), ``"turn"`` (it ends tilted
+        past that: carry it through the turn, after which it is released), or ``None`` (``end_tilt`` not recorded).
+        μ is the simulated contact's (:data:`~seqmotion.sim.scene.MU_PANCAKE`)."""
+        if self.end_tilt is None:
+            return None
+        return "turn" if _level_tilt(self.end_tilt) > cone_half_angle(MU_PANCAKE) else "hold"
+
+    @property
+    def left_time(self) -> float | None:
+        """When the pancake first lost contact after the input motion (slip or gap past its limit in the stop or
+        the hold) [s], or ``None``."""
+        k = first_true(self._lost()[self.n_motion:])
+        return None if k is None else float(self.time[self.n_motion + k])
+
+    def _lost(self) -> np.ndarray:
+        return (self.slip > SLIP_LIMIT) | (self.gap > GAP_LIMIT)
 
     def summary(self) -> dict[str, Any]:
         """The scalar metrics as a JSON-friendly dict."""
@@ -119,6 +149,9 @@ class PancakeResult(RobotFlags):
             "contact_lost_in_tail": self.contact_lost_in_tail,
             "on_spatula": self.on_spatula,
             "turned_over": self.turned_over,
+            "task": self.task,
+            "end_tilt_rad": self.end_tilt,
+            "left_spatula_after_motion_time_s": self.left_time,
             "executed_max_violation_rad": float(self.executed_violation.max(initial=0.0)),
             "mu": self.mu,  # the friction coefficient the executed cone was judged with
             "realtime_factor": self.realtime_factor,
@@ -127,25 +160,64 @@ class PancakeResult(RobotFlags):
         }
 
     def describe(self) -> str:
-        """One line for people: tracking, and what the pancake did."""
-        track = f"tracking {self.position_rmse * 1e3:.1f} mm / {np.degrees(self.attitude_rmse):.2f}° RMSE"
-        if self.joints is not None and self.joints.problem:
-            track += f"; {self.joints.robot}: {self.joints.problem}"
+        """One line for people, in plain clauses: tracking; the robot's limits (broken, or unknown); what the task is
+        (:attr:`task`); whether the pancake was carried as it asks during the motion (slip ≤ :data:`SLIP_LIMIT`, gap
+        ≤ :data:`GAP_LIMIT`); and what happened after the motion, in the stop and the hold."""
+        parts = [f"tracking {self.position_rmse * 1e3:.1f} mm / {np.degrees(self.attitude_rmse):.2f}° RMSE"]
+        robot = None if self.joints is None else self.joints.describe()
+        if robot:
+            parts.append(robot)
         if self.diverged:
-            return f"{track}; run cut short: {self.diverged}"
+            return "; ".join([*parts, f"run cut short: {self.diverged}"])
+        limits = f"limits {SLIP_LIMIT * 1e3:.0f} mm, {GAP_LIMIT * 1e3:.0f} mm"
         if self.contact_lost:
-            what = (f"pancake lost contact at t = {self.contact_lost_time:.3f} s "
-                    f"(max slip {self.max_slip * 1e3:.0f} mm, gap {self.max_gap * 1e3:.0f} mm)")
+            during = (f"the pancake lost contact at t = {self.contact_lost_time:.3f} s (max slip "
+                      f"{self.max_slip * 1e3:.0f} mm, gap {self.max_gap * 1e3:.0f} mm; {limits})")
         else:
-            what = f"pancake stayed on (max slip {self.max_slip * 1e3:.1f} mm, gap {self.max_gap * 1e3:.1f} mm)"
-        end = "turned over" if self.turned_over else "face up"
-        where = "on the spatula" if self.on_spatula else "off the spatula"
-        if not self.on_spatula and not self.contact_lost and self.contact_lost_in_tail:
-            # Kept during the motion; the spatula then holds its final tilt, which gravity alone
-            # can exceed (tilt > atan μ), so the pancake slides off in the tail.
-            where += " (it slid off after the motion, during the hold)"
-        return f"{track}; {what}; ends {end}, {where}"
+            during = (f"the pancake stayed on (max slip {self.max_slip * 1e3:.1f} mm, gap {self.max_gap * 1e3:.1f} mm "
+                      f"while the spatula moved; {limits})")
+        task = self.task
+        if task is not None:
+            tilt, rest = np.degrees(_level_tilt(self.end_tilt)), np.degrees(cone_half_angle(MU_PANCAKE))
+            if task == "turn":
+                over = " turned over" if tilt > 90 else ""
+                parts.append(f"task: carry the pancake through the turn, then release it{over} (the spatula ends "
+                             f"tilted {tilt:.0f}°, past the {rest:.0f}° a pancake can rest at)")
+                parts.append(f"carried through the turn: {'no' if self.contact_lost else 'yes'} — {during}")
+            else:
+                parts.append(f"task: carry the pancake and hold it on the spatula (it ends tilted {tilt:.0f}°, within "
+                             f"the {rest:.0f}° a pancake can rest at)")
+                held = not self.contact_lost and not self.contact_lost_in_tail and self.on_spatula
+                parts.append(f"held on the spatula: {'yes' if held else 'no'} — {during}")
+        else:
+            parts.append(during)
+        parts.append(f"after the motion: {self._after()}")
+        return "; ".join(parts)
 
+    def _after(self) -> str:
+        """What the pancake did in the stop and the hold, and how it ends."""
+        face, where = "turned over" if self.turned_over else "face up", "on" if self.on_spatula else "off"
+        ends = f"ends {face}, {where} the spatula"
+        left = None if self.contact_lost else self.left_time
+        if left is None:
+            return ends if self.contact_lost else f"it stayed on and {ends}"
+        k = round(left / (self.time[1] - self.time[0])) if len(self.time) > 1 else 0
+        how = "slid off" if self.slip[k] > SLIP_LIMIT else "lifted off"
+        since = left - self.time[self.n_motion - 1] if self.n_motion else left
+        hold = self.time[-1] - self.time[self.n_motion - 1] - (self.decel_time or 0.0)
+        if self.decel_time is None:
+            phase = "in the stop and hold after it"
+        elif since <= self.decel_time + 1e-9:
+            phase = f"while the spatula stopped (its {self.decel_time:.1f} s stop)"
+        else:
+            phase = f"during the {hold:.1f} s hold"
+        released = "released — " if self.task == "turn" else ""
+        return f"{released}it {how} at t = {left:.2f} s, {phase}, and {ends}"
+
+
+def _level_tilt(theta: float) -> float:
+    """How far the blade at tilt ``theta`` [rad] is from level, in [0, π] [rad] (a full turn is level again)."""
+    return abs(math.remainder(float(theta), 2 * math.pi))
 
 
 def run_pancake(
@@ -215,7 +287,7 @@ def run_pancake(
     # The pancake is placed on the blade's centre, resting on the site (its resting centre).
     log = execute("pancake", ref, gains, model_bias=model_bias, object_height=0.0, object_offset=np.zeros(2),
                   object_mass=PANCAKE_MASS, settle_time=settle_time, media=media, robot=robot)
-    return _pancake_metrics(ref, log, arr, mu)
+    return _pancake_metrics(ref, log, arr, mu, decel_time)
 
 
 def _planar_command(ref: Reference) -> np.ndarray:
@@ -226,7 +298,8 @@ def _planar_command(ref: Reference) -> np.ndarray:
          ref.vel[:, 1], ref.vel[:, 2], ref.omega[:, 0]], -1)
 
 
-def _pancake_metrics(ref: Reference, log: ExecutionLog, states: np.ndarray, mu: float) -> PancakeResult:
+def _pancake_metrics(ref: Reference, log: ExecutionLog, states: np.ndarray, mu: float,
+                     decel_time: float) -> PancakeResult:
     n, k_motion = log.steps, min(ref.n_motion, log.steps)
     command = _planar_command(ref)[:n]
     command[:, 2] += states[0, 2] - command[0, 2]  # unwrap relative to the input's own θ[0]
@@ -286,5 +359,7 @@ def _pancake_metrics(ref: Reference, log: ExecutionLog, states: np.ndarray, mu: 
         n_motion=ref.n_motion,
         mu=mu,
         joints=log.joints,
+        end_tilt=float(states[-1, 2]),
+        decel_time=decel_time,
     )
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -107,17 +108,17 @@ def plot_sliding(result: SlidingResult, path: str | Path, label: str = "") -> Pa
 
 def snapshot_steps(result: PancakeResult, n_snapshots: int = 6) -> list[int]:
     """The control periods :func:`~seqmotion.sim.run_pancake` (``snapshots=``) renders for ``result``: ``n``
-    evenly over the motion and its 0.1 s deceleration (the rule of :meth:`seqmotion.sim.arm.Media.plan`)."""
-    dt = float(result.time[1] - result.time[0]) if len(result.time) > 1 else 1e-3
-    last = min(len(result.time), result.n_motion + round(0.1 / dt)) - 1
+    evenly over the input motion (the rule of :meth:`seqmotion.sim.arm.Media.plan`)."""
+    last = min(len(result.time), result.n_motion) - 1
     return sorted(set(np.linspace(0, last, n_snapshots).round().astype(int).tolist()))
 
 
 def snapshot_labels(name: str, result: PancakeResult, steps: list[int]) -> tuple[str, list[str]]:
-    """A snapshot row's title (the run's name and :meth:`PancakeResult.describe`, the line the demo prints) and
-    one label per frame: ``"t = 0.60 s: off"`` once the pancake has lost contact (slip > ``SLIP_LIMIT`` or gap
-    > ``GAP_LIMIT``, the test behind ``contact_lost``) at or before that frame, else ``"on"``; frames after the
-    input motion say so (``"(stopping)"``: the deceleration tail)."""
+    """A snapshot row's title (the run's name and :meth:`PancakeResult.describe`, the line the demo prints: the
+    task, how the motion carried the pancake, and what happened after it) and one label per frame: its time and
+    ``"off"`` once the pancake has lost contact (slip > ``SLIP_LIMIT`` or gap > ``GAP_LIMIT``, the test behind
+    ``contact_lost``) at or before that frame, else ``"on"`` (``"t = 0.25 s: on"``); a frame after the input motion
+    says so (``"(stopping)"``: the deceleration tail; :func:`snapshot_steps` renders none there)."""
     from .pancake import GAP_LIMIT, SLIP_LIMIT
 
     lost = (result.slip > SLIP_LIMIT) | (result.gap > GAP_LIMIT)
@@ -140,9 +141,11 @@ def plot_snapshot_rows(rows: list[tuple[str, list[str], np.ndarray]], path: str 
     """
     plt = pyplot()
     width = max(strip.shape[1] for _, _, strip in rows) / 100
-    fig, axes = plt.subplots(len(rows), 1, figsize=(width, sum(s.shape[0] for _, _, s in rows) / 100 + 0.9 * len(rows)),
-                             squeeze=False)
-    for ax, (title, labels, strip) in zip(axes[:, 0], rows, strict=True):
+    # describe() is one long line: wrapped to the row's width (about 10 px per character at 14 pt), 0.3 in a line.
+    titles = [textwrap.fill(title, max(40, strip.shape[1] // 10)) for title, _, strip in rows]
+    height = sum(s.shape[0] for _, _, s in rows) / 100 + sum(0.4 + 0.3 * (t.count("\n") + 1) for t in titles)
+    fig, axes = plt.subplots(len(rows), 1, figsize=(width, height), squeeze=False)
+    for ax, title, (_, labels, strip) in zip(axes[:, 0], titles, rows, strict=True):
         ax.imshow(strip)
         ax.axis("off")
         ax.set_title(title, fontsize=14, loc="left")

@@ -52,9 +52,12 @@ the Panda with a joint at its range. None of the pancake motions keeps within th
 limits: their tilt rates (median peak 17 rad/s) ask the IK for 6× (Panda) and 5.5× (UR5e) the last joints'
 limits (2.61 and π rad/s).
 
-Velocity limits are not in the files: :data:`VELOCITY_LIMITS` holds the manufacturers' published
-values for the arms named there; any other arm gets ``velocity_limit=None`` ("unknown"), which a
-caller reports as such rather than checking.
+Velocity limits are not in the files: :data:`RATED_LIMITS` holds the manufacturers' published
+values (and accelerations where published) for the arms named there, each with its document; any other arm gets
+``velocity_limit=None`` ("unknown"), which a caller reports as such rather than checking. :attr:`Robot.limits` is
+every limit of an arm as one :class:`JointLimits`, each kind with its source (the model file for ranges and torques);
+:func:`built_in_limits` is the built-in arm's (all unknown: the MOTOMAN-MH3F's published axis limits were not
+found).
 """
 
 from __future__ import annotations
@@ -108,36 +111,71 @@ def _deg(*values: float) -> tuple[float, ...]:
     return tuple(math.radians(v) for v in values)
 
 
-VELOCITY_LIMITS: dict[str, tuple[float, ...]] = {
-    # Joint speed limits [rad/s], base → flange, from the manufacturers' published specifications.
-    # Franka Emika Panda: FCI documentation, "Robot and interface specifications" (q̇_max).
-    "robosuite:panda": (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
-    "menagerie:franka_emika_panda": (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
-    # Franka Research 3: FCI documentation, FR3 limits (q̇_max).
-    "menagerie:franka_fr3": (2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26),
-    # UR5e: Universal Robots e-Series technical specifications, all joints ±180 °/s.
-    "robosuite:ur5e": _deg(180, 180, 180, 180, 180, 180),
-    "menagerie:universal_robots_ur5e": _deg(180, 180, 180, 180, 180, 180),
-    # UR10e: base and shoulder ±120 °/s, elbow and wrists ±180 °/s (e-Series technical specifications).
-    "menagerie:universal_robots_ur10e": _deg(120, 120, 180, 180, 180, 180),
-    # robosuite's iiwa (torque limits 176/176/110/110/110/40/40 N m) is the KUKA LBR iiwa 7 R800:
-    # KUKA LBR iiwa specification, A1–A7 98, 98, 100, 130, 140, 180, 180 °/s.
-    "robosuite:iiwa": _deg(98, 98, 100, 130, 140, 180, 180),
-    # KUKA LBR iiwa 14 R820: 85, 85, 100, 75, 130, 135, 135 °/s (same specification).
-    "menagerie:kuka_iiwa_14": _deg(85, 85, 100, 75, 130, 135, 135),
-    # Kinova Gen3 (7 DoF) user guide: large actuators (1–4) 1.39 rad/s, small actuators (5–7) 1.22 rad/s.
-    "robosuite:kinova3": (1.39, 1.39, 1.39, 1.39, 1.22, 1.22, 1.22),
-    "menagerie:kinova_gen3": (1.39, 1.39, 1.39, 1.39, 1.22, 1.22, 1.22),
-    # UFACTORY xArm7 user manual: maximum joint speed 180 °/s.
-    "robosuite:xarm7": _deg(180, 180, 180, 180, 180, 180, 180),
-    "menagerie:ufactory_xarm7": _deg(180, 180, 180, 180, 180, 180, 180),
-    # Kinova JACO² 7-DoF spherical (j2s7s300) specifications: 36 °/s (joints 1–4), 48 °/s (joints 5–7).
-    "robosuite:jaco": _deg(36, 36, 36, 36, 48, 48, 48),
-    # Rethink Robotics Sawyer: the manufacturer's URDF (sawyer_description) joint velocity limits.
-    "robosuite:sawyer": (1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545),
-    "menagerie:rethink_robotics_sawyer": (1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545),
+@dataclass(frozen=True)
+class RatedLimits:
+    """A maker's published joint limits for one arm, base → flange, and the documents they come from.
+
+    Attributes:
+        velocity: ``(n,)`` rated joint speeds [rad/s].
+        source: where the speeds are published.
+        acceleration: ``(n,)`` rated joint accelerations [rad/s²], or ``None`` (none found published).
+        acceleration_source: where the accelerations are published (``None`` without them).
+    """
+
+    velocity: tuple[float, ...]
+    source: str
+    acceleration: tuple[float, ...] | None = None
+    acceleration_source: str | None = None
+
+
+_PANDA_RATED = RatedLimits(
+    (2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
+    "Franka Emika FCI documentation, Panda 'Robot and interface specifications' (q̇_max)",
+    (15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0),
+    "Franka Emika FCI documentation, Panda 'Robot and interface specifications' (q̈_max; libfranka's "
+    "include/franka/rate_limiting.h kMaxJointAcceleration)",
+)
+_UR5E_RATED = RatedLimits(_deg(180, 180, 180, 180, 180, 180),
+                          "Universal Robots UR5e technical specification (joint speeds ±180°/s)")
+_KINOVA3_RATED = RatedLimits((1.39, 1.39, 1.39, 1.39, 1.22, 1.22, 1.22),
+                             "Kinova Gen3 (7 DoF) user guide (large actuators 1–4 1.39 rad/s, small 5–7 1.22 rad/s)")
+_XARM7_RATED = RatedLimits(_deg(180, 180, 180, 180, 180, 180, 180),
+                           "UFACTORY xArm7 user manual (maximum joint speed 180°/s)")
+_SAWYER_RATED = RatedLimits((1.74, 1.328, 1.957, 1.957, 3.485, 3.485, 4.545),
+                            "Rethink Robotics Sawyer: the maker's URDF (sawyer_description) joint velocity limits")
+
+RATED_LIMITS: dict[str, RatedLimits] = {
+    "robosuite:panda": _PANDA_RATED,
+    "menagerie:franka_emika_panda": _PANDA_RATED,
+    "menagerie:franka_fr3": RatedLimits((2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26),
+                                        "Franka Research 3 FCI documentation, 'Limits for Franka Research 3' (q̇_max)"),
+    "robosuite:ur5e": _UR5E_RATED,
+    "menagerie:universal_robots_ur5e": _UR5E_RATED,
+    "menagerie:universal_robots_ur10e": RatedLimits(
+        _deg(120, 120, 180, 180, 180, 180),
+        "Universal Robots UR10e technical specification (base and shoulder ±120°/s, elbow and wrists ±180°/s)"),
+    # robosuite's iiwa (torque limits 176/176/110/110/110/40/40 N m) is the KUKA LBR iiwa 7 R800.
+    "robosuite:iiwa": RatedLimits(_deg(98, 98, 100, 130, 140, 180, 180),
+                                  "KUKA LBR iiwa specification, LBR iiwa 7 R800 (A1–A7 98, 98, 100, 130, 140, 180, "
+                                  "180°/s)"),
+    "menagerie:kuka_iiwa_14": RatedLimits(_deg(85, 85, 100, 75, 130, 135, 135),
+                                          "KUKA LBR iiwa specification, LBR iiwa 14 R820 (A1–A7 85, 85, 100, 75, 130, "
+                                          "135, 135°/s)"),
+    "robosuite:kinova3": _KINOVA3_RATED,
+    "menagerie:kinova_gen3": _KINOVA3_RATED,
+    "robosuite:xarm7": _XARM7_RATED,
+    "menagerie:ufactory_xarm7": _XARM7_RATED,
+    "robosuite:jaco": RatedLimits(_deg(36, 36, 36, 36, 48, 48, 48),
+                                  "Kinova JACO² 7-DoF spherical (j2s7s300) specifications (36°/s joints 1–4, 48°/s "
+                                  "joints 5–7)"),
+    "robosuite:sawyer": _SAWYER_RATED,
+    "menagerie:rethink_robotics_sawyer": _SAWYER_RATED,
 }
-"""Published joint speed limits per ``"source:name"``; arms not listed have ``velocity_limit=None``."""
+"""The makers' published joint limits per ``"source:name"`` (speeds, and accelerations where published); an arm
+not listed has ``velocity_limit=None``: its rated speeds are unknown, and reported as such, never as unlimited."""
+
+VELOCITY_LIMITS: dict[str, tuple[float, ...]] = {key: rated.velocity for key, rated in RATED_LIMITS.items()}
+"""The rated joint speeds [rad/s] of :data:`RATED_LIMITS`, per ``"source:name"``."""
 
 
 @dataclass(frozen=True)
@@ -216,6 +254,108 @@ class RobotInfo:
     source: str
     dof: int | None
     path: Path | None
+
+
+LIMIT_KINDS = ("position", "velocity", "acceleration", "torque")
+"""The kinds of joint limit :class:`JointLimits` carries: ranges [rad], speeds [rad/s], accelerations [rad/s²],
+torques [N m]."""
+
+_LIMIT_NAMES = {"position": "joint ranges", "velocity": "rated speeds", "acceleration": "rated accelerations",
+                "torque": "torque limits"}
+
+
+@dataclass(frozen=True, eq=False)
+class JointLimits:
+    """A robot's joint limits, base → flange, each kind with where it comes from.
+
+    A kind that is not known is ``None`` with a source that starts with ``"unknown: "`` and says why: a caller reports
+    it as unknown and never treats it as unlimited (a continuous joint, whose range *is* known to have no ends, is
+    ``±inf`` in ``position``).
+
+    Attributes:
+        robot: the robot, ``"name (source)"``.
+        joints: the joint names, base → flange (``n`` of them).
+        position: ``(n, 2)`` joint ranges [rad] (``±inf`` for a continuous joint), or ``None``.
+        velocity: ``(n,)`` rated joint speeds [rad/s], or ``None``.
+        acceleration: ``(n,)`` rated joint accelerations [rad/s²], or ``None``.
+        torque: ``(n,)`` torque limits [N m], or ``None``.
+        sources: kind (:data:`LIMIT_KINDS`) → the document or model file it comes from, or ``"unknown: <why>"``.
+    """
+
+    robot: str
+    joints: tuple[str, ...]
+    position: np.ndarray | None
+    velocity: np.ndarray | None
+    acceleration: np.ndarray | None
+    torque: np.ndarray | None
+    sources: dict[str, str]
+
+    def __post_init__(self) -> None:
+        n = len(self.joints)
+        if set(self.sources) != set(LIMIT_KINDS):
+            raise ValueError(f"{self.robot}: limit sources must name exactly {LIMIT_KINDS}, got {sorted(self.sources)}")
+        for kind in LIMIT_KINDS:
+            value, source = getattr(self, kind), self.sources[kind]
+            if not isinstance(source, str) or not source:
+                raise ValueError(f"{self.robot}: the source of its {_LIMIT_NAMES[kind]} must be a non-empty string")
+            if value is None:
+                if not source.startswith("unknown: "):
+                    raise ValueError(f"{self.robot}: {_LIMIT_NAMES[kind]} are None but their source {source!r} does "
+                                     "not start with 'unknown: '")
+                continue
+            arr = np.array(value, dtype=np.float64)
+            shape = (n, 2) if kind == "position" else (n,)
+            if arr.shape != shape:
+                raise ValueError(f"{self.robot}: {_LIMIT_NAMES[kind]} must have shape {shape}, got {arr.shape}")
+            bad = np.isnan(arr).any() or (np.any(arr[:, 0] >= arr[:, 1]) if kind == "position"
+                                          else not np.all(np.isfinite(arr) & (arr > 0)))
+            if bad:
+                raise ValueError(f"{self.robot}: {_LIMIT_NAMES[kind]} must be " + (
+                    "ranges with lower < upper" if kind == "position" else "finite and positive") + f", got {arr}")
+            arr.setflags(write=False)
+            object.__setattr__(self, kind, arr)
+        object.__setattr__(self, "sources", dict(self.sources))
+
+    def known(self, kind: str) -> bool:
+        """Whether the limits of ``kind`` (one of :data:`LIMIT_KINDS`) are known."""
+        if kind not in LIMIT_KINDS:
+            raise ValueError(f"limit kind must be one of {LIMIT_KINDS}, got {kind!r}")
+        return getattr(self, kind) is not None
+
+    def unknown(self, kind: str) -> str | None:
+        """Why the limits of ``kind`` are unknown (``"rated speeds unknown for mh3f (seqmotion): …"``), or ``None``
+        where they are known."""
+        if self.known(kind):
+            return None
+        return f"{_LIMIT_NAMES[kind]} unknown for {self.robot}: {self.sources[kind].removeprefix('unknown: ')}"
+
+    def summary(self) -> dict[str, Any]:
+        """The limits as a JSON-friendly dict: lists (``None`` for an unknown kind, and for a continuous joint's
+        range ends) and ``sources``."""
+        out: dict[str, Any] = {"robot": self.robot, "joints": list(self.joints)}
+        for kind in LIMIT_KINDS:
+            value = getattr(self, kind)
+            out[kind] = None if value is None else [
+                (None if not np.isfinite(x) else float(x)) if np.ndim(x) == 0 else
+                [None if not np.isfinite(v) else float(v) for v in x] for x in value]
+        out["sources"] = dict(self.sources)
+        return out
+
+
+MH3F_NOT_FOUND = ("the MOTOMAN-MH3F's published axis limits were not found (seqmotion's built-in MH3F-like arm models "
+                  "none)")
+"""Why the built-in arm's limits are unknown."""
+
+
+def built_in_limits(joints: tuple[str, ...] = ("s", "l", "u", "r", "b", "t")) -> JointLimits:
+    """The built-in MH3F-like arm's limits (its joints ``joints``, base → flange): every kind unknown.
+
+    The built-in arm is the dissertation's arm rebuilt from its reach, not the maker's model: it has no joint ranges
+    and no torque limits, and the MOTOMAN-MH3F's own published axis ranges, speeds and torques were not found, so
+    none of them is checked (and none is assumed unlimited).
+    """
+    return JointLimits(f"{BUILT_IN} (seqmotion)", tuple(joints), None, None, None, None,
+                       {kind: f"unknown: {MH3F_NOT_FOUND}" for kind in LIMIT_KINDS})
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,6 +441,28 @@ class Robot:
     def label(self) -> str:
         """``"name (source)"``, e.g. ``"panda (robosuite)"``."""
         return f"{self.name} ({self.source})"
+
+    @property
+    def limits(self) -> JointLimits:
+        """Every joint limit of the arm with its source (:class:`JointLimits`): ranges and torques from its model
+        file, rated speeds (and accelerations where published) from :data:`RATED_LIMITS`, unknown otherwise."""
+        key = f"{self.source}:{self.name}"
+        rated = RATED_LIMITS.get(key)
+        file = f"model file {self.source}:{self.name} ({self.path.name})"
+        how = "motor ctrlrange" if self.source == "robosuite" else "actuator forcerange or joint actuatorfrcrange"
+        if self.velocity_limit is None:
+            speed_source = f"unknown: no published joint speeds for {key} in seqmotion's table (RATED_LIMITS)"
+        elif rated is not None and np.allclose(rated.velocity, self.velocity_limit):
+            speed_source = rated.source
+        else:
+            speed_source = "given when this Robot was made"
+        accel = None
+        accel_source = f"unknown: no published joint accelerations for {key} in seqmotion's table (RATED_LIMITS)"
+        if rated is not None and rated.acceleration is not None and len(rated.acceleration) == self.dof:
+            accel, accel_source = np.array(rated.acceleration), str(rated.acceleration_source)
+        return JointLimits(self.label, self.joints, self.joint_range, self.velocity_limit, accel, self.torque_limit,
+                           {"position": f"{file}: joint ranges", "velocity": speed_source,
+                            "acceleration": accel_source, "torque": f"{file}: {how}"})
 
     def spec(self) -> Any:
         """The arm alone as a fresh ``mujoco.MjSpec``, ready to be attached to a scene.
@@ -549,7 +711,7 @@ def load_robot(
     Args:
         path: the robot's MJCF (a robosuite ``robot.xml`` or a Menagerie entry point).
         source: ``"robosuite"`` or ``"menagerie"`` (how its actuators and flange are read).
-        name: the robot's name in that source (keys :data:`VELOCITY_LIMITS`, :data:`PLACEMENTS`).
+        name: the robot's name in that source (keys :data:`RATED_LIMITS`, :data:`PLACEMENTS`).
         placement: where it stands; default: :data:`PLACEMENTS` or :data:`DEFAULT_PLACEMENT`.
         folder: the directory every file the model reads must lie in (the robot's Menagerie folder); ``None``:
             any (the sizes are checked all the same).

@@ -149,8 +149,9 @@ class SlidingResult(RobotFlags):
             parts.append(f"command placed at ({x:.0f}, {y:.0f}) mm from the pan's centre to clear its wall")
         parts.append(f"pan within {self.pan_excursion * 1e3:.0f} mm of its start")
         parts.append("object fell off" if self.fell_off else ("object tipped" if self.tipped else "object stayed on"))
-        if self.joints is not None and self.joints.problem:
-            parts.append(f"{self.joints.robot}: {self.joints.problem}")
+        robot = None if self.joints is None else self.joints.describe()  # limits broken, or unknown
+        if robot:
+            parts.append(robot)
         if self.diverged:
             parts.append(f"run cut short: {self.diverged}")
         return "; ".join(parts)
