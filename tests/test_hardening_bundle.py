@@ -232,7 +232,9 @@ def test_what_no_scan_sees_is_bounded_at_run_time(pristine, tmp_path):
         print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
         """)
     assert lines[0].startswith("ValueError:") and "violation.onnx" in lines[0], lines
-    assert int(lines[1]) < 1000  # MB: nothing near the 3.6 GB was touched
+    # MB: within the arena's cap (2 GiB; onnxruntime may fill it before it refuses) and the process's own ~0.3 GB,
+    # far from the 3.6 GB asked for
+    assert int(lines[1]) < bundle.MAX_RUN_BYTES // 2**20 + 600
 
 
 def test_a_graph_larger_than_any_export_is_refused_before_it_is_read(pristine, tmp_path, monkeypatch):

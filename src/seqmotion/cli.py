@@ -12,12 +12,18 @@ import importlib.util
 import json
 import os
 import sys
+import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+OUTPUT_HELP = ".npz (the result: seqmotion.load_result reads it back) or .csv (plain columns for other tools)"
 PLUGIN_COMMANDS = ("seqmotion.sim.cli", "seqmotion.lfd.cli", "seqmotion.latent.cli", "seqmotion.deploy.cli",
                    "seqmotion.view.cli")
+TIMED_COMMANDS = frozenset({"demo", "deform", "optimize", "plan", "simulate", "train", "reproduce"})
+"""The long-running commands: each ends with ``done in …`` on stdout, since the README's times are a quiet machine's
+and a busy one takes several times longer (their stdout is a report for people; their data goes to files)."""
 
 
 def _trained_model(value: str, expected_task: str | None = None):  # noqa: ANN202 - a task's TrainedModel
@@ -37,6 +43,17 @@ def result_columns(result: object, model) -> tuple[dict[str, np.ndarray], dict[s
     from seqmotion.core.results import columns_of
 
     return columns_of(result, model.state_layout, model.accel_layout, model.uncertainty_names)
+
+
+def write_result(path: str, result: object, columns: dict[str, np.ndarray], names: dict[str, list[str]]) -> None:
+    """``--output``: an ``.npz`` through ``result.save`` (``sm.load_result`` reads it back; ``columns`` kept beside it
+    for readers of plain arrays), a ``.csv`` as plain columns for other tools."""
+    if Path(path).suffix.lower() == ".npz":
+        result.save(path, extra=columns)
+    else:
+        from seqmotion.training.files import write_arrays
+
+        write_arrays(path, columns, names)
 
 
 # --- subcommands ---------------------------------------------------------------------------------
@@ -110,7 +127,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_deform(args: argparse.Namespace) -> int:
     from seqmotion.physics.integrator import DoubleIntegratorDynamics, implied_accel
-    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory, write_arrays
+    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory
 
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--input": args.input})
@@ -121,10 +138,15 @@ def cmd_deform(args: argparse.Namespace) -> int:
         check_not_an_input(args.plot, "--plot", {"--input": args.input, "--output": args.output})
     model = _trained_model(args.model)
     inputs = read_trajectory(args.input, columns=model.input_layout.names)
-    result = model.generate(inputs, keep_end=args.keep_end)
+    with warnings.catch_warnings(record=True) as caught:  # the polish's failures: one line below, not Python's text
+        warnings.simplefilter("always")
+        result = model.generate(inputs, keep_end=args.keep_end)
+    from seqmotion.errors import said_by
+
+    polish_failures = said_by(caught, "keep_end: ")
     motion = result.motion()
     columns, names = result_columns(result, model)
-    write_arrays(args.output, columns, names)
+    write_result(args.output, result, columns, names)
     message = f"{model.task_def.name}: generated {len(motion.states)} samples → {args.output}"
     if motion.violation is not None:
         message += f": max constraint violation {np.max(motion.violation):.4f}{violation_unit(model, ' ')}"
@@ -143,12 +165,11 @@ def cmd_deform(args: argparse.Namespace) -> int:
         at_rest = bool(np.all(np.abs(np.asarray(motion.states)[result.length - 1, rates]) < 1e-6))
         if result.exact:
             print("ends exactly at the input's end pose, at rest (polished)")
-        elif at_rest:
-            print("warning: no motion ends at the input's end pose within the task's constraint and the arm's "
+        elif at_rest:  # the warning line on stderr says why; this says what was written instead
+            print("not exact: no motion ends at the input's end pose within the task's constraint and the arm's "
                   "limits and reach; this one ends at rest as near it as they allow (end error below)")
         else:
-            print("warning: the polish could not make the motion end at the input's end pose at rest; this is the "
-                  "learned motion")
+            print("not exact: the learned motion, unpolished")
         if result.length > len(inputs):
             print(f"  it takes {result.length - len(inputs)} samples more than the input: ending at rest within the "
                   f"arm's acceleration limits {model.exact_form().accel_limits} needs that time")
@@ -159,6 +180,14 @@ def cmd_deform(args: argparse.Namespace) -> int:
     if args.plot:
         plot_deform(model, inputs, result, Path(args.plot))
         print(f"figure → {args.plot}")
+    if args.keep_end and not bool(np.all(result.exact)):
+        from seqmotion.errors import EXIT_INEXACT
+
+        why = "; ".join(polish_failures) or "the polish did not converge"
+        mark = "marked inexact (exact False)" if args.output.lower().endswith(".npz") else "a .csv: no exact flag"
+        print(f"seqmotion deform: warning: --keep-end could not make the exact motion: {why}; {args.output} holds "
+              f"what was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
+        return EXIT_INEXACT
     return 0
 
 
@@ -241,7 +270,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     from seqmotion.data import sliding as commands
     from seqmotion.errors import MAX_LENGTH, check_number
-    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory, write_arrays
+    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory
 
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--command": args.command_file})
@@ -267,7 +296,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     # The friction it was planned at travels with the plan: `seqmotion simulate sliding` compares it with the arm's.
     friction = np.array([plan.physics.mu, plan.physics.mu_dyn])
     mu, mu_dyn = plan.physics.mu, plan.physics.mu_dyn
-    write_arrays(args.output, {**columns, "command": command, "friction": friction},
+    write_result(args.output, plan, {**columns, "command": command, "friction": friction},
                  {**names, "command": [f"command.{n}" for n in planner.input_layout.names]})
     rmse, reach = 1000 * plan.errors["tracking_rmse_m"], 1000 * plan.errors["pan_max_m"]
     print(f"planned {len(command)} samples → {args.output}: object RMSE {rmse:.1f} mm against the command, "
@@ -393,11 +422,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input", required=True,
                    help=".npz (array 'states') or .csv: (K, input_dim) rows in the task's input layout "
                         "(pancake: y,z,θ,vy,vz,vθ)")
-    p.add_argument("--output", required=True, help=".npz or .csv")
+    p.add_argument("--output", required=True, help=OUTPUT_HELP)
     p.add_argument("--keep-end", action="store_true",
                    help="end exactly where the input ends, at rest, with the constraint held and within the arm's "
                         "acceleration limits (an IPOPT polish of the learned motion; tasks with an exact form, e.g. "
-                        "pancake); an input too short for that gets the time it needs (the output is longer)")
+                        "pancake); an input too short for that gets the time it needs (the output is longer). Where "
+                        "the polish cannot make that exact motion, what was made is still written, marked inexact "
+                        "(a .npz holds exact False; a .csv has no place for the mark), one 'seqmotion deform: "
+                        "warning:' line says why (exit code 3)")
     p.add_argument("--plot", metavar="PNG",
                    help="also write a figure: the input and the deformed motion over time, and the violation with "
                         "its limit")
@@ -418,7 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "commands the planner alone does not follow, e.g. circles")
     p.add_argument("--tolerance", type=float, metavar="METRES",
                    help="warn when the object's RMS distance from the command exceeds this (default 0.005)")
-    p.add_argument("--output", required=True, help=".npz or .csv")
+    p.add_argument("--output", required=True, help=OUTPUT_HELP)
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("calibrate-trust",
@@ -489,12 +521,16 @@ def _one_line(exc: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run a subcommand. Exit codes: 0 done; 2 bad input (a ``ValueError``/``CheckpointError``: one line
     ``seqmotion <command>: error: …`` on stderr, never a traceback); 1 the work failed (an ``OSError``
-    such as a full disk, a diverged training, a ``MemoryError``: one line too); 130 interrupted."""
+    such as a full disk, a diverged training, a ``MemoryError``: one line too); 3 made, but not what was asked
+    (:data:`seqmotion.errors.EXIT_INEXACT`: ``deform --keep-end`` or ``optimize --exact`` could not make the exact
+    motion; what was made is written, marked inexact, and one ``seqmotion <command>: warning: …`` line on stderr
+    says why); 130 interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     name = getattr(args, "command", None) or "?"
+    start = time.perf_counter()
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
     except ValueError as exc:  # bad input: a clear message, no traceback
         print(f"seqmotion {name}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
@@ -508,6 +544,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"seqmotion {name}: interrupted", file=sys.stderr)
         return 130
+    if name in TIMED_COMMANDS and os.environ.get("RANK", "0") == "0":  # torchrun: one line, from the first rank
+        print(f"done in {elapsed(time.perf_counter() - start)}", flush=True)
+    return code
+
+
+def elapsed(seconds: float) -> str:
+    """``12.3 s`` below a minute, ``3 min 19 s`` from there."""
+    if seconds < 59.95:
+        return f"{seconds:.1f} s"
+    minutes, rest = divmod(round(seconds), 60)
+    return f"{minutes} min {rest} s"
 
 
 if __name__ == "__main__":

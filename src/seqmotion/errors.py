@@ -8,6 +8,7 @@ returns NaN.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 
@@ -15,6 +16,24 @@ MAX_LENGTH = 1_000_000
 """The longest motion anything reads, generates or decodes: K samples (1000 s at 1 ms). The one cap on K,
 checked before anything of size K is allocated (input files' declared shapes, ``generate``, ``decode``,
 ``--length``, task options)."""
+EXIT_INEXACT = 3
+"""The command lines' exit code for "made, but not what was asked": an exact motion was asked for (``deform
+--keep-end``, ``optimize --exact``) and the polish could not make it; the result is written all the same, marked
+inexact (its ``exact`` False), and one ``seqmotion <command>: warning:`` line says why."""
+
+
+def said_by(caught: list[warnings.WarningMessage], prefix: str) -> list[str]:
+    """The messages of the warnings in ``caught`` (``warnings.catch_warnings(record=True)``) that start with
+    ``prefix``, without it — for a command line's own one-line report instead of Python's warning text; any other
+    warning is issued again, as it would have been without the catch."""
+    said = []
+    for w in caught:
+        text = str(w.message)
+        if text.startswith(prefix):
+            said.append(text.removeprefix(prefix))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+    return said
 
 
 class CheckpointError(ValueError):

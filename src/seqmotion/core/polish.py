@@ -42,8 +42,9 @@ POLISH_VIOLATION_TOLERANCE = 1e-6
 """A polished motion is exact when the task's constraint violation is at most this (pancake: F_c [rad])."""
 WARM_ITERATIONS = 20
 """IPOPT iterations the warm (small-barrier) start gets before the polish falls back to a cold start:
-a nearly feasible motion needs 2–5; a far one (e.g. J2's, 1.25 rad outside its band) is faster from
-IPOPT's default barrier."""
+a nearly feasible motion converges within them (7–17 on the README's polishes), but most of the latent stage's
+motions do not and finish cold in ~20 more (``benchmarks/bench_keep_end.py --readme``); a far one (e.g. J2's,
+1.25 rad outside its band) is faster from IPOPT's default barrier."""
 COLD_ITERATIONS = 300
 """…and the cold start gets this many: J2's polish needs ~90; a sketch that cannot end at rest within
 the constraints (the arm's limits) is proved locally infeasible in ~50–150, or given up on here."""

@@ -80,6 +80,9 @@ class TrustSignals:
         length: with ``keep_end=True``: the motion's length in samples (``(B,)`` for a batch) — the input's K,
             or more where ending at rest within the arm's acceleration limits took longer than the input
             (a batch holds a shorter motion's end state, with zero input, up to its longest); None otherwise.
+        polish_iterations: with ``keep_end=True``: IPOPT's iterations for the motion (``(B,)`` for a batch), summed
+            over every polish it took (a longer time tried, the fallback to the nearest rest); None otherwise.
+            (An optimisation's polish reports its own in ``stages``.)
         task: the name of the task that made the result (it names the state fields in :meth:`plot`, and
             :func:`load_result` finds a plug-in's result class through it), or None.
         physics: the task's physics the result was computed at (:mod:`seqmotion.physics.parameters`, e.g.
@@ -94,6 +97,7 @@ class TrustSignals:
     ood_reasons: list | None = field(default=None, kw_only=True)
     exact: Any = field(default=None, kw_only=True)
     length: Any = field(default=None, kw_only=True)
+    polish_iterations: Any = field(default=None, kw_only=True)
     task: str | None = field(default=None, kw_only=True)
     physics: Physics | None = field(default=None, kw_only=True)
 
@@ -121,7 +125,7 @@ class TrustSignals:
         return Motion(values["states"], values["accel"], values.get("latent"), values.get("violation"),
                       **self.trust())
 
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | Path, extra: Mapping[str, Any] | None = None) -> Path:
         """Write this result to an ``.npz`` atomically, every field under its own name, no pickled objects.
 
         Arrays keep their name, dtype and shape (``states``, ``accel``, …); a dict's entries are
@@ -131,13 +135,26 @@ class TrustSignals:
         to rebuild each field: :func:`load_result` returns an equal result. ``np.load(path)`` reads it
         as plain named arrays.
 
+        ``extra``: more named arrays of numbers to store beside the result's own for readers of plain arrays (the
+        command line's plan keeps ``pan_accel``, ``command``, ``friction``); :func:`load_result` ignores them. A name
+        the result already stores is skipped where it holds the same values.
+
         Raises:
-            ValueError: ``path`` is not a writable ``.npz`` path, or a field holds a value that cannot be
-                stored without pickling (naming the field).
+            ValueError: ``path`` is not a writable ``.npz`` path, a field holds a value that cannot be
+                stored without pickling (naming the field), or an ``extra`` array is not numbers or differs from
+                the result's array of the same name.
         """
         path = io.check_writable(path, (".npz",), "result file")
         arrays: dict[str, np.ndarray] = {}
         layout = {f.name: _pack(getattr(self, f.name), f.name, arrays) for f in fields(self) if f.init}
+        for key, value in (extra or {}).items():
+            array = np.asarray(value)
+            if array.dtype.kind not in "biuf":
+                raise ValueError(f"cannot save extra array {key!r}: it holds {array.dtype}, not numbers")
+            if key not in arrays:
+                _put(arrays, key, array)
+            elif not np.array_equal(arrays[key], array, equal_nan=array.dtype.kind == "f"):
+                raise ValueError(f"cannot save extra array {key!r}: the result stores other values under that name")
         layout_json = json.dumps({"format": RESULT_FORMAT, "fields": layout})
         for key, value in ((_CLASS_KEY, _class_key(type(self))), (_LAYOUT_KEY, layout_json)):
             arrays[key] = np.array(value)
@@ -417,7 +434,7 @@ def check_arrays(result: TrustSignals, source: str | Path) -> None:
         if not (std >= 0).all():
             raise refuse("uncertainty", "holds negative values or NaN, expected standard deviations")
     per_motion = {f"errors.{key}": value for key, value in (values.get("errors") or {}).items()}
-    per_motion |= {name: values.get(name) for name in ("out_of_distribution", "exact", "length")}
+    per_motion |= {name: values.get(name) for name in ("out_of_distribution", "exact", "length", "polish_iterations")}
     for name, value in per_motion.items():
         if value is None:
             continue
@@ -433,6 +450,10 @@ def check_arrays(result: TrustSignals, source: str | Path) -> None:
         wrong = length[(length < 2) | (length > k)]
         if wrong.size:
             raise refuse("length", f"is {int(wrong.flat[0])}, expected 2 … K = {k} (the states' samples)")
+    if values.get("polish_iterations") is not None:
+        spent = np.asarray(values["polish_iterations"])
+        if spent.dtype.kind not in "iu" or (spent < 0).any():
+            raise refuse("polish_iterations", f"holds {spent.dtype} {spent.ravel()[:3].tolist()}, expected counts ≥ 0")
     reasons = values.get("ood_reasons")
     if reasons is not None and lead and (len(reasons) != lead[0] or not all(isinstance(r, list) for r in reasons)):
         raise refuse("ood_reasons", f"holds {len(reasons)} entries, expected {lead[0]} lists (one per motion)")

@@ -137,9 +137,25 @@ class Task(ABC):
         """The differentiable physics the decoder's loop runs through, at ``physics`` (a :attr:`physics_class`)."""
 
     def physics_trained(self, options: TaskOptions) -> dict[str, tuple[float, float]]:
-        """The (lowest, highest) value of each field of :attr:`physics_class` the training met: a generation at
-        physics beyond them (by the trust margin) is out of distribution. Default: none known."""
+        """The (lowest, highest) value of the fields of :attr:`physics_class` that the task's own :meth:`sample` draws
+        per trajectory (sliding: the friction of each command), at ``options``. Override it when ``sample`` varies
+        the physics; :meth:`physics_trained_over` covers the other fields. Default: none."""
         return {}
+
+    def physics_trained_over(self, config: TrainConfig) -> dict[str, tuple[float, float]]:
+        """The (lowest, highest) value of every field of :attr:`physics_class` a training by ``config`` meets: the
+        trainer records it in the model's ``config.json`` (``physics_trained``), and a generation at physics beyond
+        it (by the trust margin) is out of distribution.
+
+        Per field: the range :meth:`physics_trained` gives, else the span of the curriculum parameter of the same
+        name, else the one value the training ran at (:meth:`physics` of the config's options).
+        """
+        options = self.options(config)
+        curriculum = self.curriculum(config)
+        spans = {name: curriculum.span(name) if name in curriculum.initial else (value, value)
+                 for name, value in self.physics(options).to_dict().items()}
+        drawn = {name: (float(low), float(high)) for name, (low, high) in self.physics_trained(options).items()}
+        return {**spans, **drawn}
 
     def start_state(self, inputs: torch.Tensor) -> torch.Tensor:
         """Decoder start state ``(B, state_dim)`` for input motions ``(B, K, input_dim)``

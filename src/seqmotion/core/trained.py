@@ -68,6 +68,28 @@ class TrainedModel(PretrainedModel):
         self.options = self.task_def.options(training.get("options", {}))
         self.physics: Physics = self.task_def.physics(self.options)
         """The physics the model runs at unless told otherwise (resolved from its options once)."""
+        self.physics_trained = self._physics_trained(self.config.get("physics_trained"))
+        """Field → (lowest, highest) value the training met: the record the trainer wrote into ``config.json``, or
+        for a model saved without one, what the task says (:meth:`Task.physics_trained`) as before."""
+
+    def _physics_trained(self, record: object) -> dict[str, tuple[float, float]]:
+        """The checked ``physics_trained`` record of ``config.json`` (None: the task's own ranges at the options)."""
+        if record is None:
+            return dict(self.task_def.physics_trained(self.options))
+        cls = self.task_def.physics_class
+        names = cls.names()
+        if not isinstance(record, dict):
+            raise ValueError(f"physics_trained must map physics fields to [low, high], got {type(record).__name__}")
+        out = {}
+        for name, span in record.items():
+            if name not in names:
+                raise ValueError(f"physics_trained names {name!r}, not a field of {cls.__name__} ({list(names)})")
+            ok = isinstance(span, list) and len(span) == 2 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in span)
+            if not ok or span[0] > span[1]:
+                raise ValueError(f"physics_trained[{name!r}] must be [low, high] with finite low <= high, got {span!r}")
+            out[name] = (float(span[0]), float(span[1]))
+        return out
 
     # --- the device ---------------------------------------------------------------------------
 
@@ -375,12 +397,14 @@ class TrainedModel(PretrainedModel):
 
     def _polish_ends(
         self, states: torch.Tensor, accel: torch.Tensor, end: tuple[Constraint, np.ndarray], extend: bool = True,
-    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray]:
-        """Polish each motion onto ``end`` (see :meth:`generate`): ``(states, accel, exact (B,), length (B,))``,
-        padded to the longest motion by holding its end state with zero input."""
+    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
+        """Polish each motion onto ``end`` (see :meth:`generate`): ``(states, accel, exact (B,), length (B,),
+        iterations (B,))``, padded to the longest motion by holding its end state with zero input; ``iterations``:
+        IPOPT's, summed over every polish the motion took (longer tries, the fallback)."""
         constraint, values = end
         columns = list(constraint.key[1])
         exact = np.zeros(len(states), dtype=bool)
+        iterations = np.zeros(len(states), dtype=np.int64)
         x0, reference = states[:, 0].numpy(), accel.numpy()
         form = self.exact_form()
         motions = []
@@ -408,19 +432,23 @@ class TrainedModel(PretrainedModel):
                 solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
                                        cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
                                        symbolic="MX")
+                iterations[b] += solution.iterations
                 if self._holds(solution):
                     motions[b], exact[b] = (solution.states, solution.accel), True
                     break
                 steps = math.ceil(steps * EXTEND_GROWTH)
             if not exact[b]:  # at the longest time tried (``ref``)
-                motions[b] = self._nearest_rest(b, x0[b], ref, columns, values[b], solution.status, motions[b])
+                near_states, near_accel, spent = self._nearest_rest(b, x0[b], ref, columns, values[b],
+                                                                    solution.status, motions[b])
+                motions[b] = (near_states, near_accel)
+                iterations[b] += spent
         length = np.array([len(s) for s, _ in motions])
         longest = int(length.max())
         states = torch.from_numpy(np.stack([np.concatenate([s, np.repeat(s[-1:], longest - len(s), 0)])
                                             for s, _ in motions]))
         accel = torch.from_numpy(np.stack([np.concatenate([a, np.zeros((longest - 1 - len(a), a.shape[1]))])
                                            for _, a in motions]))
-        return states, accel, exact, length
+        return states, accel, exact, length, iterations
 
     def _holds(self, solution: Solution) -> bool:
         """Whether a polish converged with the task's constraint held (to :data:`POLISH_VIOLATION_TOLERANCE`)."""
@@ -432,12 +460,13 @@ class TrainedModel(PretrainedModel):
     def _nearest_rest(
         self, b: int, x0: np.ndarray, ref: np.ndarray, columns: list[int], values: np.ndarray, status: str,
         learned: tuple[np.ndarray, np.ndarray],
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, int]:
         """``keep_end``'s fallback for motion ``b``, whose end pose no polish reached (e.g. a pose that the
         arm can hold the pancake at only from beyond its reach): the motion as long as ``ref`` that
         ends at rest, keeps the task's constraint, limits and reach exactly, and ends as near the end pose as
         they allow (weighted by :data:`FALLBACK_END_WEIGHT`) — executable, and flagged (``exact`` stays False,
-        the trust signals give its end error). If even that fails, the learned motion as it is."""
+        the trust signals give its end error). If even that fails, the learned motion as it is. Last: the IPOPT
+        iterations this took."""
         form = self.exact_form()
         pose = [self.state_layout.index(f) for f in self.task_def.end_pose[0]]
         rates = [c for c in columns if c not in pose]
@@ -456,10 +485,10 @@ class TrainedModel(PretrainedModel):
                           f"the acceleration limits and the reach ({status}); it ends at rest as near as they allow, "
                           f"{np.round(miss, 4).tolist()} from it ({', '.join(self.task_def.end_pose[0])})",
                           RuntimeWarning, stacklevel=5)
-            return solution.states, solution.accel
+            return solution.states, solution.accel, solution.iterations
         warnings.warn(f"keep_end: the polish failed on motion {b} ({status}; ending at rest near its end pose: "
                       f"{solution.status}); it keeps the learned motion", RuntimeWarning, stacklevel=5)
-        return learned
+        return *learned, solution.iterations
 
     def decode(self, latent: object, x0: object, length: int, physics: Physics | None = None) -> Any:
         """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples
@@ -524,9 +553,9 @@ class TrainedModel(PretrainedModel):
         ``(B, K, input_dim)`` when given (errors, out-of-distribution flag)."""
         x0 = x0.double()
         states, accel, std = self.rollout_with_std(z, x0, length, physics)
-        exact = own_length = None
+        exact = own_length = iterations = None
         if end is not None:
-            states, accel, exact, own_length = self._polish_ends(states, accel, end, extend)
+            states, accel, exact, own_length, iterations = self._polish_ends(states, accel, end, extend)
         violation = self.violation_torch(states, accel)
         if own_length is not None and violation is not None:  # a batch's padding past a motion's end is not part of it
             past = torch.arange(violation.shape[1]) >= torch.from_numpy(own_length - 1)[:, None]
@@ -536,7 +565,8 @@ class TrainedModel(PretrainedModel):
         states_np = check_finite_result(states.numpy(), f"{self.task_def.name} generation")
         latent_np = z.float().cpu().numpy()
         motion = Motion(states_np, accel.numpy(), latent_np, None if violation is None else violation.numpy(),
-                        uncertainty=std, exact=exact, length=own_length, task=self.task_def.name, physics=physics)
+                        uncertainty=std, exact=exact, length=own_length, polish_iterations=iterations,
+                        task=self.task_def.name, physics=physics)
         if inputs is not None:
             motion.errors, motion.out_of_distribution, motion.ood_reasons = self._judge(
                 inputs, states_np, motion.accel, motion.violation, std, physics)
@@ -571,11 +601,12 @@ class TrainedModel(PretrainedModel):
         """Reasons (``"mu 1e+300 outside 0.72-1.32 (trained 0.8-1.2)"``) for each physics parameter beyond what the
         training met, widened by the trust margin: the model was never shown that physics."""
         reasons = []
-        for name, (low, high) in self.task_def.physics_trained(self.options).items():
+        for name, (low, high) in self.physics_trained.items():
             value = getattr(physics, name, None)
             if value is None:
                 continue
-            lo, hi = low * (1 - trust.MARGIN), high * (1 + trust.MARGIN)
+            # widened away from zero on both sides: a negative bound scaled by (1 - margin) would move inwards
+            lo, hi = low - trust.MARGIN * abs(low), high + trust.MARGIN * abs(high)
             if not lo <= float(value) <= hi:
                 reasons.append(f"{name} {float(value):.4g} outside {lo:.4g}-{hi:.4g} (trained {low:.4g}-{high:.4g})")
         return reasons

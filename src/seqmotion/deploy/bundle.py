@@ -47,6 +47,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import struct
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -397,14 +398,15 @@ def check_physics(contract: dict, overrides: Mapping[str, float], where: str) ->
 
 def previous_path(directory: str | Path) -> Path:
     """Where an export sets the bundle at ``directory`` aside while it swaps the new one in."""
-    directory = Path(directory)
+    # absolute and normalised first: "." or "dir/.." (a runner started inside the bundle) has no name of its own
+    directory = Path(os.path.abspath(directory))
     return directory.with_name(f".{directory.name}{PREVIOUS}")
 
 
 def locate(directory: str | Path) -> Path:
     """The bundle folder to read for ``directory``: itself, or — when it is missing because an export was
     killed between setting the old bundle aside and renaming the new one in — the old bundle, set aside."""
-    directory = Path(directory)
+    directory = Path(os.path.abspath(directory))  # "." names no folder to find a sibling of
     aside = previous_path(directory)
     if not directory.exists() and (aside / CONTRACT).is_file():
         warnings.warn(f"{directory} is missing: an export into it was interrupted; loading the previous bundle "

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -56,16 +57,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "(eq. 4.2); lm: Levenberg–Marquardt")
     p.add_argument("--exact", action=argparse.BooleanOptionalAction, default=None,
                    help="polish the result so the objective's goal and the task's constraint hold exactly (IPOPT; "
-                        "default: on for --preset j2, whose bands descent alone misses; off for --target)")
+                        "default: on for --preset j2, whose bands descent alone misses; off for --target). Where "
+                        "the polish cannot make it exact, the latent stage's motion is still written, marked inexact "
+                        "(a .npz holds exact False; a .csv has no place for the mark), one 'seqmotion optimize: "
+                        "warning:' line says why (exit code 3)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--output", required=True, help=".npz or .csv for the adjusted trajectory")
+    p.add_argument("--output", required=True, help=".npz (the result: seqmotion.load_result reads it back) or .csv "
+                   "(plain columns for other tools)")
     p.add_argument("--plot", help="PNG with the trajectory, the constraint and the objective's progress")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..api import resolve_model
-    from ..errors import MAX_LENGTH, check_number
+    from ..errors import EXIT_INEXACT, MAX_LENGTH, check_number, said_by
     from ..io import check_writable
     from ..tasks import TrainedModel
     from ..training.files import check_not_an_input, check_output, read_trajectory, write_arrays
@@ -110,13 +115,16 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--lr is the step size of gradient descent; Levenberg–Marquardt (--optimizer lm) takes none")
     method: dict = {"optimizer": args.optimizer, "lr": args.lr if args.lr is not None else "auto",
                     "exact": args.exact}
-    with warnings.catch_warnings():  # a missed constraint is printed below, with the other terms
+    # a missed constraint is printed below, with the other terms; a failed polish in one line, not Python's text
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         warnings.filterwarnings("ignore", "the task's constraint is missed", RuntimeWarning)
         if args.case == 3:
             res = optimize_trajectory(model, states, objective, steps=steps, **method)
         else:
             res = optimize_latent(model, states, objective, steps=steps,
                                   init="encoder" if args.case == 1 else "random", seed=args.seed, **method)
+    polish_failures = said_by(caught, "exact polish failed on ")
     steps = len(res.history) - 1
     violation = res.violation
     columns = {"states": res.states, "accel": res.accel, "history": res.history}
@@ -124,8 +132,11 @@ def run(args: argparse.Namespace) -> int:
         columns["violation"] = violation
     if res.latent is not None:
         columns["latent"] = res.latent
-    write_arrays(args.output, columns, {"states": list(model.state_layout.names),
-                                        "accel": list(model.accel_layout.names)})
+    if Path(args.output).suffix.lower() == ".npz":  # a result file: sm.load_result reads it back
+        res.save(args.output, extra=columns)
+    else:  # plain columns for other tools
+        write_arrays(args.output, columns, {"states": list(model.state_layout.names),
+                                            "accel": list(model.accel_layout.names)})
     fields, _ = task.end_pose or ((), ())
     end = {f: round(float(res.states[-1, model.state_layout.index(f)]), 4) for f in fields}
     message = (f"{objective!r}: {res.history[0]:.3g} → {res.history[-1]:.3g} in {steps} updates "
@@ -141,14 +152,20 @@ def run(args: argparse.Namespace) -> int:
     if missed:
         print(f"warning: the objective's {', '.join(missed)} not met" + ("" if args.exact else
               " (--exact polishes the motion so they hold exactly)"))
-    if res.exact is False:
-        print("warning: the exact polish failed; the result is the latent stage's motion")
+    if res.exact is False:  # the warning line on stderr says why; this says what was written instead
+        print("not exact: the latent stage's motion, unpolished")
     # errors against the input, predicted std, out-of-distribution; where the motion ends is the objective's
     # business here (its terms above), not the input's: only the end speed and the constraint are judged
     for line in model.trust_lines(res, {"end_position_error_m": math.inf}):
         print(f"  {line}")
     if args.plot:
         _plot(model, res, columns.get("violation"), Path(args.plot))
+    if res.exact is False:
+        why = "; ".join(polish_failures) or "the polish did not converge"
+        mark = "marked inexact (exact False)" if args.output.lower().endswith(".npz") else "a .csv: no exact flag"
+        print(f"seqmotion optimize: warning: --exact could not make the exact motion: {why}; {args.output} holds "
+              f"what was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
+        return EXIT_INEXACT
     return 0
 
 

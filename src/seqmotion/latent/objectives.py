@@ -38,7 +38,7 @@ import torch
 
 from ..errors import as_float_array
 from ..physics.layout import StateLayout
-from ..physics.transcription import Constraint, end_values, scale_rows
+from ..physics.transcription import Constraint, end_bands, end_values, state_limits
 from .terms import (
     Function,
     Objective,
@@ -161,6 +161,10 @@ class EndPose(Objective):
     def keeps_constraint(self) -> bool:
         return True
 
+    @property
+    def end_fields(self) -> frozenset[str]:
+        return frozenset(self.fields or ())  # bound: the task's end pose unless fields= were given
+
     def _column_list(self) -> list[int]:
         if self._columns is None:
             raise unbound(self)
@@ -240,6 +244,11 @@ class Ranges(Objective):
         self.alpha, self.beta = _check_weight("alpha", alpha), _check_weight("beta", beta)
         self.mu = None if mu is None else _check_weight("mu", mu, positive=True)
         self.end, self.limits = _check_bands(end), _check_limits(limits)
+        for name, (low, high) in (self.end or {}).items():
+            limit = (self.limits or {}).get(name)
+            if limit is not None and (low > limit or high < -limit):  # the limit holds at the last sample too
+                raise ValueError(f"Ranges end band of {name!r} ({low:g}, {high:g}) lies outside its limit ±{limit:g}: "
+                                 "no motion meets both")
         self.layout: StateLayout | None = None  # any task's: bound to the model's
         self._end_columns: list[int] | None = None
         self._limit_columns: list[int] | None = None
@@ -254,26 +263,40 @@ class Ranges(Objective):
         at the model's options."""
         bound = Ranges(alpha=self.alpha, beta=self.beta, mu=self.mu, end=self.end, limits=self.limits)
         layout = bound.layout = model.state_layout
+        # the one mapping from field names to columns: the latent stage, the report and the polish all read it
         bound._end_columns = [layout.index(f) for f in self.end or {}]
         bound._limit_columns = [layout.index(f) for f in self.limits or {}]
         bound._violation = _task_violation(model, self.mu, "Ranges")
         return bound
 
+    def _bound(self) -> tuple[StateLayout, list[tuple[str, int, float, float]], list[tuple[str, int, float]]]:
+        """The bound layout, the end bands as ``(field, column, low, high)`` and the limits as ``(field, column,
+        limit)``, each in the order given."""
+        if self._end_columns is None or self._limit_columns is None or self.layout is None:
+            raise unbound(self)
+        bands = [(name, col, low, high)
+                 for (name, (low, high)), col in zip((self.end or {}).items(), self._end_columns, strict=True)]
+        limits = [(name, col, limit)
+                  for (name, limit), col in zip((self.limits or {}).items(), self._limit_columns, strict=True)]
+        return self.layout, bands, limits
+
+    @property
+    def end_fields(self) -> frozenset[str]:
+        return frozenset(self.end or {})
+
     def _named(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, torch.Tensor]:
         """Each end band's excess ``(B, n)``, the limits' excess ``(B, K-1, m)``, their D weights and the
         constraint ``(B, K-1)`` (absent without one)."""
-        if self._end_columns is None or self._limit_columns is None or self.layout is None:
-            raise unbound(self)
+        layout, bands, limits = self._bound()
         like = {"dtype": states.dtype, "device": states.device}
-        units = self.layout.units
-        bands = torch.tensor(list((self.end or {}).values()), **like).reshape(-1, 2)
-        limits = torch.tensor(list((self.limits or {}).values()), **like)
+        end_cols, limit_cols = [b[1] for b in bands], [lim[1] for lim in limits]
+        low = torch.tensor([b[2] for b in bands], **like)
+        high = torch.tensor([b[3] for b in bands], **like)
         out = {
-            "end": torch.relu((states[:, -1, self._end_columns] - bands.mean(-1)).abs()
-                              - (bands[:, 1] - bands[:, 0]) / 2),
-            "limits": torch.relu(states[:, 1:, self._limit_columns].abs() - limits),
-            "w_end": torch.tensor([_d_weight(units[c]) for c in self._end_columns], **like),
-            "w_limits": torch.tensor([_d_weight(units[c]) for c in self._limit_columns], **like),
+            "end": torch.relu((states[:, -1, end_cols] - (low + high) / 2).abs() - (high - low) / 2),
+            "limits": torch.relu(states[:, 1:, limit_cols].abs() - torch.tensor([lim[2] for lim in limits], **like)),
+            "w_end": torch.tensor([_d_weight(layout.units[c]) for c in end_cols], **like),
+            "w_limits": torch.tensor([_d_weight(layout.units[c]) for c in limit_cols], **like),
         }
         violation = self._violation(states, accel) if self._violation is not None else None
         if violation is not None:
@@ -293,9 +316,9 @@ class Ranges(Objective):
         largest constraint violation (≤ 0.01)."""
         with torch.no_grad():
             parts = self._named(states, accel)
-            assert self.layout is not None and self._end_columns is not None
-            terms = {f"end {name} band": Term(_np(parts["end"][:, i]), 1e-6, self.layout.units[col])
-                     for i, (name, col) in enumerate(zip(self.end or {}, self._end_columns, strict=True))}
+            layout, bands, _ = self._bound()
+            terms = {f"end {name} band": Term(_np(parts["end"][:, i]), 1e-6, layout.units[col])
+                     for i, (name, col, _, _) in enumerate(bands)}
             if self.limits:
                 terms["limits"] = Term(_np(parts["limits"].flatten(1).amax(-1)), 1e-6, "(field units)")
             if "constraint" in parts:
@@ -304,20 +327,14 @@ class Ranges(Objective):
 
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         """The bands and limits (from sample 1: the start state is given) as hard constraints (the task's
-        constraint is the polish's own)."""
-        if self._end_columns is None or self._limit_columns is None:
-            raise unbound(self)
+        constraint is the polish's own), on the columns the latent stage reads (:meth:`_bound`)."""
+        _, bands, limits = self._bound()
         none = np.zeros((1, 0))
         out = []
-        if self.end:
-            cols, bands = tuple(self._end_columns), tuple(tuple(b) for b in self.end.values())
-            low, high = tuple(b[0] for b in bands), tuple(b[1] for b in bands)
-            out.append((Constraint("end bands", ("ranges_end", cols, bands),
-                                   lambda x, u, p: x[list(cols), -1], low, high), none))
-        if self.limits:
-            cols, lims = tuple(self._limit_columns), np.array(list(self.limits.values()))
-            out.append((Constraint("limits", ("ranges_limits", cols, *lims.tolist()),
-                                   lambda x, u, p: scale_rows(x[list(cols), 1:], 1 / lims), -1.0, 1.0), none))
+        if bands:
+            out.append((end_bands([b[1] for b in bands], [b[2] for b in bands], [b[3] for b in bands]), none))
+        if limits:
+            out.append((state_limits([lim[1] for lim in limits], [lim[2] for lim in limits]), none))
         return out
 
     def __repr__(self) -> str:
@@ -413,6 +430,12 @@ class AtRest(Objective):
     @property
     def least_squares(self) -> bool:
         return True
+
+    @property
+    def end_fields(self) -> frozenset[str]:
+        if self._columns is None or self.layout is None:
+            return frozenset(self.fields or ())
+        return frozenset(self.layout.names[c] for c in self._columns)
 
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         columns, _ = self._bound()

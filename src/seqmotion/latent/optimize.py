@@ -89,6 +89,15 @@ class OptimizationResult(Motion):
             ``Ranges()``: ``"friction cone"``).
         exact: with ``exact=True``: whether the polish made the objective's constraints and the task's
             constraint hold exactly (IPOPT converged, violation ≤ 1e-6), per trajectory; None otherwise.
+        end_shift: the task's end-pose fields (``Task.end_pose``; pancake: y, z, θ) that the objective leaves
+            free — it aims for no end value of them (:attr:`~.objectives.Objective.end_fields`: a limit alone, bands
+            on other fields, a plain function) — → how far the motion's end lies from the input's on each,
+            ``|x[K-1] − input[K-1]|`` [the field's unit] (``(B,)`` for a batch), as a :class:`~.objectives.Term`
+            whose limit is :data:`END_SHIFT_TOLERANCE` over the field's end-pose weight (pancake: 0.05 m, 0.5 rad).
+            Not ``met``: the motion no longer does the input's task on that field (e.g. the spatula no longer turns
+            as the input does: a limit alone lets the polish drop the turn), which a ``RuntimeWarning`` says too;
+            name the field in the objective to keep it. Not part of the objective (``met`` ignores it). Empty
+            when the objective names every end-pose field, or the task's inputs are not its states.
         errors, uncertainty, out_of_distribution, ood_reasons (:class:`~seqmotion.core.trained.TrustSignals`):
             the trust signals of the final motion against the input
             (:meth:`~seqmotion.tasks.TrainedModel.assess`; uncertainty for cases 1–2: the predicted std of
@@ -99,6 +108,7 @@ class OptimizationResult(Motion):
     seconds_per_update: float = field(kw_only=True)
     stages: list[Stage] = field(default_factory=list, kw_only=True)
     terms: dict[str, Term] = field(default_factory=dict, kw_only=True)
+    end_shift: dict[str, Term] = field(default_factory=dict, kw_only=True)
 
     @property
     def met(self) -> bool:
@@ -106,9 +116,15 @@ class OptimizationResult(Motion):
         return all(bool(np.all(term.met)) for term in self.terms.values())
 
     def describe(self) -> str:
-        """One line per stage and per term: what was reached and what was missed."""
+        """One line per stage and per term: what was reached and what was missed; then one per end-pose field the
+        objective left free: whether the motion still ends where the input does (:attr:`end_shift`)."""
         lines = [str(stage) for stage in self.stages]
         lines += [f"{name}: {term}" for name, term in self.terms.items()]
+        for name, term in self.end_shift.items():
+            moved = float(np.max(np.asarray(term.value, dtype=float)))
+            verdict = "kept" if bool(np.all(term.met)) else "NOT KEPT"
+            lines.append(f"{name} end, left free by the objective: {moved:.3g} {term.unit} from the input's "
+                         f"(limit {term.limit:.3g}) {verdict}")
         return "\n".join(lines)
 
 
@@ -219,7 +235,12 @@ def _armijo_step(
     norm = variable.detach().reshape(b, -1).norm(dim=1)
     if not per_trajectory:
         grad_sq, norm = grad_sq.sum().expand(b), norm.norm().expand(b)
-    step = 0.5 * norm.clamp_min(1.0) / grad_sq.sqrt().clamp_min(1e-30) if eta is None else 2 * eta
+    if eta is None:
+        step = 0.5 * norm.clamp_min(1.0) / grad_sq.sqrt().clamp_min(1e-30)
+    else:
+        # a trajectory without a gradient (its objective flat there: a met limit, no violation) moves nowhere, so
+        # its η is kept, not doubled: doubled at every update it overflows to inf, and inf · 0 is NaN
+        step = torch.where(grad_sq > 0, 2 * eta, eta)
     current = value.detach().expand(b)
     for _ in range(60):
         candidate = (variable.detach() - step.view(shape) * grad).requires_grad_(True)
@@ -308,6 +329,10 @@ DEFAULT_CONTINUATION = (1e-3, 4)
 """Levenberg–Marquardt's default: the penalty weighted 1e-3 at the first update, 1 from the 4th."""
 EXACT_LATENT_TOL = 1e-3
 """With ``exact=True`` the latent stage stops once the objective is below this: the polish does the rest."""
+END_SHIFT_TOLERANCE = 0.05
+"""How far the end of an end-pose field the objective leaves free may lie from the input's, times the field's
+end-pose weight, before the result says the task's outcome changed (:attr:`OptimizationResult.end_shift`): the
+pancake's 0.05 m end-position tolerance, and 0.5 rad (its θ weight 0.1), J2's attitude band."""
 
 
 def _resolve_method(
@@ -386,7 +411,9 @@ def optimize_latent(
             Needs a task with an exact form (pancake) and an objective with one (``EndPose``,
             ``AtRest``, ``Ranges`` and sums of them); others are refused by name. A trajectory the
             polish cannot make exact (e.g. an unreachable target) keeps the latent stage's motion,
-            ``res.exact`` is False for it and a warning names it.
+            ``res.exact`` is False for it and a warning names it. The polish keeps only what the objective
+            names: a task's end-pose field it leaves free (a limit alone) may move far from the input's end —
+            ``res.end_shift`` and a warning say so.
         tol: stop updating once every objective is ≤ ``tol`` (default 0, run all updates;
             ``exact=True``: 1e-3, the polish does the rest).
         physics: the task's physics to decode at (default ``model.physics``; sliding:
@@ -512,12 +539,16 @@ def _finish(
                   seconds, single)
     res.stages, res.terms, res.task, res.physics = stages, terms, model.task_def.name, physics
     _warn_if_infeasible(violation)
+    res.end_shift = _end_shift(model, objective, inputs, states)
+    _warn_if_outcome_changed(res.end_shift, model, inputs, states)
     res.exact = None if exact is None else (bool(exact[0]) if single else exact)
     trust = model.assess(inputs.numpy()[0] if single else inputs.numpy(), res.states, res.accel,
                          None if latent is None else res.latent, physics)
     res.errors, res.out_of_distribution, res.ood_reasons, res.uncertainty = trust
     if single:
         res.terms = {name: Term(np.asarray(t.value).reshape(-1)[0], t.limit, t.unit) for name, t in terms.items()}
+        res.end_shift = {name: Term(float(np.asarray(t.value).reshape(-1)[0]), t.limit, t.unit)
+                         for name, t in res.end_shift.items()}
         for stage in res.stages:
             stage.objective = stage.objective[:1]
     return res
@@ -568,6 +599,47 @@ def _warn_if_infeasible(violation: torch.Tensor | None) -> None:
             f"sm.objectives.TaskConstraint(alpha=...)), run more updates, or polish it with exact=True",
             RuntimeWarning, stacklevel=4,
         )
+
+
+def _end_shift(
+    model: TrainedModel, objective: Objective, inputs: torch.Tensor, states: torch.Tensor
+) -> dict[str, Term]:
+    """:attr:`OptimizationResult.end_shift` of ``states`` ``(B, K, S)`` against ``inputs`` ``(B, K, S)``."""
+    task, layout = model.task_def, model.state_layout
+    if task.end_pose is None or model.input_layout.names != layout.names:
+        return {}  # no end pose, or inputs in other terms than the states: nothing to compare the end with
+    named, shift = objective.end_fields, {}
+    for name, weight in zip(*task.end_pose, strict=True):
+        if name in named or weight <= 0:
+            continue
+        col = layout.index(name)
+        moved = (states[:, -1, col] - inputs[:, -1, col].double()).abs().numpy()
+        shift[name] = Term(moved, END_SHIFT_TOLERANCE / float(weight), layout.units[col])
+    return shift
+
+
+def _warn_if_outcome_changed(shift: dict[str, Term], model: TrainedModel, inputs: torch.Tensor,
+                             states: torch.Tensor) -> None:
+    """Say which end-pose fields the objective left free ended away from the input's (:func:`_end_shift`)."""
+    changed = {name: np.atleast_1d(~np.asarray(term.met)) for name, term in shift.items()
+               if not bool(np.all(term.met))}
+    if not changed:
+        return
+    layout, parts = model.state_layout, []
+    for name, off in changed.items():
+        col = layout.index(name)
+        unit = layout.units[col]
+        if len(states) == 1:
+            parts.append(f"{name} {float(inputs[0, -1, col]):.3g} → {float(states[0, -1, col]):.3g} {unit}")
+        else:
+            parts.append(f"{name} on trajectories {np.flatnonzero(off).tolist()}")
+    names = list(changed)
+    warnings.warn(
+        f"the objective aims for no end value of {', '.join(names)}, and the motion does not end where the input "
+        f"does there ({'; '.join(parts)}): it no longer does the input's task (res.end_shift); name "
+        f"{'it' if len(names) == 1 else 'them'} in the objective to keep {'it' if len(names) == 1 else 'them'}, "
+        f"e.g. Ranges(end={{{names[0]!r}: (low, high)}})", RuntimeWarning, stacklevel=4,
+    )
 
 
 def _result(

@@ -91,6 +91,10 @@ class PancakeRanges(Objective):
     def keeps_constraint(self) -> bool:
         return True
 
+    @property
+    def end_fields(self) -> frozenset[str]:
+        return frozenset(("y", "z", "theta"))  # the end position band (y, z) and the attitude band (θ)
+
     def bind(self, model: Any) -> PancakeRanges:
         """These bands for a pancake model (μ from its physics unless given); another layout is refused by name."""
         try:

@@ -92,6 +92,13 @@ class Objective:
         :class:`TaskConstraint`); :func:`for_model` adds :class:`TaskConstraint` to one that does not."""
         return False
 
+    @property
+    def end_fields(self) -> frozenset[str]:
+        """The state fields whose end value the objective itself aims for (an end pose, bands, rest): the
+        optimisation reports how far the task's other end-pose fields moved from the input's
+        (``OptimizationResult.end_shift``). Default: none (a plain function names no field)."""
+        return frozenset()
+
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         """The objective as hard constraints for the exact polish: ``(constraint, parameters (B, n))`` pairs.
 
@@ -149,6 +156,10 @@ class Sum(Objective):
     def keeps_constraint(self) -> bool:
         return any(part.keeps_constraint for part in self.parts)
 
+    @property
+    def end_fields(self) -> frozenset[str]:
+        return frozenset().union(*(part.end_fields for part in self.parts))
+
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         return [c for part in self.parts for c in part.exact_constraints()]
 
@@ -184,6 +195,10 @@ class Scaled(Objective):
     @property
     def keeps_constraint(self) -> bool:
         return self.weight > 0 and self.inner.keeps_constraint
+
+    @property
+    def end_fields(self) -> frozenset[str]:
+        return self.inner.end_fields if self.weight > 0 else frozenset()  # weighted ≤ 0 it aims away, or nowhere
 
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
         if self.weight <= 0:

@@ -28,7 +28,7 @@ so everything outside speaks metres, radians and seconds.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Protocol, TypeVar
 
 import torch
@@ -73,7 +73,8 @@ class Seq2SeqConfig:
         head_hidden: width of an extra tanh linear layer before the Gaussian head (0: none;
             500 in ch. 3).
         correlated_pairs: index pairs of output dimensions with a learned correlation ρ
-            (``[[0, 1]]``: ρ_yz in ch. 2, ρ_xy in ch. 3).
+            (``[[0, 1]]``: ρ_yz in ch. 2, ρ_xy in ch. 3). Default (None): ``[[0, 1]]`` when
+            ``output_dim`` ≥ 2, none for a single output.
         encoder_input_scale, decoder_input_scale: divide the inputs by these per feature.
         output_scale, output_offset: ``mean = offset + scale * raw`` per output dimension;
             σ is in the same scale.
@@ -87,7 +88,7 @@ class Seq2SeqConfig:
     layers: int = 2
     hidden: int = 64
     head_hidden: int = 0
-    correlated_pairs: list[list[int]] = field(default_factory=lambda: [[0, 1]])
+    correlated_pairs: list[list[int]] | None = None
     encoder_input_scale: list[float] | None = None
     decoder_input_scale: list[float] | None = None
     output_scale: list[float] | None = None
@@ -111,6 +112,10 @@ class Seq2SeqConfig:
                 f"{max(self.encoder_input_dim, self.decoder_input_dim)} × {self.hidden} is beyond any model "
                 f"({MAX_LAYER_WEIGHTS} weights per layer)"
             )
+        if self.correlated_pairs is None:
+            # The default follows the output size: a single output has no pair to correlate, and a saved
+            # config always holds the resolved list, so shipped models load as they were written.
+            self.correlated_pairs = [[0, 1]] if self.output_dim >= 2 else []
         if not isinstance(self.correlated_pairs, list | tuple):
             raise ValueError(f"correlated_pairs must be a list of [i, j] pairs, got {self.correlated_pairs!r}")
         for pair in self.correlated_pairs:

@@ -121,6 +121,9 @@ class Transcription:
             p = sym.sym(f"p_{c.name}", c.n_params)
             params.append(p)
             value = ca.vec(c.build(x, u, p))
+            for bound in (c.lower, c.upper):
+                if np.size(bound) not in (1, value.numel()):  # named here, not as NumPy's broadcast error
+                    raise ValueError(f"constraint {c.name!r} has {value.numel()} values but {np.size(bound)} bounds")
             g.append(value)
             lower.append(np.broadcast_to(np.asarray(c.lower, float), (value.numel(),)))
             upper.append(np.broadcast_to(np.asarray(c.upper, float), (value.numel(),)))
@@ -239,6 +242,31 @@ def end_values(columns: Sequence[int], name: str = "end") -> Constraint:
     """``x[K-1, columns] = p``: the motion ends at given values of some state fields (p: the values)."""
     cols = tuple(int(c) for c in columns)
     return Constraint(name, ("end_values", cols), lambda x, u, p: x[list(cols), -1] - p, 0.0, 0.0, len(cols))
+
+
+def end_bands(
+    columns: Sequence[int], low: Sequence[float], high: Sequence[float], name: str = "end bands"
+) -> Constraint:
+    """``low[j] ≤ x[K-1, columns[j]] ≤ high[j]``: the motion ends inside a band on each of some state fields."""
+    cols = tuple(int(c) for c in columns)
+    lows, highs = tuple(float(v) for v in low), tuple(float(v) for v in high)
+    if not cols or not len(cols) == len(lows) == len(highs):
+        raise ValueError(f"end bands need one (low, high) per column, got {len(cols)} columns, {len(lows)} lows and "
+                         f"{len(highs)} highs")
+    # the columns are this function's own: a lambda built in a caller's loop or branch would read whatever its
+    # variable names last, e.g. another constraint's columns
+    return Constraint(name, ("end_bands", cols, lows, highs), lambda x, u, p: x[list(cols), -1], lows, highs)
+
+
+def state_limits(columns: Sequence[int], limits: Sequence[float], name: str = "limits") -> Constraint:
+    """``|x[k, columns[j]]| ≤ limits[j]`` for every sample from 1 on (sample 0 is the given start), scaled so each
+    bound is ±1."""
+    cols, lims = tuple(int(c) for c in columns), tuple(float(v) for v in limits)
+    if not cols or len(cols) != len(lims) or not all(np.isfinite(v) and v > 0 for v in lims):
+        raise ValueError(f"state limits must be positive and finite, one per column, got {limits!r} for {cols}")
+    scale = tuple(1.0 / v for v in lims)
+    return Constraint(name, ("state_limits", cols, lims), lambda x, u, p: scale_rows(x[list(cols), 1:], scale),
+                      -1.0, 1.0)
 
 
 def input_limits(limits: Sequence[float], name: str = "input limits") -> Constraint:

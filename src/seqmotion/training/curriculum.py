@@ -106,6 +106,18 @@ class Curriculum:
                 params[name] = float(value[1] if isinstance(value, (list, tuple)) else value)
         return params
 
+    def span(self, name: str) -> tuple[float, float]:
+        """The lowest and highest value parameter ``name`` takes over the whole schedule (a ramp is linear, so its
+        ends bound it); ``ValueError`` if the curriculum does not set ``name``."""
+        if name not in self.initial:
+            raise ValueError(f"the curriculum sets no parameter {name!r} (it sets {sorted(self.initial)})")
+        values = [float(self.initial[name])]
+        for stage in self.stages:
+            value = stage.set.get(name)
+            if value is not None:
+                values += [float(v) for v in value] if isinstance(value, (list, tuple)) else [float(value)]
+        return min(values), max(values)
+
     def at_final_stage(self, epochs: int | None = None) -> Curriculum:
         """``epochs`` epochs (default: as many as this) that hold :meth:`final`'s parameters throughout:
         for fine-tuning a model that has been through the whole schedule."""

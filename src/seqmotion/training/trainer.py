@@ -343,6 +343,10 @@ def _run(
     # the task's plumbing, once: typed options, its dynamics at its physics
     options = task.options(config)
     dynamics = task.dynamics(options, task.physics(options))
+    # what the model is trained over, recorded with it: a generation at other physics is then flagged for any task
+    physics_over = getattr(task, "physics_trained_over", None)
+    spans = physics_over(config) if physics_over is not None else {}
+    physics_trained = {name: [low, high] for name, (low, high) in spans.items()}
 
     def draw(s: int) -> tuple[dict, Any, Any]:
         """The curriculum's values, the task's typed parameters and this process's share of the data of step ``s``."""
@@ -382,7 +386,8 @@ def _run(
             if rank == 0:
                 elapsed = loop.elapsed
                 cfg = model_config(
-                    config, {"step": step, "elapsed_seconds": elapsed, "last_terms": terms, "provenance": provenance}
+                    config, {"step": step, "elapsed_seconds": elapsed, "last_terms": terms, "provenance": provenance,
+                             "physics_trained": physics_trained}
                 )
                 loop.checkpoint(cfg, {"epoch": epoch, "elapsed_seconds": elapsed, "provenance": provenance})
                 ckpt.write_model(run_dir, model.state_dict(), cfg)
