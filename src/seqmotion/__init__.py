@@ -17,9 +17,10 @@ from .api import load, load_pretrained, pretrained_models
 from .core.results import load_result
 from .errors import CheckpointError
 from .latent import objectives, optimize_latent, optimize_trajectory, refine_plan
-from .sim.registration import register_envs
+from .sim.registration import register_envs, register_execution_checks
 
 register_envs()  # gymnasium.make("seqmotion/PancakeArm-v0") (string entry points: MuJoCo is not imported)
+register_execution_checks()  # deform(robot=...) reaches the simulator's check (a string entry point too)
 
 __version__ = "0.1.0"
 __all__ = [

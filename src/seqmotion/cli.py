@@ -137,13 +137,29 @@ def cmd_deform(args: argparse.Namespace) -> int:
         check_writable(args.plot, (".png", ".pdf", ".svg"), "--plot")
         check_not_an_input(args.plot, "--plot", {"--input": args.input, "--output": args.output})
     model = _trained_model(args.model)
+    if args.robot is not None:  # refused before the work: a task without a check, a robot not here
+        from seqmotion.core.execution import execution_check_for
+        from seqmotion.sim.robot_models import resolve_robot
+
+        try:
+            execution_check_for(model.task_def.name)
+            resolve_robot(args.robot)
+        except ValueError as exc:
+            raise ValueError(f"--robot {args.robot}: {exc}") from None
+        if not hasattr(model, "deform"):
+            raise ValueError(f"--robot: a {model.task_def.name} model has no deform(robot=...)")
     inputs = read_trajectory(args.input, columns=model.input_layout.names)
     with warnings.catch_warnings(record=True) as caught:  # the polish's failures: one line below, not Python's text
         warnings.simplefilter("always")
-        result = model.generate(inputs, keep_end=args.keep_end)
+        if args.robot is None:
+            result = model.generate(inputs, keep_end=args.keep_end)
+        else:
+            result = model.deform(inputs, keep_end=args.keep_end, robot=args.robot)
     from seqmotion.errors import said_by
 
-    polish_failures = said_by(caught, "keep_end: ")
+    robot_said = [w for w in caught if str(w.message).startswith("not executable on ")]
+    polish_failures = said_by([w for w in caught if w not in robot_said], "keep_end: ")  # re-issues the rest
+    not_executable = said_by(robot_said, "not executable on ")
     motion = result.motion()
     columns, names = result_columns(result, model)
     write_result(args.output, result, columns, names)
@@ -180,15 +196,24 @@ def cmd_deform(args: argparse.Namespace) -> int:
     if args.plot:
         plot_deform(model, inputs, result, Path(args.plot))
         print(f"figure → {args.plot}")
-    if args.keep_end and not bool(np.all(result.exact)):
-        from seqmotion.errors import EXIT_INEXACT
+    check = getattr(result, "robot_check", None)
+    if check is not None:
+        print(check.describe())
+    from seqmotion.errors import EXIT_INEXACT
 
+    code = 0
+    if args.keep_end and not bool(np.all(result.exact)):
         why = "; ".join(polish_failures) or "the polish did not converge"
         mark = "marked inexact (exact False)" if args.output.lower().endswith(".npz") else "a .csv: no exact flag"
         print(f"seqmotion deform: warning: --keep-end could not make the exact motion: {why}; {args.output} holds "
               f"what was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        return EXIT_INEXACT
-    return 0
+        code = EXIT_INEXACT
+    if not_executable:  # made, but not what was asked: a motion the robot would stop on
+        mark = "feasible False" if args.output.lower().endswith(".npz") else "a .csv: no feasible flag"
+        print(f"seqmotion deform: warning: not executable on {not_executable[0]}; {args.output} holds what was made "
+              f"({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
+        code = EXIT_INEXACT
+    return code
 
 
 def violation_unit(model, before: str = "") -> str:  # noqa: ANN001 - a task's TrainedModel
@@ -430,6 +455,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "the polish cannot make that exact motion, what was made is still written, marked inexact "
                         "(a .npz holds exact False; a .csv has no place for the mark), one 'seqmotion deform: "
                         "warning:' line says why (exit code 3)")
+    p.add_argument("--robot", metavar="NAME",
+                   help="also judge whether this robot can execute the motion (see `seqmotion robots`): its joint "
+                        "path by the simulator's IK against the rated joint speeds, accelerations, ranges and reach. "
+                        "Where a limit is broken, what was made is still written (a .npz holds feasible False), one "
+                        "'seqmotion deform: warning: not executable on …' line names the binding limit and the "
+                        "duration it needs (exit code 3)")
     p.add_argument("--plot", metavar="PNG",
                    help="also write a figure: the input and the deformed motion over time, and the violation with "
                         "its limit")
@@ -523,8 +554,8 @@ def main(argv: list[str] | None = None) -> int:
     ``seqmotion <command>: error: …`` on stderr, never a traceback); 1 the work failed (an ``OSError``
     such as a full disk, a diverged training, a ``MemoryError``: one line too); 3 made, but not what was asked
     (:data:`seqmotion.errors.EXIT_INEXACT`: ``deform --keep-end`` or ``optimize --exact`` could not make the exact
-    motion; what was made is written, marked inexact, and one ``seqmotion <command>: warning: …`` line on stderr
-    says why); 130 interrupted."""
+    motion, or ``deform --robot``'s robot cannot execute it; what was made is written, marked, and one
+    ``seqmotion <command>: warning: …`` line on stderr says why); 130 interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     name = getattr(args, "command", None) or "?"

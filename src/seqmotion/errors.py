@@ -18,8 +18,9 @@ checked before anything of size K is allocated (input files' declared shapes, ``
 ``--length``, task options)."""
 EXIT_INEXACT = 3
 """The command lines' exit code for "made, but not what was asked": an exact motion was asked for (``deform
---keep-end``, ``optimize --exact``) and the polish could not make it; the result is written all the same, marked
-inexact (its ``exact`` False), and one ``seqmotion <command>: warning:`` line says why."""
+--keep-end``, ``optimize --exact``) and the polish could not make it, or a motion a robot can execute (``deform
+--robot``) and that robot's limits are broken; the result is written all the same, marked (its ``exact`` or
+``feasible`` False), and one ``seqmotion <command>: warning:`` line says why."""
 
 
 def said_by(caught: list[warnings.WarningMessage], prefix: str) -> list[str]:

@@ -654,8 +654,8 @@ def columns_of(
     skip = {"states", "accel", *_TRUST_COLUMNS}
     for f in fields(result):
         value = getattr(result, f.name)
-        if value is None or f.name in skip or f.name in columns:
-            continue
+        if value is None or f.name in skip or f.name in columns or is_dataclass(value):
+            continue  # a verdict (a robot's execution check) is no column: .npz files keep it through save()
         columns[f.name] = value
         k = np.shape(motion.states)[-2]
         if np.ndim(value) == np.ndim(motion.states) - 1 and np.shape(value)[-1] in (k, k - 1):  # psi, violation

@@ -6,6 +6,8 @@ Entry points (MuJoCo is imported on first use, so ``import seqmotion.sim`` stays
 * :func:`run_sliding` — shake the frying pan along planned pan states (ch. 3).
 * :data:`GAINS` — the experiments' PD/DOB gain presets ``"ch2"``, ``"ch3"``, ``"ch4"``.
 * :mod:`seqmotion.sim.pushing` — the chapter-5 pushing scene (Touch-like arm, block, webcam).
+* :func:`check_executable` — whether a robot can execute a pancake motion: its joint path by the simulator's IK
+  (kinematics only, fast) against the rated speeds, accelerations, ranges and reach, and the duration it needs.
 * :func:`robots` — the standard arm models available here (robosuite's bundled arms, MuJoCo Menagerie's);
   ``robot="panda"`` on the runners, the Gym envs and ``seqmotion simulate --robot`` runs a motion on one
   (:mod:`~seqmotion.sim.robot_models`), tracked by differential IK + joint-space PD + DOB.
@@ -52,6 +54,8 @@ _LAZY = {
     "JointReport": ("arm", "JointReport"),
     "LimitCrossing": ("arm", "LimitCrossing"),
     "JointLimits": ("robot_models", "JointLimits"),
+    "check_executable": ("executable", "check_executable"),
+    "ExecutionCheck": ("executable", "ExecutionCheck"),
 }
 
 __all__ = sorted(_LAZY)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -384,18 +385,15 @@ class JointSpaceController(ToolController):
         self._start_observer(data, static_disturbance(self.scene, data, self._dof, load,
                                                       include_bias=not self.model_bias))
 
-    def torque(self, data, pos: np.ndarray, quat: np.ndarray, twist: np.ndarray, accel: np.ndarray) -> np.ndarray:
-        """Joint torques ``(n,)`` [N m] for one period toward the commanded tool state (see the class docstring)."""
-        mj, m, site, dof = self._mj, self.scene.model, self.scene.site, self._dof
-        qvel = data.qvel
-        if self.dob is not None:
-            self.disturbance = self.dob.update(self._command, qvel[dof])
+    def follow(self, pos: np.ndarray, quat: np.ndarray) -> Any:
+        """Step 1 alone: move ``q_ref`` one period of differential IK toward the tool pose ``pos`` ``(3,)`` [m],
+        ``quat`` ``(4,)``, and set :attr:`ik_error`. Returns the ``MjData`` holding ``q_ref``'s kinematics.
 
-        self._measure(data, pos, quat)  # the tool as the run logs and judges it
-
-        # 1. Differential IK of the reference configuration onto this period's command (the configuration holds
-        #    the kinematics of q_ref of the previous period), then the kinematics of the new q_ref.
-        cfg = self.config
+        The run's torque loop and the kinematic check of a motion
+        (:func:`seqmotion.sim.executable.check_executable`) both call it, so both judge the same joint path.
+        """
+        # The configuration holds the kinematics of the previous period's q_ref; solve from there, then update it.
+        mj, m, site, cfg = self._mj, self.scene.model, self.scene.site, self.config
         started = time.perf_counter()
         target = np.concatenate([quat, pos])
         self._frame.set_target(self._mink.SE3(wxyz_xyz=target))
@@ -407,6 +405,19 @@ class JointSpaceController(ToolController):
         self.periods += 1
         ref_data = cfg.data
         self.ik_error = _pose_error(mj, target, ref_data.site_xpos[site], ref_data.site_xquat[site])
+        return ref_data
+
+    def torque(self, data, pos: np.ndarray, quat: np.ndarray, twist: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """Joint torques ``(n,)`` [N m] for one period toward the commanded tool state (see the class docstring)."""
+        mj, m, site, dof = self._mj, self.scene.model, self.scene.site, self._dof
+        qvel = data.qvel
+        if self.dob is not None:
+            self.disturbance = self.dob.update(self._command, qvel[dof])
+
+        self._measure(data, pos, quat)  # the tool as the run logs and judges it
+
+        # 1. Differential IK of the reference configuration onto this period's command.
+        ref_data = self.follow(pos, quat)
 
         # 2. Feedforward through the reference's Jacobian: q̇_ff = J⁺ ẋ, q̈_ff = J⁺ (ẍ − J̇ q̇_ff).
         mj.mj_jacSite(m, ref_data, self._jac_ref[:3], self._jac_ref[3:], site)

@@ -19,6 +19,8 @@ longer loads plug-ins, so there ``import seqmotion`` is what registers them.
 
 from __future__ import annotations
 
+from ..core.execution import execution_checks, register_execution_check
+
 ENV_IDS = {
     "seqmotion/PancakeArm-v0": "seqmotion.sim.envs:PancakeArmEnv",
     "seqmotion/SlidingArm-v0": "seqmotion.sim.envs:SlidingArmEnv",
@@ -41,4 +43,17 @@ def register_envs() -> None:
             register(id=env_id, entry_point=entry_point)
 
 
-__all__ = ["ENV_IDS", "register_envs"]
+EXECUTION_CHECKS = {"pancake": "seqmotion.sim.executable:check_executable"}
+"""Task → the string entry point of its robot execution check (``deform(robot=…)``; MuJoCo imported on first use)."""
+
+
+def register_execution_checks() -> None:
+    """Register the simulator's execution checks (:data:`EXECUTION_CHECKS`) with the task layer's hook
+    (:func:`seqmotion.core.execution.register_execution_check`): tasks sit below the simulator and may not import
+    it, so the simulator tells them where its check is. A check registered already (a user's own) is kept."""
+    for task, entry_point in EXECUTION_CHECKS.items():
+        if task not in execution_checks():
+            register_execution_check(task, entry_point)
+
+
+__all__ = ["ENV_IDS", "EXECUTION_CHECKS", "register_envs", "register_execution_checks"]

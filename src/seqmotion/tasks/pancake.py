@@ -18,15 +18,17 @@ positions (metres vs radians) and the variance floor of :mod:`seqmotion.training
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
+from ..core.execution import BindingLimit, ExecutionCheck, check_execution
 from ..core.options import TaskOptions, check_count, check_length_range, check_positive
 from ..core.polish import ExactForm
-from ..core.results import FEASIBLE_TOLERANCE, Motion
+from ..core.results import FEASIBLE_TOLERANCE, Motion, feasible_of
 from ..core.task import Task
 from ..core.trained import TrainedModel
 from ..data import pancake as inputs
@@ -380,10 +382,23 @@ class DeformResult(Motion):
         (and :class:`~seqmotion.core.results.TrustSignals`: ``uncertainty`` ``(K, 3)`` std of y, z, θ; ``errors``
         ``shape_rmse_m``, ``end_position_error_m``, ``end_attitude_error_rad``, ``end_speed_m_s``,
         ``max_violation_rad``; ``out_of_distribution``, ``ood_reasons``; ``exact`` with ``keep_end``)
+        robot_check: with ``deform(..., robot=…)``: whether that robot can execute the motion
+            (:class:`~seqmotion.core.execution.ExecutionCheck`: its joint speeds, accelerations, ranges and reach
+            against the rated limits, the binding one, and the duration it would need); None otherwise.
     """
 
     psi: np.ndarray | None = None
+    robot_check: ExecutionCheck | None = None
     per_transition: ClassVar[tuple[str, ...]] = ("violation", "psi")  # load_result checks each is (K-1,)
+
+    @property
+    def feasible(self) -> np.ndarray | bool | None:
+        """Whether the cone holds (max F_c ≤ 0.01 rad) and, where a robot was checked (:attr:`robot_check`), the
+        robot would not stop on it: False when its limits are broken, whatever the cone."""
+        cone = feasible_of(self.violation)
+        if cone is None or self.robot_check is None or self.robot_check.ok is not False:
+            return cone
+        return np.zeros_like(cone, dtype=bool) if np.ndim(cone) else False
 
 
 class Deformer(TrainedModel):
@@ -400,7 +415,8 @@ class Deformer(TrainedModel):
 
     task = "pancake"
 
-    def deform(self, states: object, keep_end: bool = False, extend: bool = True) -> DeformResult:
+    def deform(self, states: object, keep_end: bool = False, extend: bool = True,
+               robot: object = None) -> DeformResult:
         """Deform ``(K, 6)`` or ``(B, K, 6)`` states (any K ≥ 2) into feasible ones: :meth:`generate` under the
         chapter's name (the same result; a bad shape is worded for pancake states).
 
@@ -414,12 +430,32 @@ class Deformer(TrainedModel):
                 ``result.exact`` says which were polished.
             extend: with ``keep_end``, give a sketch too short to stop within the limits the time it needs
                 (``result.length`` samples instead of K); ``False`` keeps K and flags such a motion instead.
+            robot: also judge whether this robot can execute the motion (``"ur5e"``, ``"panda"``, ``"mh3f"``, …;
+                see ``seqmotion.sim.robots()``): its joint path by the simulator's IK against the rated joint
+                speeds, accelerations, ranges and reach (``result.robot_check``). Where a limit is broken,
+                ``result.feasible`` is False and a ``RuntimeWarning`` names the binding limit and the duration the
+                motion would need. One motion at a time.
 
         Raises:
-            ValueError: wrong shape, K < 2, NaN or inf.
+            ValueError: wrong shape, K < 2, NaN or inf; a batch with ``robot``; an unknown robot.
         """
-        as_trajectories(states, STATE_DIM, "states")  # the pancake's own wording for a bad input
-        return self.generate(states, keep_end=keep_end, extend=extend)
+        _, single = as_trajectories(states, STATE_DIM, "states")  # the pancake's own wording for a bad input
+        if robot is not None and not single:
+            raise ValueError("deform(robot=...) checks one motion at a time: pass states of shape (K, 6)")
+        result = self.generate(states, keep_end=keep_end, extend=extend)
+        if robot is None:
+            return result
+        # The simulator computes the verdict (tasks may not import it): its check is registered with the core hook.
+        length = len(result.states) if result.length is None else int(result.length)
+        result.robot_check = check_execution(self.task, np.asarray(result.states)[:length], robot, dt=DT)
+        problem = result.robot_check.problem()
+        if problem is not None:
+            warnings.warn(problem, RuntimeWarning, stacklevel=2)
+        return result
+
+
+RESULT_PARTS = (BindingLimit, ExecutionCheck)
+"""The dataclasses a saved :class:`DeformResult` nests: ``load_result`` finds them by name in this module."""
 
 
 PancakeTask.model_class = Deformer

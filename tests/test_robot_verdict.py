@@ -1,0 +1,113 @@
+"""A motion that keeps the pancake on but that a robot cannot execute gets a named answer: ``deform(robot=…)`` and
+``seqmotion deform --robot`` judge its joint path (the simulator's IK, kinematics only) against the rated limits."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import seqmotion as sm
+from seqmotion.cli import main
+from seqmotion.core.results import FEASIBLE_TOLERANCE
+from seqmotion.data import pancake as gen
+from seqmotion.errors import EXIT_INEXACT
+from seqmotion.sim import robot_models as rb
+
+pytest.importorskip("mink", reason="standard robot arms need mink (pip install 'seqmotion[robots]')")
+needs_ur5e = pytest.mark.skipif(
+    "ur5e" not in {r.name for r in rb.robots()},
+    reason="no UR5e model here: robosuite's model files or Menagerie's universal_robots_ur5e are needed")
+
+README_TURN = gen.straight((0.2, 0.0, 2.5), 500)
+GENTLE = gen.straight((0.02, 0.0, 0.2), 800)
+
+
+@pytest.fixture(scope="module")
+def turn_on_ur5e(deformer):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = deformer.deform(README_TURN, keep_end=True, robot="ur5e")
+    return result, [w for w in caught if issubclass(w.category, RuntimeWarning)]
+
+
+@needs_ur5e
+def test_the_readme_turn_is_not_executable_on_the_ur5e(turn_on_ur5e):
+    result, said = turn_on_ur5e
+    check = result.robot_check
+    assert bool(feasible_of_cone(result))  # the cone holds ...
+    assert result.feasible is False  # ... but the UR5e would stop on it
+    assert check.ok is False
+    binding = check.binding
+    assert binding.kind == "speed" and binding.joint.endswith("wrist_3_joint") and binding.share > 1
+    assert binding.needed > binding.rated == pytest.approx(np.pi)
+    duration = (result.length - 1) * 1e-3
+    assert check.duration == pytest.approx(duration)
+    assert check.needed_duration >= binding.share * duration - 1e-9
+    assert len(said) == 1 and "wrist_3_joint" in str(said[0].message)
+    assert str(said[0].message).startswith("not executable on ur5e")
+    assert f"needs ≥ {check.needed_duration:.2f} s instead of {duration:.2f} s" in check.describe()
+
+
+@needs_ur5e
+def test_the_verdict_survives_save_and_load(turn_on_ur5e, tmp_path):
+    result, _ = turn_on_ur5e
+    loaded = sm.load_result(result.save(tmp_path / "r.npz"))
+    assert loaded.feasible is False and loaded.robot_check.binding == result.robot_check.binding
+
+
+@needs_ur5e
+def test_a_gentle_motion_is_executable_on_the_ur5e(deformer):
+    plain = deformer.deform(GENTLE, keep_end=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        result = deformer.deform(GENTLE, keep_end=True, robot="ur5e")
+    check = result.robot_check
+    assert check.ok is True and check.problem() is None
+    assert result.feasible == plain.feasible
+    assert check.speed_share.max() < 1 and check.time_scale == 1.0
+    assert "acceleration" in check.unknown  # the UR5e's rated accelerations are not published: said, not assumed
+
+
+def test_the_built_in_arm_says_its_limits_are_unknown(deformer):
+    plain = deformer.deform(README_TURN)
+    result = deformer.deform(README_TURN, robot="mh3f")
+    check = result.robot_check
+    assert check.ok is None and check.binding is None and check.needed_duration is None
+    assert {"speed", "range"} <= set(check.unknown)
+    assert "unknown" in check.describe()
+    assert result.feasible == plain.feasible  # unknown limits neither pass nor fail the motion
+
+
+def test_a_batch_with_a_robot_is_refused(deformer):
+    with pytest.raises(ValueError, match="one motion at a time"):
+        deformer.deform(np.stack([GENTLE[:200], GENTLE[:200]]), robot="mh3f")
+
+
+@needs_ur5e
+def test_the_cli_exits_3_with_one_warning_line(tmp_path, capsys):
+    np.savez(tmp_path / "in.npz", states=README_TURN)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # said once, in its own line, not as a Python warning too
+        code = main(["deform", "--input", str(tmp_path / "in.npz"), "--output", str(tmp_path / "out.npz"),
+                     "--keep-end", "--robot", "ur5e"])
+    err = capsys.readouterr().err
+    assert code == EXIT_INEXACT
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("seqmotion deform: warning: not executable on ur5e")
+    assert "wrist_3_joint" in lines[0] and "needs ≥" in lines[0]
+    assert sm.load_result(tmp_path / "out.npz").feasible is False
+
+
+def test_the_cli_refuses_an_unknown_robot(tmp_path, capsys):
+    np.savez(tmp_path / "in.npz", states=GENTLE)
+    assert main(["deform", "--input", str(tmp_path / "in.npz"), "--output", str(tmp_path / "out.npz"),
+                 "--robot", "no_such_arm"]) == 2
+    assert "--robot no_such_arm" in capsys.readouterr().err
+    assert not (tmp_path / "out.npz").exists()
+
+
+def feasible_of_cone(result) -> bool:  # noqa: ANN001 - a DeformResult
+    """The cone's verdict alone (what ``feasible`` was before a robot was checked)."""
+    return bool(result.violation.max() <= FEASIBLE_TOLERANCE)
