@@ -53,7 +53,7 @@ _LAZY = {
     "get_robot": ("robot_models", "get_robot"),
     "JointReport": ("arm", "JointReport"),
     "LimitCrossing": ("arm", "LimitCrossing"),
-    "JointLimits": ("robot_models", "JointLimits"),
+    "JointLimits": ("limits", "JointLimits"),
     "check_executable": ("executable", "check_executable"),
     "ExecutionCheck": ("executable", "ExecutionCheck"),
 }

@@ -29,7 +29,8 @@ from ..errors import as_trajectories, check_number
 from .backend import CONTROL_DT, GRAVITY, control_period, import_mujoco
 from .control import Gains, JointSpaceController, TaskSpaceController, make_controller, solve_ik
 from .kinematics import Reference, quat_to_matrix
-from .robot_models import JointLimits, built_in_limits
+from .limits import JointLimits
+from .robot_models import built_in_limits
 from .scene import (
     FOREARM,
     SHOULDER_HEIGHT,
@@ -299,7 +300,7 @@ class LimitCrossing:
 
 
 _JUDGED = {"range": "position", "speed": "velocity", "torque": "torque"}
-"""Each limit a run is judged against → the :class:`~seqmotion.sim.robot_models.JointLimits` kind it reads."""
+"""Each limit a run is judged against → the :class:`~seqmotion.sim.limits.JointLimits` kind it reads."""
 
 
 @dataclass(frozen=True)
