@@ -163,3 +163,17 @@ def test_readme_commands_run_and_print_what_the_readme_says(tmp_path):
             assert re.search(expect, out), f"`{command}` did not print /{expect}/ as the README says:\n{out[-2000:]}"
         ran += 1
     assert ran >= 12
+
+
+def test_the_readme_map_names_only_files_that_exist():
+    """Every file the README's "How it is built" map names exists in the tree (under src/, or tests/ for the
+    layering test): the map once named tasks/base.py and latent/tracking.py long after they had moved."""
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "README.md").read_text()
+    start = text.index("## How it is built")
+    section = text[start:text.index("\n## ", start + 1)]
+    named = set(re.findall(r"\b([a-z_0-9]+\.py)\b", section))
+    files = {p.name for folder in ("src", "tests") for p in (root / folder).rglob("*.py")}
+    assert named and not named - files, sorted(named - files)
+    folders = set(re.findall(r"^  ([a-z_]+)/", section, flags=re.M))
+    assert folders and all((root / "src" / "seqmotion" / f).is_dir() for f in folders), folders
