@@ -146,15 +146,10 @@ def cmd_deform(args: argparse.Namespace) -> int:
             resolve_robot(args.robot)
         except ValueError as exc:
             raise ValueError(f"--robot {args.robot}: {exc}") from None
-        if not hasattr(model, "deform"):
-            raise ValueError(f"--robot: a {model.task_def.name} model has no deform(robot=...)")
     inputs = read_trajectory(args.input, columns=model.input_layout.names)
     with warnings.catch_warnings(record=True) as caught:  # the polish's failures: one line below, not Python's text
         warnings.simplefilter("always")
-        if args.robot is None:
-            result = model.generate(inputs, keep_end=args.keep_end)
-        else:
-            result = model.deform(inputs, keep_end=args.keep_end, robot=args.robot)
+        result = model.generate(inputs, keep_end=args.keep_end, robot=args.robot)
     from seqmotion.errors import said_by
 
     robot_said = [w for w in caught if str(w.message).startswith("not executable on ")]
@@ -311,12 +306,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
         command = commands.circle(args.circle, args.length)
     else:
         command = read_trajectory(args.command_file, columns=planner.input_layout.names)
-    if args.refine:  # ch. 4's machinery on the planner: refine z through the contact physics (seconds)
-        from seqmotion.latent import refine_plan
+    if args.robot_limits is not None and args.robot is None:
+        raise ValueError("--robot-limits needs --robot NAME")
+    robot = {} if args.robot is None else {"robot": args.robot, "limits": _robot_limits(args)}
+    with warnings.catch_warnings(record=True) as caught:  # the robot's verdict: one line below, not Python's text
+        warnings.simplefilter("always")
+        if args.refine:  # ch. 4's machinery on the planner: refine z through the contact physics (seconds)
+            from seqmotion.latent import refine_plan
 
-        plan = refine_plan(planner, command, mu=args.mu, mu_dyn=args.mu_dyn)
-    else:
-        plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn)
+            plan = refine_plan(planner, command, mu=args.mu, mu_dyn=args.mu_dyn, **robot)
+        else:
+            plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn, **robot)
+    from seqmotion.errors import EXIT_INEXACT, said_by
+
+    not_executable = said_by(caught, "not executable on ")  # re-issues the rest (e.g. what the limits cost)
     columns, names = result_columns(plan, planner)
     # The friction it was planned at travels with the plan: `seqmotion simulate sliding` compares it with the arm's.
     friction = np.array([plan.physics.mu, plan.physics.mu_dyn])
@@ -335,7 +338,35 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if (mu, mu_dyn) != arm:  # a plan (a refined one above all) exploits the friction it was made at
         print(f"note: the simulated arm's object has μ = {arm[0]:g}, μ' = {arm[1]:g}; to execute this plan with "
               f"`seqmotion simulate sliding`, plan at that friction (--mu {arm[0]:g} --mu-dyn {arm[1]:g})")
+    check = getattr(plan, "robot_check", None)
+    if check is not None:
+        print(check.describe())
+    if not_executable:  # made, but not what was asked: a plan the robot would stop on
+        mark = "feasible False" if args.output.lower().endswith(".npz") else "a .csv: no feasible flag"
+        print(f"seqmotion plan: warning: not executable on {not_executable[0]}; {args.output} holds what was made "
+              f"({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
+        return EXIT_INEXACT
     return 0
+
+
+def _robot_limits(args: argparse.Namespace) -> tuple[str, ...]:
+    """``--robot-limits a,b``: the limit kinds ``plan --robot`` keeps (default: all of them)."""
+    from seqmotion.sim.robot_models import resolve_robot
+    from seqmotion.tasks.sliding import ROBOT_KINDS, check_limit_kinds
+
+    try:
+        resolve_robot(args.robot)  # refused before the work: a robot not here
+    except ValueError as exc:
+        raise ValueError(f"--robot {args.robot}: {exc}") from None
+    if args.robot_limits is None:
+        return ROBOT_KINDS
+    kinds = tuple(k.strip() for k in args.robot_limits.split(",") if k.strip())
+    try:
+        check_limit_kinds(kinds)
+    except ValueError:
+        raise ValueError(f"--robot-limits must be a comma-separated list of {', '.join(ROBOT_KINDS)}, got "
+                         f"{args.robot_limits!r}") from None
+    return kinds
 
 
 def cmd_calibrate_trust(args: argparse.Namespace) -> int:
@@ -481,6 +512,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "commands the planner alone does not follow, e.g. circles")
     p.add_argument("--tolerance", type=float, metavar="METRES",
                    help="warn when the object's RMS distance from the command exceeds this (default 0.005)")
+    p.add_argument("--robot", metavar="NAME",
+                   help="plan for this robot (see `seqmotion robots`): the plan's joint path by the simulator's IK is "
+                        "held against its rated joint speeds, ranges, torque limits and rated accelerations, and the "
+                        "plan is refined until it keeps them (seconds). Where one is broken after all, what was made "
+                        "is still written (a .npz holds feasible False), one 'seqmotion plan: warning: not executable "
+                        "on …' line names the binding limit (exit code 3)")
+    p.add_argument("--robot-limits", metavar="KINDS",
+                   help="with --robot: the limits the plan is refined to keep, comma-separated of speed, range, "
+                        "torque, acceleration (default all; every one is judged either way)")
     p.add_argument("--output", required=True, help=OUTPUT_HELP)
     p.set_defaults(func=cmd_plan)
 
@@ -554,8 +594,8 @@ def main(argv: list[str] | None = None) -> int:
     ``seqmotion <command>: error: …`` on stderr, never a traceback); 1 the work failed (an ``OSError``
     such as a full disk, a diverged training, a ``MemoryError``: one line too); 3 made, but not what was asked
     (:data:`seqmotion.errors.EXIT_INEXACT`: ``deform --keep-end`` or ``optimize --exact`` could not make the exact
-    motion, or ``deform --robot``'s robot cannot execute it; what was made is written, marked, and one
-    ``seqmotion <command>: warning: …`` line on stderr says why); 130 interrupted."""
+    motion, or ``deform --robot``'s or ``plan --robot``'s robot cannot execute it; what was made is written, marked,
+    and one ``seqmotion <command>: warning: …`` line on stderr says why); 130 interrupted."""
     parser = build_parser()
     args = parser.parse_args(argv)
     name = getattr(args, "command", None) or "?"

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-LIMIT_UNITS = {"speed": "rad/s", "acceleration": "rad/s²", "range": "rad", "reach": "m"}
+LIMIT_UNITS = {"speed": "rad/s", "acceleration": "rad/s²", "torque": "N m", "range": "rad", "reach": "m"}
 """The unit of each kind of limit an :class:`ExecutionCheck` judges."""
 
 _TIMING_KINDS = ("speed", "acceleration")
@@ -30,11 +30,12 @@ class BindingLimit:
     """The limit a motion comes closest to (or goes furthest past) on a robot.
 
     Attributes:
-        kind: ``"speed"`` (rated joint speed), ``"acceleration"`` (rated joint acceleration), ``"range"`` (a joint's
-            range) or ``"reach"`` (the tool pose out of the robot's reach: IK residual past its tolerance).
+        kind: ``"speed"`` (rated joint speed), ``"acceleration"`` (rated joint acceleration), ``"torque"`` (the
+            model's torque limit, against the inverse dynamics), ``"range"`` (a joint's range) or ``"reach"`` (the
+            tool pose out of the robot's reach: IK residual past its tolerance).
         joint: the joint (``None`` for ``"reach"``).
-        needed: the peak the motion needs: |q̇| [rad/s], |q̈| [rad/s²], the joint's position [rad] or the IK position
-            residual [m].
+        needed: the peak the motion needs: |q̇| [rad/s], |q̈| [rad/s²], |τ| [N m], the joint's position [rad] or the
+            IK position residual [m].
         rated: the limit: the rated speed [rad/s] or acceleration [rad/s²], the range end nearest the peak [rad], or
             the IK position tolerance [m].
         share: how much of the limit the motion uses (> 1: past it). Speed and acceleration: needed / rated; range:
@@ -83,6 +84,9 @@ class ExecutionCheck:
         range_margin: ``(n,)`` the smallest distance from a range end over the motion [rad] (negative: past it;
             ``inf`` for a continuous joint), or ``None``.
         ik_error: ``(2,)`` the largest IK residual, position [m] and attitude [rad].
+        torque_peak: ``(n,)`` peak |τ| the path needs by inverse dynamics [N m], or ``None`` (not computed: the
+            built-in arm, which tracks in task space).
+        torque_share: ``(n,)`` peak |τ| / torque limit, or ``None``.
         binding: the limit with the largest share (the one broken worst where ``ok`` is False), or ``None``.
         time_scale: the smallest factor s ≥ 1 by which running the same joint paths s× slower keeps every speed
             and acceleration limit (max of the speed shares and the square roots of the acceleration shares);
@@ -105,6 +109,8 @@ class ExecutionCheck:
     time_scale: float | None
     needed_duration: float | None
     unknown: dict[str, str] = field(default_factory=dict)
+    torque_peak: np.ndarray | None = None
+    torque_share: np.ndarray | None = None
 
     def fix(self) -> str:
         """What would make the motion executable, in words (``""`` where it already is or nothing is known)."""
@@ -158,19 +164,35 @@ def fixable_by_timing(binding: BindingLimit | None) -> bool:
 CheckFunction = Callable[..., ExecutionCheck]
 """``check(states, robot, dt=…) -> ExecutionCheck`` for one motion of a task."""
 
+ArmFormFunction = Callable[..., Any]
+"""``arm_form(robot, dt) -> ArmForm | None``: a robot's limits as constraints of a task's exact polish
+(:class:`~seqmotion.core.polish.ArmForm`), ``None`` where it cannot give them (the motion is then only judged)."""
+
 _CHECKS: dict[str, str | CheckFunction] = {}
 """Task name → its execution check, or the ``"module:function"`` string entry point that provides it."""
 
+_ARM_FORMS: dict[str, str | ArmFormFunction] = {}
+"""Task name → the function (or its ``"module:function"`` entry point) that turns a robot into polish constraints."""
 
-def register_execution_check(task: str, check: str | CheckFunction) -> None:
+
+def _entry_point(what: str, value: object) -> None:
+    if isinstance(value, str) and value.count(":") != 1:
+        raise ValueError(f"{what}'s entry point must be 'module:function', got {value!r}")
+    if not isinstance(value, str) and not callable(value):
+        raise ValueError(f"{what} must be a function or 'module:function', got {value!r}")
+
+
+def register_execution_check(task: str, check: str | CheckFunction,
+                             arm_form: str | ArmFormFunction | None = None) -> None:
     """Register how a robot's execution of ``task``'s motions is checked: a function or a ``"module:function"``
-    string (imported on first use, so registering costs nothing). The latest registration wins."""
+    string (imported on first use, so registering costs nothing), and optionally how a robot's limits become
+    constraints of the task's exact polish (``arm_form``, the same way). The latest registration wins."""
     if not isinstance(task, str) or not task:
         raise ValueError(f"task must be a non-empty name, got {task!r}")
-    if isinstance(check, str) and check.count(":") != 1:
-        raise ValueError(f"an execution check's entry point must be 'module:function', got {check!r}")
-    if not isinstance(check, str) and not callable(check):
-        raise ValueError(f"an execution check must be a function or 'module:function', got {check!r}")
+    _entry_point("an execution check", check)
+    if arm_form is not None:
+        _entry_point("an arm form", arm_form)
+        _ARM_FORMS[task] = arm_form
     _CHECKS[task] = check
 
 
@@ -181,14 +203,26 @@ def execution_checks() -> list[str]:
 
 def execution_check_for(task: str) -> CheckFunction:
     """The execution check registered for ``task``; ``ValueError`` where none is."""
-    check = _CHECKS.get(task)
-    if check is None:
+    if task not in _CHECKS:
         raise ValueError(f"no robot execution check is registered for task {task!r} (known: {sorted(_CHECKS)})")
-    if isinstance(check, str):
-        module, _, name = check.partition(":")
-        check = getattr(importlib.import_module(module), name)
-        _CHECKS[task] = check
-    return check
+    return _resolve(_CHECKS, task)
+
+
+def _resolve(table: dict[str, Any], task: str) -> Any:
+    value = table[task]
+    if isinstance(value, str):
+        module, _, name = value.partition(":")
+        value = getattr(importlib.import_module(module), name)
+        table[task] = value
+    return value
+
+
+def arm_form_for(task: str, robot: Any, dt: float) -> Any:
+    """``robot``'s limits as constraints of ``task``'s exact polish (an :class:`~seqmotion.core.polish.ArmForm`), or
+    ``None`` where the robot layer cannot give them for this robot or registered nothing for the task."""
+    if task not in _ARM_FORMS:
+        return None
+    return _resolve(_ARM_FORMS, task)(robot, dt)
 
 
 def check_execution(task: str, states: Any, robot: Any, dt: float) -> ExecutionCheck:
@@ -197,5 +231,5 @@ def check_execution(task: str, states: Any, robot: Any, dt: float) -> ExecutionC
     return execution_check_for(task)(states, robot, dt=dt)
 
 
-__all__ = ["BindingLimit", "ExecutionCheck", "check_execution", "execution_check_for", "execution_checks",
-           "fixable_by_timing", "register_execution_check", "time_scale"]
+__all__ = ["BindingLimit", "ExecutionCheck", "arm_form_for", "check_execution", "execution_check_for",
+           "execution_checks", "fixable_by_timing", "register_execution_check", "time_scale"]

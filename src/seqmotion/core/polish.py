@@ -4,11 +4,12 @@ move needs (what ``keep_end`` and ``exact=True`` build on; the NLP is :mod:`seqm
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..physics.transcription import Constraint
+from ..physics.transcription import Constraint, JointSpace
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,11 @@ class ExactForm:
         travel_accel: the accelerations per axis a rest-to-rest move can plan on, where the task's
             constraint takes part of the limits — ``keep_end`` gives a too-short input the bang-bang time
             at these (default: :data:`EXTEND_MARGIN` × ``accel_limits``).
+        workspace: the built-in arm's own constraints (pancake: its reach); a robot's :class:`ArmForm` replaces
+            them when the polish is asked for that robot.
+        on_joints: the task's constraints for a polish on a robot's joints (:attr:`ArmForm.joint_space`), where they
+            differ from ``constraints`` (pancake: the cone with a lower normal-force floor, the joints tracking
+            their planned path more closely than the built-in arm its task-space one); ``None``: ``constraints``.
     """
 
     dim: int
@@ -36,6 +42,37 @@ class ExactForm:
     smoothness: float = 0.0
     accel_limits: tuple[float, ...] | None = None
     travel_accel: tuple[float, ...] | None = None
+    workspace: tuple[Constraint, ...] = ()
+    on_joints: tuple[Constraint, ...] | None = None
+
+
+@dataclass(frozen=True)
+class ArmForm:
+    """A robot's limits in the exact polish, built by the robot layer for one task.
+
+    Attributes:
+        robot: the robot, ``"name (source)"``.
+        constraints: constraints on the task's states and inputs that replace the built-in arm's
+            :attr:`ExactForm.workspace` (e.g. a reach).
+        time_scale: ``states (K, S) -> s ≥ 1``: how many times slower a motion must run for its joint speeds to keep
+            the rated ones (the polish starts a too-fast motion at its retimed copy, s× longer).
+        joint_space: where the polish runs on the robot's joints instead
+            (:class:`~seqmotion.physics.transcription.JointSpace`: rated speeds, ranges, … as its own constraints,
+            the task's on its forward kinematics), or ``None``.
+        to_joints: with ``joint_space``: task states ``(K, S)`` → joint states ``(K, 2n)`` (inverse kinematics).
+        to_task: with ``joint_space``: joint states ``(K, 2n)`` and accelerations ``(K-1, n)`` → the task's states
+            ``(K, S)`` and inputs ``(K-1, d)`` (forward kinematics).
+        hold: with ``joint_space``: the joints' accelerations are held over this many samples (the NLP's knots; a
+            quarter of the variables at 4, and the joint path between knots is still the exact double integrator).
+    """
+
+    robot: str
+    constraints: tuple[Constraint, ...]
+    time_scale: Callable[[np.ndarray], float]
+    joint_space: JointSpace | None = None
+    to_joints: Callable[[np.ndarray], np.ndarray] | None = None
+    to_task: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+    hold: int = 1
 
 
 POLISH_VIOLATION_TOLERANCE = 1e-6
@@ -70,6 +107,14 @@ def rest_to_rest_accel(
         over |= need[-1] > limit * (1 + 1e-9)
     return tuple(round(float(n), 1) for n in need) if over else None
 
+
+ARM_ITERATIONS = 400
+"""IPOPT iterations each try of a polish on a robot's joints gets (:class:`ArmForm`): turning a motion about a
+fixed point into a loop the joints can run took 230–450 on the README's turn on the UR5e."""
+ARM_ATTEMPTS = 2
+"""Tries of a polish on a robot's joints (at the learned motion's time slowed to the rated speeds, then
+:data:`EXTEND_GROWTH` × longer): where two fail, more time seldom helped (turns ending near π rad failed at 3, 4 and
+6× the learned motion's time), and each costs seconds."""
 
 FALLBACK_END_WEIGHT = 1000.0
 """``keep_end``'s fallback, where no motion reaches the end pose exactly: the weight per metre (per radian,
@@ -107,3 +152,12 @@ def steps_to_stop(x0: np.ndarray, columns: list[int], values: np.ndarray, steps:
     return need
 
 
+
+
+def retimed(accel: np.ndarray, steps: int) -> np.ndarray:
+    """Inputs ``(N, d)`` of a motion from rest, run ``s = steps / N`` times slower: ``(steps, d)`` resampled along
+    the same time axis and scaled by ``1/s²``, so the motion follows (nearly) the same path at 1/s the speed."""
+    n = len(accel)
+    scale = steps / n
+    t = np.arange(steps) / scale
+    return np.stack([np.interp(t, np.arange(n), accel[:, j]) for j in range(accel.shape[1])], axis=1) / scale**2

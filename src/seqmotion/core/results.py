@@ -618,8 +618,15 @@ class Motion(TrustSignals):
 
     @property
     def feasible(self) -> np.ndarray | bool | None:
-        """Whether the largest violation is ≤ 0.01 (per trajectory for a batch); None without a constraint."""
-        return feasible_of(self.violation)
+        """Whether the largest violation is ≤ 0.01 (per trajectory for a batch; None without a constraint) and,
+        where a robot was checked (a result's ``robot_check``, an
+        :class:`~seqmotion.core.execution.ExecutionCheck`), the robot would not stop on it: False when its limits
+        are broken, whatever the constraint."""
+        cone = feasible_of(self.violation)
+        check = getattr(self, "robot_check", None)
+        if cone is None or check is None or check.ok is not False:
+            return cone
+        return np.zeros_like(cone, dtype=bool) if np.ndim(cone) else False
 
 
 _TRUST_COLUMNS = ("uncertainty", "errors", "out_of_distribution", "ood_reasons", "task", "physics")

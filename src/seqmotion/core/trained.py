@@ -20,7 +20,7 @@ import torch
 
 from ..errors import MAX_LENGTH, CheckpointError, as_float_array, as_trajectories, check_finite_result, check_number
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig, rollout
-from ..physics.integrator import reach_end
+from ..physics.integrator import DT, integrate_numpy, reach_end
 from ..physics.layout import StateLayout
 from ..physics.parameters import Physics
 from ..physics.transcription import Constraint, Solution, end_values, input_limits, transcription
@@ -28,7 +28,10 @@ from ..training import checkpoint as ckpt
 from ..training.device import model_device, resolve_device
 from ..training.pretrained import PretrainedModel
 from . import registry, trust
+from .execution import arm_form_for, check_execution, execution_check_for
 from .polish import (
+    ARM_ATTEMPTS,
+    ARM_ITERATIONS,
     COLD_ITERATIONS,
     EXTEND_ATTEMPTS,
     EXTEND_COLD_ITERATIONS,
@@ -36,8 +39,10 @@ from .polish import (
     FALLBACK_END_WEIGHT,
     POLISH_VIOLATION_TOLERANCE,
     WARM_ITERATIONS,
+    ArmForm,
     ExactForm,
     rest_to_rest_accel,
+    retimed,
     steps_to_stop,
 )
 from .results import Assessment, Motion, first_of, first_value
@@ -275,7 +280,7 @@ class TrainedModel(PretrainedModel):
         self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint] = (),
         params: Sequence[np.ndarray] = (), start: np.ndarray | None = None, cold_iterations: int = COLD_ITERATIONS,
         warm: bool = True, symbolic: str = "auto",
-        end_cost: tuple[Sequence[int], Sequence[float], np.ndarray] | None = None,
+        end_cost: tuple[Sequence[int], Sequence[float], np.ndarray] | None = None, arm: ArmForm | None = None,
     ) -> Solution:
         """The motion closest to ``accel`` that meets the task's constraint and ``constraints`` exactly.
 
@@ -290,12 +295,17 @@ class TrainedModel(PretrainedModel):
         ``symbolic``: CasADi's graph type (:func:`~seqmotion.physics.transcription.transcription`; ``"MX"`` for
         lengths that will rarely recur, where SX's slower build never pays back);
         ``end_cost``: ``(columns, weights, target)`` adds ``|weights ⊙ (x[K-1, columns] − target)|²`` to the
-        cost — an end condition asked for as nearly as the constraints allow instead of exactly.
+        cost — an end condition asked for as nearly as the constraints allow instead of exactly;
+        ``arm``: a robot's limits (:class:`~seqmotion.core.polish.ArmForm`) in place of the built-in arm's workspace.
         """
         form = self.exact_form()
+        if arm is not None and arm.joint_space is not None:
+            return self._polish_in_joints(x0, accel, constraints, params, start, cold_iterations, symbolic,
+                                          end_cost, arm)
         limits = () if form.accel_limits is None else (input_limits(form.accel_limits, "acceleration limits"),)
-        every = form.constraints + limits + tuple(constraints)
-        values = [np.zeros(0)] * (len(form.constraints) + len(limits)) + [np.asarray(p, np.float64) for p in params]
+        own = form.constraints + (form.workspace if arm is None else arm.constraints) + limits
+        every = own + tuple(constraints)
+        values = [np.zeros(0)] * len(own) + [np.asarray(p, np.float64) for p in params]
         length = len(accel) + 1
         kwargs = {"dt": form.dt, "accel_weights": form.accel_weights, "smoothness": form.smoothness,
                   "symbolic": symbolic}
@@ -316,6 +326,74 @@ class TrainedModel(PretrainedModel):
             retry.iterations += solution.iterations
             retry.seconds += solution.seconds
         return retry
+
+    def polish_on_arm(
+        self, x0: np.ndarray, accel: np.ndarray, states: np.ndarray, arm: ArmForm,
+        constraints: Sequence[Constraint] = (), params: Sequence[np.ndarray] = (),
+    ) -> Solution:
+        """:meth:`polish` within a robot's limits (``arm``), the time it needs found as ``keep_end`` finds it: the
+        motion ``states`` ``(K, S)`` (inputs ``accel`` ``(K-1, d)`` from ``x0``) slowed down to the rated speeds
+        (:attr:`ArmForm.time_scale`), then :data:`EXTEND_GROWTH` × longer per try, up to :data:`ARM_ATTEMPTS`
+        tries. The first solution that holds, else the last try's."""
+        steps = math.ceil(len(accel) * arm.time_scale(np.asarray(states)))
+        for _ in range(ARM_ATTEMPTS):
+            solution = self.polish(x0, retimed(accel, steps), constraints, params, warm=False,
+                                   cold_iterations=ARM_ITERATIONS, symbolic="MX", arm=arm)
+            if self._holds(solution):
+                break
+            steps = math.ceil(steps * EXTEND_GROWTH)
+        return solution
+
+    def _polish_in_joints(
+        self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint], params: Sequence[np.ndarray],
+        start: np.ndarray | None, cold_iterations: int, symbolic: str,
+        end_cost: tuple[Sequence[int], Sequence[float], np.ndarray] | None, arm: ArmForm,
+    ) -> Solution:
+        """:meth:`polish` on a robot's joints (``arm.joint_space``): the motion is mapped to the joints by the arm's
+        inverse kinematics, IPOPT moves the joints (cold: the change from a motion about a fixed point to one an arm
+        can run is no small step) with the robot's limits as their own constraints and the task's on the forward
+        kinematics, and the result comes back as the task's states and inputs (exact forward kinematics at every
+        sample: the states' recursion through the inputs then holds to O(dt³) per sample, not to rounding).
+
+        The joints' accelerations are held over ``arm.hold`` samples (the NLP's knots; the motion may grow by up to
+        ``hold - 1`` samples to a whole number of knots): the joint path between knots is the double integrator's
+        exactly, so speeds and the end state are exact, and the task's constraint, imposed at the knots, is judged
+        at every sample by the caller (:meth:`_holds`)."""
+        form = self.exact_form()
+        space, to_joints, to_task = arm.joint_space, arm.to_joints, arm.to_task
+        task = form.constraints if form.on_joints is None else form.on_joints
+        own = task + arm.constraints  # the robot's own limits stand for the built-in arm's accelerations
+        every = own + tuple(constraints)
+        # the joints' own constraints come after the task's in the NLP (Transcription appends them)
+        values = ([np.zeros(0)] * len(own) + [np.asarray(p, np.float64) for p in params]
+                  + [np.zeros(0)] * len(space.constraints))
+        dt = form.dt
+
+        hold, knots = arm.hold, math.ceil(len(accel) / arm.hold)
+
+        def joint_inputs(task_accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """The start's joint state and the joint accelerations held over each knot (their means)."""
+            joints = to_joints(integrate_numpy(x0, task_accel, dt))
+            fine = np.diff(joints[:, space.dim:], axis=0) / dt
+            fine = np.concatenate([fine, np.zeros((knots * hold - len(fine), space.dim))])
+            return joints[0], fine.reshape(knots, hold, space.dim).mean(axis=1)
+
+        q0, reference = joint_inputs(accel)
+        _, guess = joint_inputs(accel if start is None else start)
+        kwargs: dict[str, Any] = {"dt": hold * dt, "accel_weights": (1.0,) * space.dim,
+                                  "smoothness": form.smoothness / hold**2, "symbolic": symbolic,
+                                  "joint_space": space}
+        target = None
+        if end_cost is not None:
+            columns, weights, target = end_cost
+            kwargs |= {"end_columns": tuple(int(c) for c in columns), "end_weights": tuple(map(float, weights))}
+        nlp = transcription(space.dim, knots + 1, every, max_iter=cold_iterations, **kwargs)
+        solution = nlp.solve(q0, guess, values, reference=reference, end_target=target)
+        # the joints' accelerations are held over each knot: the 1 ms motion is the same motion, exactly
+        joint_accel = np.repeat(solution.accel, hold, axis=0)
+        states, task_accel = to_task(integrate_numpy(q0, joint_accel, dt), joint_accel)
+        return Solution(accel=task_accel, states=states, status=solution.status, success=solution.success,
+                        infeasible=solution.infeasible, iterations=solution.iterations, seconds=solution.seconds)
 
     # --- differentiable maps (latent optimisation works on these) -------------------------------
 
@@ -342,7 +420,8 @@ class TrainedModel(PretrainedModel):
     # --- NumPy API -----------------------------------------------------------------------------
 
     def generate(
-        self, inputs: object, keep_end: bool = False, extend: bool = True, physics: Physics | None = None
+        self, inputs: object, keep_end: bool = False, extend: bool = True, physics: Physics | None = None,
+        robot: object = None,
     ) -> Any:
         """Encode ``(K, input_dim)`` or ``(B, K, input_dim)`` motions (any K ≥ 2) and decode them
         through the task's physics: a :class:`Motion` (the task's own subclass of it, e.g. ``DeformResult``,
@@ -361,22 +440,57 @@ class TrainedModel(PretrainedModel):
 
         ``physics``: the task's physics to decode at (default :attr:`physics`); the result records it.
 
+        ``robot``: a robot the motion is for (a name such as ``"ur5e"``, or a robot object; one motion at a time).
+        With ``keep_end``, the polish also keeps that robot's rated limits where the robot layer can state them as
+        constraints (``seqmotion.core.execution.arm_form_for``; the motion may take longer: its learned copy slowed
+        down to the rated speeds is where it starts). Either way the result is judged on the robot
+        (``result.robot_check``, an :class:`~seqmotion.core.execution.ExecutionCheck`): where a limit is broken
+        ``result.feasible`` is False and a ``RuntimeWarning`` names the binding limit and what would fix it.
+
         Raises:
             ValueError: wrong shape, K < 2, NaN or inf, physics of another task's kind,
-                ``keep_end`` for a task without an exact form or end pose.
+                ``keep_end`` for a task without an exact form or end pose; a batch or an unknown robot with
+                ``robot``, or a task with no execution check registered.
         """
         physics = self.resolve_physics(physics)
         batch, single = as_trajectories(inputs, self.input_dim, self.input_layout.kind)
         for name, flag in (("keep_end", keep_end), ("extend", extend)):
             if not isinstance(flag, bool):
                 raise ValueError(f"{name} must be True or False, got {flag!r}")
+        arm = None
+        if robot is not None:
+            if not single:
+                raise ValueError(f"{self.task_def.name}: generate(robot=...) makes one motion at a time: pass one "
+                                 f"motion of shape (K, {self.input_dim})")
+            execution_check_for(self.task_def.name)  # ValueError naming the task before any work
+            if keep_end:
+                arm = arm_form_for(self.task_def.name, robot, self._dt())
         end = self._end_constraint(batch, physics) if keep_end else None
         with torch.inference_mode():
             x = torch.from_numpy(batch)
             z = self.encode_torch(x)
             result = self._decode(z, self.start_state(x).double(), batch.shape[1], physics, inputs=batch, end=end,
-                                  extend=extend)
-        return first_of(result) if single else result
+                                  extend=extend, arm=arm)
+        result = first_of(result) if single else result
+        if robot is not None:
+            self._judge_on_robot(result, robot)
+        return result
+
+    def _dt(self) -> float:
+        """The motion's sample period [s]: the task's dynamics' (the double integrator's 1 ms unless it says)."""
+        return float(getattr(self.dynamics(), "dt", DT))
+
+    def _judge_on_robot(self, result: Any, robot: object) -> None:
+        """Set ``result.robot_check``: whether ``robot`` can execute the motion (the simulator's check, through
+        the task layer's hook), and warn naming the binding limit where it cannot."""
+        length = len(result.states) if result.length is None else int(result.length)
+        states = np.asarray(result.states)[:length]
+        result.robot_check = check_execution(self.task_def.name, states, robot, dt=self._dt())
+        problem = result.robot_check.problem()
+        if problem is not None:
+            warnings.warn(problem, RuntimeWarning, stacklevel=3)
+        elif result.robot_check.ok is None:  # never silent: a robot whose limits are unknown is not a pass
+            warnings.warn(result.robot_check.describe(), RuntimeWarning, stacklevel=3)
 
     def _end_constraint(self, inputs: np.ndarray, physics: Physics) -> tuple[Constraint, np.ndarray]:
         """``keep_end``'s constraint — the end-pose fields at the inputs' last values, the rate fields
@@ -397,10 +511,13 @@ class TrainedModel(PretrainedModel):
 
     def _polish_ends(
         self, states: torch.Tensor, accel: torch.Tensor, end: tuple[Constraint, np.ndarray], extend: bool = True,
+        arm: ArmForm | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray, np.ndarray]:
         """Polish each motion onto ``end`` (see :meth:`generate`): ``(states, accel, exact (B,), length (B,),
         iterations (B,))``, padded to the longest motion by holding its end state with zero input; ``iterations``:
-        IPOPT's, summed over every polish the motion took (longer tries, the fallback)."""
+        IPOPT's, summed over every polish the motion took (longer tries, the fallback). With ``arm`` (a robot's
+        limits), a motion whose joints would outrun the rated speeds starts from its own copy slowed down by
+        :attr:`ArmForm.time_scale` (the same path, s× longer: speeds /s, accelerations /s²)."""
         constraint, values = end
         columns = list(constraint.key[1])
         exact = np.zeros(len(states), dtype=bool)
@@ -419,19 +536,24 @@ class TrainedModel(PretrainedModel):
                                   f"{need}); it keeps the learned motion", RuntimeWarning, stacklevel=4)
                     continue
             steps = steps_to_stop(x0[b], columns, values[b], steps, form) if extend else steps
-            attempts = EXTEND_ATTEMPTS if extend else 1
+            if arm is not None and extend:
+                steps = max(steps, math.ceil(len(reference[b]) * arm.time_scale(motions[b][0])))
+            attempts = 1 if not extend else ARM_ATTEMPTS if arm is not None else EXTEND_ATTEMPTS
             for attempt in range(attempts):
-                # after the input's end the polish stays near rest (zero input) while it brings the motion to a stop
-                ref = np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
+                if arm is not None:  # the learned motion retimed to the length tried
+                    ref = retimed(reference[b], steps)
+                else:  # after the input's end the polish stays near rest (zero input) while it brings it to a stop
+                    ref = np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
                 # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
                 # starts from a motion that only the task's constraint still separates from exact
                 start = reach_end(x0[b], ref, columns, values[b], np.array(form.accel_weights), form.dt)
                 last = attempt == attempts - 1  # a failing try is cut short: a longer one will likely succeed
                 # MX: a motion's length (its input's, or an extended one) seldom recurs soon, and "auto" would
                 # build the slow-to-build SX graph on its second request
+                iterations_cap = COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS
                 solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
-                                       cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
-                                       symbolic="MX")
+                                       cold_iterations=ARM_ITERATIONS if arm is not None else iterations_cap,
+                                       symbolic="MX", arm=arm)
                 iterations[b] += solution.iterations
                 if self._holds(solution):
                     motions[b], exact[b] = (solution.states, solution.accel), True
@@ -439,7 +561,7 @@ class TrainedModel(PretrainedModel):
                 steps = math.ceil(steps * EXTEND_GROWTH)
             if not exact[b]:  # at the longest time tried (``ref``)
                 near_states, near_accel, spent = self._nearest_rest(b, x0[b], ref, columns, values[b],
-                                                                    solution.status, motions[b])
+                                                                    solution.status, motions[b], arm)
                 motions[b] = (near_states, near_accel)
                 iterations[b] += spent
         length = np.array([len(s) for s, _ in motions])
@@ -459,7 +581,7 @@ class TrainedModel(PretrainedModel):
 
     def _nearest_rest(
         self, b: int, x0: np.ndarray, ref: np.ndarray, columns: list[int], values: np.ndarray, status: str,
-        learned: tuple[np.ndarray, np.ndarray],
+        learned: tuple[np.ndarray, np.ndarray], arm: ArmForm | None = None,
     ) -> tuple[np.ndarray, np.ndarray, int]:
         """``keep_end``'s fallback for motion ``b``, whose end pose no polish reached (e.g. a pose that the
         arm can hold the pancake at only from beyond its reach): the motion as long as ``ref`` that
@@ -478,7 +600,7 @@ class TrainedModel(PretrainedModel):
         # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
         # IPOPT converges less often
         solution = self.polish(x0, ref, [rest], [np.zeros(len(rates))], start=np.zeros_like(ref), warm=False,
-                               symbolic="MX", end_cost=(pose, weights, target))
+                               symbolic="MX", end_cost=(pose, weights, target), arm=arm)
         if self._holds(solution):
             miss = np.abs(solution.states[-1, pose] - target)
             warnings.warn(f"keep_end: motion {b} cannot end at its input's end pose within the task's constraint, "
@@ -546,16 +668,16 @@ class TrainedModel(PretrainedModel):
 
     def _decode(
         self, z: torch.Tensor, x0: torch.Tensor, length: int, physics: Physics, inputs: np.ndarray | None = None,
-        end: tuple[Constraint, np.ndarray] | None = None, extend: bool = True,
+        end: tuple[Constraint, np.ndarray] | None = None, extend: bool = True, arm: ArmForm | None = None,
     ) -> Any:
         """Decode (with the predicted std, :meth:`rollout_with_std`), polish onto ``end`` when given
-        (``keep_end``; ``extend``: see :meth:`generate`), and judge the motion against ``inputs``
-        ``(B, K, input_dim)`` when given (errors, out-of-distribution flag)."""
+        (``keep_end``; ``extend``: see :meth:`generate`; within ``arm``'s limits when given), and judge the motion
+        against ``inputs`` ``(B, K, input_dim)`` when given (errors, out-of-distribution flag)."""
         x0 = x0.double()
         states, accel, std = self.rollout_with_std(z, x0, length, physics)
         exact = own_length = iterations = None
         if end is not None:
-            states, accel, exact, own_length, iterations = self._polish_ends(states, accel, end, extend)
+            states, accel, exact, own_length, iterations = self._polish_ends(states, accel, end, extend, arm)
         violation = self.violation_torch(states, accel)
         if own_length is not None and violation is not None:  # a batch's padding past a motion's end is not part of it
             past = torch.arange(violation.shape[1]) >= torch.from_numpy(own_length - 1)[:, None]

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.polish import POLISH_VIOLATION_TOLERANCE
+from ..core.execution import ExecutionCheck, arm_form_for, execution_check_for
+from ..core.polish import POLISH_VIOLATION_TOLERANCE, ArmForm
 from ..core.results import FEASIBLE_TOLERANCE, Motion
 from ..core.trained import TrainedModel
 from ..errors import as_float_array, as_trajectories, check_finite_result, check_number
@@ -109,6 +110,7 @@ class OptimizationResult(Motion):
     stages: list[Stage] = field(default_factory=list, kw_only=True)
     terms: dict[str, Term] = field(default_factory=dict, kw_only=True)
     end_shift: dict[str, Term] = field(default_factory=dict, kw_only=True)
+    robot_check: ExecutionCheck | None = field(default=None, kw_only=True)  # with robot=...; see Motion.feasible
 
     @property
     def met(self) -> bool:
@@ -374,6 +376,7 @@ def optimize_latent(
     tol: float | None = None,
     device: str | torch.device | None = None,
     physics: Physics | None = None,
+    robot: object = None,
 ) -> OptimizationResult:
     """Cases 1 and 2: optimise the latent z of ``states`` for ``objective``; with ``exact=True``, then polish.
 
@@ -422,6 +425,11 @@ def optimize_latent(
         device: run the decoder and the updates there (``"auto"``, ``"cpu"``, ``"cuda"``, ``"cuda:N"``; default
             None: where ``model`` runs). ``model`` itself is not moved (a copy on ``device`` is used). The
             polish and the trust signals run on the CPU; results are NumPy arrays either way.
+        robot: the robot the motion is for (``"ur5e"``, …; one trajectory). With ``exact=True`` the polish also keeps
+            its rated limits where the robot layer states them as constraints (the UR5e's: joint speeds, ranges,
+            torques; the motion may take longer), as ``deform(..., keep_end=True, robot=...)`` does; either way the
+            result is judged on the robot (``res.robot_check``; ``res.feasible`` False and a ``RuntimeWarning``
+            naming the binding limit where one is broken).
     """
     model = _on_device(model, device)
     objective, x, x0, length, single, physics = _prepare(model, states, objective, steps, lr, physics)
@@ -450,7 +458,7 @@ def optimize_latent(
     )
     stages = [_stage("latent", history, time.perf_counter() - start, steps, tol)]
     return _finish(model, objective, x, x0, out_states, out_accel, z, history, seconds, stages, constraints, single,
-                   physics)
+                   physics, robot)
 
 
 def optimize_trajectory(
@@ -465,6 +473,7 @@ def optimize_trajectory(
     tol: float | None = None,
     device: str | torch.device | None = None,
     physics: Physics | None = None,
+    robot: object = None,
 ) -> OptimizationResult:
     """Case 3: optimise the decoder's output accelerations directly (states by integration).
 
@@ -485,7 +494,7 @@ def optimize_trajectory(
     )
     stages = [_stage("trajectory", history, time.perf_counter() - start, steps, tol)]
     return _finish(model, objective, x, x0, out_states, out_accel, None, history, seconds, stages, constraints,
-                   single, physics)
+                   single, physics, robot)
 
 
 def _on_device(model: object, device: object) -> Any:
@@ -522,15 +531,23 @@ def _stage(name: str, history: np.ndarray, seconds: float, steps: int, tol: floa
 def _finish(
     model: TrainedModel, objective: Objective, inputs: torch.Tensor, x0: torch.Tensor, states: torch.Tensor,
     accel: torch.Tensor, latent: torch.Tensor | None, history: np.ndarray, seconds: float, stages: list[Stage],
-    constraints: list | None, single: bool, physics: Physics,
+    constraints: list | None, single: bool, physics: Physics, robot: object = None,
 ) -> OptimizationResult:
-    """Polish (with ``exact=True``), judge each term and the trust signals, and shape the result."""
+    """Polish (with ``exact=True``, within ``robot``'s limits where given), judge each term, the trust signals and
+    the robot's verdict, and shape the result."""
     # back on the CPU (a no-op there): the polish, the terms and the result are host-side
     states, accel, x0 = states.double().cpu(), accel.double().cpu(), x0.cpu()
     latent = None if latent is None else latent.cpu()
     exact = None
+    arm = None
+    if robot is not None:
+        if not single:
+            raise ValueError("robot=... optimises one trajectory at a time: pass states of one motion")
+        execution_check_for(model.task_def.name)  # ValueError naming the task
+        if constraints is not None:
+            arm = arm_form_for(model.task_def.name, robot, float(model.exact_form().dt))
     if constraints is not None:
-        states, accel, exact, polish_stage = _polish(model, objective, x0, states, accel, constraints)
+        states, accel, exact, polish_stage = _polish(model, objective, x0, states, accel, constraints, arm)
         stages.append(polish_stage)
     terms = objective.report(states, accel)
     with torch.no_grad():
@@ -542,6 +559,8 @@ def _finish(
     res.end_shift = _end_shift(model, objective, inputs, states)
     _warn_if_outcome_changed(res.end_shift, model, inputs, states)
     res.exact = None if exact is None else (bool(exact[0]) if single else exact)
+    if states.shape[1] > inputs.shape[1]:  # a polish for a robot took longer: the input holds its end meanwhile
+        inputs = torch.cat([inputs, inputs[:, -1:].expand(-1, states.shape[1] - inputs.shape[1], -1)], dim=1)
     trust = model.assess(inputs.numpy()[0] if single else inputs.numpy(), res.states, res.accel,
                          None if latent is None else res.latent, physics)
     res.errors, res.out_of_distribution, res.ood_reasons, res.uncertainty = trust
@@ -551,22 +570,31 @@ def _finish(
                          for name, t in res.end_shift.items()}
         for stage in res.stages:
             stage.objective = stage.objective[:1]
+    if robot is not None:
+        model._judge_on_robot(res, robot)
     return res
 
 
 def _polish(
     model: TrainedModel, objective: Objective, x0: torch.Tensor, states: torch.Tensor, accel: torch.Tensor,
-    constraints: list,
+    constraints: list, arm: ArmForm | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray, Stage]:
-    """Each trajectory's motion closest to the latent stage's that meets ``constraints`` and the task's exactly."""
+    """Each trajectory's motion closest to the latent stage's that meets ``constraints`` and the task's exactly;
+    with ``arm`` (one trajectory), within a robot's limits too (:meth:`TrainedModel.polish_on_arm`: the result may be
+    longer; where the polish fails, it is the last try's motion, judged as it is)."""
     start = time.perf_counter()
     b = len(states)
+    x0_np, accel_np = x0.double().numpy(), accel.numpy()
     out_states, out_accel = states.clone(), accel.clone()
     exact, iterations, status = np.zeros(b, bool), np.zeros(b, int), []
-    x0_np, accel_np = x0.double().numpy(), accel.numpy()
     for i in range(b):
         params = [p[i] if len(p) > 1 else p[0] for _, p in constraints]
-        solution = model.polish(x0_np[i], accel_np[i], [c for c, _ in constraints], params)
+        if arm is None:
+            solution = model.polish(x0_np[i], accel_np[i], [c for c, _ in constraints], params)
+        else:  # one trajectory, which may take longer than the latent stage's: the result holds what was found
+            solution = model.polish_on_arm(x0_np[i], accel_np[i], states[i].numpy(), arm,
+                                           [c for c, _ in constraints], params)
+            out_states, out_accel = (torch.from_numpy(a)[None] for a in (solution.states, solution.accel))
         iterations[i], found = solution.iterations, solution.status
         new_states = torch.from_numpy(solution.states)[None]
         new_accel = torch.from_numpy(solution.accel)[None]

@@ -29,12 +29,23 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.execution import check_execution
 from ..core.results import Motion, first_of
 from ..errors import as_trajectories
 from ..physics.integrator import DT
 from ..physics.parameters import Physics
 from ..physics.sliding import GRAVITY, PLAN_LAYOUT
-from ..tasks.sliding import PAN_LIMIT, SlidingPlan
+from ..tasks.sliding import (
+    ACCEPT_CLEARANCE,
+    ACCEPT_SHARE,
+    PAN_LIMIT,
+    ROBOT_KINDS,
+    RUN_KINDS,
+    PanJointLimits,
+    SlidingPlan,
+    check_limit_kinds,
+    warn_if_not_executable,
+)
 from .optimize import optimize_latent
 from .terms import Objective, _check_weight
 
@@ -144,6 +155,8 @@ def refine_plan(
     accel_lr: float = 0.3,
     dither: float = 0.0,
     dither_hz: float = 50.0,
+    robot: object = None,
+    limits: tuple[str, ...] = ROBOT_KINDS,
 ) -> SlidingPlan:
     """Plan, then refine the plan's latent by Adam on :class:`Tracking` at the given friction.
 
@@ -162,6 +175,14 @@ def refine_plan(
        the polish can place the object's motion where the undithered plan's few slips could not
        (stiction compensation by dither). Per trajectory the better polish is kept (the objective's
        jerk term charges the base accelerations, not the vibration).
+
+    With ``robot``: then keep that robot's limits (:meth:`SlidingPlanner.fit_robot
+    <seqmotion.tasks.sliding.SlidingPlanner.fit_robot>` on the refined latent, the objective still the one above: the
+    rated joint speeds, ranges, torques and accelerations mapped through the arm's Jacobian onto the pan as latent
+    objective terms, checked on the simulator's IK and re-linearised until they hold); the acceleration polish, if
+    asked, then carries the limits as a term too and is kept only if it keeps what the latent plan kept.
+    ``plan.robot_check`` holds the verdict; ``plan.feasible`` is False, with a ``RuntimeWarning`` naming the binding
+    limit, where one is broken after all.
 
     Gradients vanish wherever the object sticks, so refinement reshapes the plan's slips but
     cannot add new ones: it is a local fix (see benchmarks/results_planner_limits.md).
@@ -182,6 +203,9 @@ def refine_plan(
         dither: amplitude of the vibration added before the polish, in units of μg (0: none; needs
             ``accel_steps > 0``). It raises the pan's peak acceleration by about ``dither · μ g``.
         dither_hz: its frequency [Hz] (50 Hz: ±0.12 mm of pan motion at 1.2 μg, μ = 1).
+        robot: a robot to plan for (``"panda"``, …; one command at a time), or None.
+        limits: with ``robot``, the limits to keep, of :data:`~seqmotion.tasks.sliding.ROBOT_KINDS` (default all;
+            :data:`~seqmotion.tasks.sliding.RUN_KINDS` keeps what a simulated run judges).
 
     Returns:
         the :class:`~seqmotion.tasks.sliding.SlidingPlan` (``(K, ...)`` or ``(B, K, ...)`` like
@@ -189,6 +213,10 @@ def refine_plan(
     """
     physics = planner.physics.replace(mu=mu, mu_dyn=mu_dyn)  # checked once; the plan records it
     batch, single = as_trajectories(command, 4, "command")
+    if robot is not None:
+        if not single:
+            raise ValueError("refine_plan(robot=...) plans one command at a time: pass a command of shape (K, 4)")
+        check_limit_kinds(limits)
     for name, value in (("steps", steps), ("accel_steps", accel_steps)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
             raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
@@ -231,6 +259,13 @@ def refine_plan(
         best_j = np.where(better, final, best_j)
     x0 = np.concatenate([np.zeros((len(batch), 4)), batch[:, 0]], axis=1)
     plan = planner.decode(best_z, x0, batch.shape[1], physics)
+    check = None
+    if robot is not None:  # 2b. the robot's limits as latent objective terms
+        plain = first_of(plan)
+        plain.errors = planner.assess(batch[0], plain.states, plain.accel, best_z[0], physics=physics).errors
+        fitted = planner.fit_robot(batch[0], plain, robot, tuple(limits), objective=bound)
+        check, best_z = fitted.robot_check, np.asarray(fitted.latent, dtype=np.float32)[None]
+        plan = planner.decode(best_z, x0, batch.shape[1], physics)
     if accel_steps > 0:  # 3. the accelerations
         vibration = None
         if dither > 0:
@@ -238,12 +273,45 @@ def refine_plan(
             t = np.arange(batch.shape[1] - 1) * DT
             phase = 2 * math.pi * float(dither_hz) * t
             vibration = dither * mu_value * GRAVITY * np.stack([np.cos(phase), np.sin(phase)], axis=1)
-        plan = _polish(planner, plan, torch.from_numpy(x0), bound, accel_steps, accel_lr, physics, vibration)
+        term = _limit_term(check, limits)
+        goal = bound if term is None else (lambda states, accel: bound(states, accel) + term(states, accel))
+        polished = _polish(planner, plan, torch.from_numpy(x0), goal, accel_steps, accel_lr, physics, vibration)
+        if check is None:
+            plan = polished
+        else:  # kept only if it keeps what the latent plan kept
+            after = check_execution(planner.task_def.name, polished.states[0], robot, dt=DT)
+            if _kept_as_well(after, check, limits):
+                plan, check = polished, after
     trust = planner.assess(batch, plan.motion().states, plan.motion().accel, best_z, physics=physics)
     plan.errors, plan.out_of_distribution, plan.ood_reasons, plan.uncertainty = trust
     if single:
-        return first_of(plan)
+        plan = first_of(plan)
+        if robot is not None:
+            plan.robot_check = check
+            warn_if_not_executable(plan, plain, tuple(limits))
+        return plan
     return plan
+
+
+POLISH_LIMIT_WEIGHT = 1e3
+"""The weight of the robot's limits (:class:`~seqmotion.tasks.sliding.PanJointLimits`) in the acceleration polish."""
+
+
+def _limit_term(check: Any, limits: tuple[str, ...]) -> Any:
+    """The robot's limits as a polish term (weighted :data:`POLISH_LIMIT_WEIGHT`), or None without a robot check."""
+    if check is None or getattr(check, "pan_map", None) is None:
+        return None
+    term = PanJointLimits(check, tuple(limits))
+    return lambda states, accel: POLISH_LIMIT_WEIGHT * term(states, accel)
+
+
+def _kept_as_well(after: Any, before: Any, limits: tuple[str, ...]) -> bool:
+    """Whether the check ``after`` keeps every limit of ``limits`` that ``before`` kept (the run's first)."""
+    for kinds in (tuple(k for k in RUN_KINDS if k in limits), tuple(limits)):
+        if kinds and before.kept(kinds, ACCEPT_SHARE, ACCEPT_CLEARANCE) and not after.kept(
+                kinds, ACCEPT_SHARE, ACCEPT_CLEARANCE):
+            return False
+    return True
 
 
 def _polish(

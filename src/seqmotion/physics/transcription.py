@@ -74,6 +74,35 @@ class Constraint:
     n_params: int = 0
 
 
+@dataclass(frozen=True)
+class JointSpace:
+    """A change of variables for the transcription: the double integrator runs on a robot's joints, and the task's
+    states and inputs are functions of them (forward kinematics), on which the task's constraints are evaluated.
+
+    Attributes:
+        name: what it is (a robot's joints).
+        key: everything that fixes its symbolic structure (NLPs are cached on it).
+        dim: the number of joints (state = the joint angles, then their speeds; inputs = joint accelerations).
+        to_task: ``(x (2·dim, K), u (dim, K-1)) -> (x_task (2d, K), u_task (d, K-1))`` symbolically: the task's
+            states along the joint trajectory and the task's inputs (its accelerations, exactly, at samples
+            0..K-2).
+        constraints: the robot's own constraints on ``(x, u, p)`` in joint space (the flange clear of a
+            singularity, …).
+        state_bounds: ``(lower, upper)``, one per state row (joint ranges [rad], then rated speeds [rad/s];
+            ``±inf`` for none): bounds on every sample from 1 on, which IPOPT keeps as variable bounds (no
+            constraint rows: on a 1000-sample motion they are half its constraints).
+        options: IPOPT options for this kind of problem (``(("ipopt.mu_strategy", "adaptive"),)``).
+    """
+
+    name: str
+    key: tuple
+    dim: int
+    to_task: Callable[[Any, Any], tuple[Any, Any]] = field(compare=False, hash=False)
+    constraints: tuple[Constraint, ...] = ()
+    state_bounds: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+
+
 @dataclass
 class Solution:
     """One IPOPT solve.
@@ -103,10 +132,12 @@ class Transcription:
         self, dim: int, length: int, dt: float, constraints: tuple[Constraint, ...],
         accel_weights: tuple[float, ...] | None, end_columns: tuple[int, ...] | None,
         end_weights: tuple[float, ...] | None, warm: bool, tol: float, max_iter: int, symbolic: str,
-        smoothness: float = 0.0,
+        smoothness: float = 0.0, joint_space: JointSpace | None = None,
     ) -> None:
         ca = casadi()
         start = time.perf_counter()
+        if joint_space is not None:  # the double integrator runs on the joints; the task's constraints on FK
+            dim, constraints = joint_space.dim, constraints + joint_space.constraints
         self.dim, self.length, self.constraints = dim, length, constraints
         k, s = length, 2 * dim
         a_mat, b_mat = transition_matrices(dim, dt)
@@ -117,10 +148,12 @@ class Transcription:
         params.append(x0)
         g.append(x[:, 0] - x0)
         lower += [np.zeros(s * (k - 1)), np.zeros(s)]
+        own = set() if joint_space is None else {id(c) for c in joint_space.constraints}
+        task_x, task_u = (x, u) if joint_space is None else joint_space.to_task(x, u)
         for c in constraints:
             p = sym.sym(f"p_{c.name}", c.n_params)
             params.append(p)
-            value = ca.vec(c.build(x, u, p))
+            value = ca.vec(c.build(x, u, p) if id(c) in own else c.build(task_x, task_u, p))
             for bound in (c.lower, c.upper):
                 if np.size(bound) not in (1, value.numel()):  # named here, not as NumPy's broadcast error
                     raise ValueError(f"constraint {c.name!r} has {value.numel()} values but {np.size(bound)} bounds")
@@ -144,11 +177,18 @@ class Transcription:
         if end_columns is not None:  # the peer's weighted end error
             target = sym.sym("end_target", len(end_columns))
             params.append(target)
-            cost += ca.sumsqr(ca.DM(end_weights) * (x[list(end_columns), -1] - target))
+            cost += ca.sumsqr(ca.DM(end_weights) * (task_x[list(end_columns), -1] - target))
         options = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": tol, "ipopt.max_iter": max_iter}
         if warm:
             options.update(WARM_OPTIONS)
+        if joint_space is not None:
+            options.update(dict(joint_space.options))
         variables = ca.vertcat(ca.vec(u), ca.vec(x))  # vec() is column-major: u[:, j] contiguous
+        self.lbx, self.ubx = np.full(variables.numel(), -np.inf), np.full(variables.numel(), np.inf)
+        if joint_space is not None and joint_space.state_bounds is not None:
+            low, high = (np.asarray(b, dtype=float) for b in joint_space.state_bounds)
+            first = dim * (k - 1) + s  # x[:, 1] onward
+            self.lbx[first:], self.ubx[first:] = np.tile(low, k - 1), np.tile(high, k - 1)
         self.solver = ca.nlpsol("transcription", "ipopt",
                                 {"x": variables, "f": cost, "g": ca.vertcat(*g), "p": ca.vertcat(*params)}, options)
         self.n_accel = dim * (k - 1)
@@ -173,7 +213,7 @@ class Transcription:
             p.append(np.asarray(end_target, np.float64).reshape(-1))
         start = time.perf_counter()
         sol = self.solver(x0=np.concatenate([guess.reshape(-1), states.reshape(-1)]), lbg=self.lbg, ubg=self.ubg,
-                          p=np.concatenate(p))
+                          lbx=self.lbx, ubx=self.ubx, p=np.concatenate(p))
         seconds = time.perf_counter() - start
         stats = self.solver.stats()
         status = str(stats["return_status"])
@@ -193,7 +233,7 @@ def transcription(
     dim: int, length: int, constraints: tuple[Constraint, ...], *, dt: float = DT,
     accel_weights: tuple[float, ...] | None = None, end_columns: tuple[int, ...] | None = None,
     end_weights: tuple[float, ...] | None = None, warm: bool = False, tol: float = 1e-9, max_iter: int = 3000,
-    symbolic: str = "auto", smoothness: float = 0.0,
+    symbolic: str = "auto", smoothness: float = 0.0, joint_space: JointSpace | None = None,
 ) -> Transcription:
     """The (cached) NLP for a motion of ``length`` samples of a ``dim``-axis double integrator.
 
@@ -208,6 +248,9 @@ def transcription(
     ``smoothness`` λ adds ``λ Σ_k |√w ⊙ (u[k+1] − u[k])|² / K`` to the distance cost, with ``u[-1] =
     u[K-1] = 0`` (the motion starts and ends with zero acceleration): the correction is spread over
     about √λ samples instead of packed into a few large inputs, which a real arm cannot follow.
+    ``joint_space``: solve on a robot's joints instead (:class:`JointSpace`): ``dim``, the states, inputs,
+    reference and solution are then the joints', and ``constraints`` (and the end cost) are the task's, evaluated
+    on its forward kinematics.
     """
     if length < 2:
         raise ValueError(f"a transcribed motion needs at least 2 samples, got {length}")
@@ -216,7 +259,7 @@ def transcription(
     if symbolic not in ("auto", "SX", "MX"):
         raise ValueError(f"symbolic must be 'auto', 'SX' or 'MX', got {symbolic!r}")
     key = (dim, length, constraints, dt, accel_weights, end_columns, end_weights, warm, tol, max_iter,
-           float(smoothness))
+           float(smoothness), joint_space)
     if symbolic == "auto":
         _requests[key] = _requests.get(key, 0) + 1
         symbolic = "MX" if _requests[key] == 1 else "SX"
@@ -227,10 +270,10 @@ def transcription(
 def _build(
     dim: int, length: int, constraints: tuple[Constraint, ...], dt: float, accel_weights: tuple[float, ...] | None,
     end_columns: tuple[int, ...] | None, end_weights: tuple[float, ...] | None, warm: bool, tol: float,
-    max_iter: int, smoothness: float, symbolic: str,
+    max_iter: int, smoothness: float, joint_space: JointSpace | None, symbolic: str,
 ) -> Transcription:
     return Transcription(dim, length, dt, constraints, accel_weights, end_columns, end_weights, warm, tol, max_iter,
-                         symbolic, smoothness)
+                         symbolic, smoothness, joint_space)
 
 
 def scale_rows(expression: Any, factors: Sequence[float]) -> Any:

@@ -37,6 +37,7 @@ from .scene import (
     SHOULDER_OFFSET,
     SITE_IN_TOOL,
     SUBSTEPS,
+    TABLE_CLEARANCE,
     TABLE_TOP,
     UPPER_ARM,
     WRIST_TO_FLANGE,
@@ -174,7 +175,7 @@ def workspace_problem(reference: Reference, kind: str, robot: str | None = None)
     )
     dist = np.linalg.norm(wrist - shoulder, axis=1)
     reach = UPPER_ARM + FOREARM - REACH_MARGIN
-    table = (reference.pos[:, 2] < TABLE_TOP + 0.11,
+    table = (reference.pos[:, 2] < TABLE_TOP + TABLE_CLEARANCE,
              lambda k: f"the tool is down at the table (z = {reference.pos[k, 2]:.3f} m)")
     checks = [table] if robot is not None else [
         (dist > reach, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder (reach {reach:.3f} m)"),

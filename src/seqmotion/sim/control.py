@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from .observers import DisturbanceObserver
-from .scene import CONTROL_DT, Scene, import_mujoco
+from .scene import CONTROL_DT, PANCAKE_ORIGIN, Scene, import_mujoco
 
 
 @dataclass(frozen=True)
@@ -371,6 +371,12 @@ class JointSpaceController(ToolController):
         self.ik_error = np.zeros(2)
         self.saturated = False
         self.ik_seconds, self.periods = 0.0, 0  # wall time spent in the differential IK, over this many periods
+        self._chain = None
+        if scene.kind == "pancake":  # an arm placed to turn the spatula with parallel joints follows them exactly
+            from .planar_chain import planar_chain
+
+            self._chain = planar_chain(robot)
+        self._rot = np.zeros(9)
 
     @property
     def q_ref(self) -> np.ndarray:
@@ -396,16 +402,40 @@ class JointSpaceController(ToolController):
         mj, m, site, cfg = self._mj, self.scene.model, self.scene.site, self.config
         started = time.perf_counter()
         target = np.concatenate([quat, pos])
-        self._frame.set_target(self._mink.SE3(wxyz_xyz=target))
-        v = self._mink.solve_ik(cfg, [self._frame, self._posture], self.dt, IK_SOLVER, damping=1e-9,
-                                limits=self._limits)
-        mj.mj_integratePos(m, self._q_ref_full, v, self.dt)
+        chain_q = None if self._chain is None else self._chain_reference(pos, quat)
+        if chain_q is not None:
+            self._q_ref_full[self._qpos] = chain_q
+        else:
+            self._frame.set_target(self._mink.SE3(wxyz_xyz=target))
+            v = self._mink.solve_ik(cfg, [self._frame, self._posture], self.dt, IK_SOLVER, damping=1e-9,
+                                    limits=self._limits)
+            mj.mj_integratePos(m, self._q_ref_full, v, self.dt)
         cfg.update(self._q_ref_full)
         self.ik_seconds += time.perf_counter() - started
         self.periods += 1
         ref_data = cfg.data
         self.ik_error = _pose_error(mj, target, ref_data.site_xpos[site], ref_data.site_xquat[site])
         return ref_data
+
+    def _chain_reference(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
+        """The arm's posture for a planar spatula pose by the planar chain's closed-form IK
+        (:func:`~seqmotion.sim.planar_chain.chain_joints`: the joint path the polish planned, every other joint at
+        home), continuous with the previous ``q_ref``; ``None`` for a pose off the task plane (then mink's IK)."""
+        from .planar_chain import chain_joints
+
+        chain = self._chain
+        self._mj.mju_quat2Mat(self._rot, np.asarray(quat, dtype=np.float64))
+        turn = self._rot.reshape(3, 3) @ np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # · Ry(π/2)ᵀ
+        if abs(pos[0] - PANCAKE_ORIGIN[0]) > 1e-9 or abs(turn[0, 0] - 1.0) > 1e-9:
+            return None
+        theta = float(np.arctan2(turn[2, 1], turn[1, 1]))
+        q = chain.home.copy()
+        planned = chain_joints(chain, np.array([[pos[1] - PANCAKE_ORIGIN[1], pos[2] - PANCAKE_ORIGIN[2], theta,
+                                                 0.0, 0.0, 0.0]]))[0, :3]
+        index = list(chain.index)
+        previous = self._q_ref_full[self._qpos][index]
+        q[index] = previous + np.remainder(planned - previous + np.pi, 2 * np.pi) - np.pi  # the nearest turn
+        return q
 
     def torque(self, data, pos: np.ndarray, quat: np.ndarray, twist: np.ndarray, accel: np.ndarray) -> np.ndarray:
         """Joint torques ``(n,)`` [N m] for one period toward the commanded tool state (see the class docstring)."""

@@ -5,7 +5,8 @@ The simulator's own placement and IK turn the spatula states into the robot's jo
 first pose, then the :class:`~seqmotion.sim.control.JointSpaceController`'s differential IK every period on a
 standard arm), but nothing is simulated: no dynamics, no pancake, so a 0.5 s motion is judged in well under a second.
 The path is differentiated and held against the robot's rated limits (:attr:`Robot.limits
-<seqmotion.sim.robot_models.Robot.limits>`); torques need the dynamics and are left to the run (its ``JointReport``).
+<seqmotion.sim.robot_models.Robot.limits>`), and the torques it needs come from MuJoCo's inverse dynamics on the
+same model (``mj_inverse``: the arm and the tool, without the pancake's contact).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from .arm import IK_TOLERANCE, single_trajectory
 from .backend import CONTROL_DT, import_mujoco
 from .control import JointSpaceController, resolve_gains, solve_ik
 from .kinematics import planar_reference
+from .limits import JointLimits
 from .robot_models import Robot, built_in_limits, resolve_robot
 from .scene import Scene, get_scene
 
@@ -71,6 +73,36 @@ def _accelerations(qd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return np.diff(smooth, axis=0) / dt, (np.arange(len(smooth) - 1) + (window + 1) / 2) * dt
 
 
+def path_dynamics(scene: Scene, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joint torques ``(M, n)`` [N m] the arm needs to follow the joint path ``q`` ``(N, n)`` with speeds ``qd``
+    ``(N-1, n)`` and accelerations ``qdd`` ``(M, n)`` (at the times :func:`_accelerations` gives them), by MuJoCo's
+    inverse dynamics (``mj_inverse``) on the scene's own model — the arm and its tool, gravity, joint damping and
+    armature; the object rests where the model puts it — and the arm's mass matrices ``(M, n, n)`` [kg m²] there
+    (``τ`` is affine in ``q̈``: ``τ = H q̈ + c``)."""
+    mujoco = import_mujoco()
+    m = scene.model
+    data = mujoco.MjData(m)
+    n, count = q.shape[1], len(qdd)
+    tau, mass = np.zeros((count, n)), np.zeros((count, n, n))
+    if count == 0:
+        return tau, mass
+    window = len(qd) - count  # qdd[i] sits at t = (i + (window + 1) / 2) dt: q and q̇ are taken there
+    centre = np.arange(count) + (window + 1) / 2
+    times = np.arange(len(q))
+    pos = np.stack([np.interp(centre, times, q[:, j]) for j in range(n)], axis=1)
+    vel = np.stack([np.interp(centre, times[:-1] + 0.5, qd[:, j]) for j in range(n)], axis=1)
+    full = np.zeros((m.nv, m.nv))
+    dof = np.asarray(scene.arm_dof)
+    for i in range(count):
+        data.qpos[scene.arm_qpos], data.qvel[dof], data.qacc[:] = pos[i], vel[i], 0.0
+        data.qacc[dof] = qdd[i]
+        mujoco.mj_inverse(m, data)
+        tau[i] = data.qfrc_inverse[dof]
+        mujoco.mj_fullM(m, data, full)
+        mass[i] = full[np.ix_(dof, dof)]
+    return tau, mass
+
+
 def _worst(kind: str, names: tuple[str, ...], share: np.ndarray, needed: np.ndarray, rated: np.ndarray,
            times: np.ndarray) -> BindingLimit:
     """The sample and joint with the largest ``share`` ``(N, n)`` as a :class:`BindingLimit`."""
@@ -84,8 +116,8 @@ def check_executable(states: object, robot: str | Robot | None, dt: float = CONT
     The joint path comes from the simulator's placement and IK (as in :func:`~seqmotion.sim.pancake.run_pancake`,
     kinematics only). Its speeds ``q̇[k] = (q[k+1] - q[k]) / dt`` (at t = (k + ½) dt) are held against the rated
     speeds; its accelerations (differences of the speeds averaged over :data:`ACCEL_WINDOW`) against the rated
-    accelerations where published; its positions against the joint ranges; the IK residual against
-    :data:`~seqmotion.sim.arm.IK_TOLERANCE`.
+    accelerations where published; the torques they need (``mj_inverse``) against the model's torque limits; its
+    positions against the joint ranges; the IK residual against :data:`~seqmotion.sim.arm.IK_TOLERANCE`.
 
     Args:
         states: ``(K, 6)`` ``[y, z, θ, v_y, v_z, v_θ]`` [m, m, rad, m/s, m/s, rad/s], K ≥ 2.
@@ -108,6 +140,17 @@ def check_executable(states: object, robot: str | Robot | None, dt: float = CONT
     ref = planar_reference(arr, decel_time=0.0, hold_time=0.0, dt=dt)
     q, residual = _joint_path(scene, ref.pos[: ref.n_motion], ref.quat[: ref.n_motion], dt)
     limits = built_in_limits() if standard is None else standard.limits
+    return ExecutionCheck(**judge_joint_path(scene, limits, q, residual, dt, (len(q) - 1) * dt)[0])
+
+
+def judge_joint_path(scene: Scene, limits: JointLimits, q: np.ndarray, residual: np.ndarray, dt: float,
+                     duration: float) -> tuple[dict, list[BindingLimit], tuple[np.ndarray, ...]]:
+    """Hold a joint path ``q`` ``(K, n)`` [rad] (IK residuals ``(K, 2)``) at period ``dt`` [s] against ``limits``.
+
+    Returns the :class:`~seqmotion.core.execution.ExecutionCheck` fields of a motion of ``duration`` [s] (what a
+    slower run needs is scaled from it), every limit judged (the candidates for the binding one), and the path's
+    speeds, accelerations, torques and mass matrices ``(qd, qdd, tau, mass)`` (``tau`` and ``mass`` ``None`` on the
+    built-in arm) for a caller that keeps more (the sliding check)."""
     names, k = limits.joints, len(q)
     qd = np.diff(q, axis=0) / dt
     qdd, accel_time = _accelerations(qd, dt)
@@ -132,6 +175,17 @@ def check_executable(states: object, robot: str | Robot | None, dt: float = CONT
                                  np.broadcast_to(limits.acceleration, qdd.shape), accel_time))
     elif limits.acceleration is None:
         unknown["acceleration"] = str(limits.unknown("acceleration"))
+    torque_peak = torque_share = tau = mass = None
+    if scene.robot is not None and len(qdd):
+        tau, mass = path_dynamics(scene, q, qd, qdd)
+        torque_peak = np.abs(tau).max(axis=0)
+        if limits.torque is not None:
+            share = np.abs(tau) / limits.torque
+            torque_share = share.max(axis=0)
+            candidates.append(_worst("torque", names, share, np.abs(tau), np.broadcast_to(limits.torque, tau.shape),
+                                     accel_time))
+    if limits.torque is None:
+        unknown["torque"] = str(limits.unknown("torque"))
     range_margin = None
     if limits.position is not None:
         lo, hi = limits.position.T
@@ -151,19 +205,19 @@ def check_executable(states: object, robot: str | Robot | None, dt: float = CONT
     broken = [c for c in candidates if c.share > 1.0]
     if broken:
         ok: bool | None = False
-        # A limit no timing can keep (range, reach) binds before any a slower run would cure.
+        # A limit no timing can keep (range, reach, torque) binds before any a slower run would cure.
         untimed = [c for c in broken if not fixable_by_timing(c)]
         binding = max(untimed or broken, key=lambda c: c.share)
     else:
         ok = None if ("speed" in unknown or "range" in unknown) else True
         binding = max(candidates, key=lambda c: c.share) if ok else None
-    duration = (k - 1) * dt
     scale = None if any(not fixable_by_timing(c) for c in broken) else time_scale(speed_share, accel_share)
-    return ExecutionCheck(
+    fields = dict(
         ok=ok, robot=limits.robot, joints=tuple(names), duration=duration, speed_peak=speed_peak,
         speed_share=speed_share, accel_peak=accel_peak, accel_share=accel_share, range_margin=range_margin,
-        ik_error=residual.max(axis=0), binding=binding, time_scale=scale,
-        needed_duration=None if scale is None else scale * duration, unknown=unknown)
+        ik_error=residual.max(axis=0), torque_peak=torque_peak, torque_share=torque_share, binding=binding,
+        time_scale=scale, needed_duration=None if scale is None else scale * duration, unknown=unknown)
+    return fields, candidates, (qd, qdd, tau, mass)
 
 
-__all__ = ["check_executable"]
+__all__ = ["ACCEL_WINDOW", "check_executable", "judge_joint_path", "path_dynamics"]

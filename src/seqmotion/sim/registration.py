@@ -43,17 +43,19 @@ def register_envs() -> None:
             register(id=env_id, entry_point=entry_point)
 
 
-EXECUTION_CHECKS = {"pancake": "seqmotion.sim.executable:check_executable"}
-"""Task → the string entry point of its robot execution check (``deform(robot=…)``; MuJoCo imported on first use)."""
+EXECUTION_CHECKS = {"pancake": ("seqmotion.sim.executable:check_executable", "seqmotion.sim.planar_chain:arm_form"),
+                    "sliding": ("seqmotion.sim.executable_sliding:check_sliding_executable", None)}
+"""Task → the string entry points of its robot execution check and of its robot's polish constraints
+(``deform(robot=…)``; MuJoCo imported on first use)."""
 
 
 def register_execution_checks() -> None:
     """Register the simulator's execution checks (:data:`EXECUTION_CHECKS`) with the task layer's hook
     (:func:`seqmotion.core.execution.register_execution_check`): tasks sit below the simulator and may not import
     it, so the simulator tells them where its check is. A check registered already (a user's own) is kept."""
-    for task, entry_point in EXECUTION_CHECKS.items():
+    for task, (check, arm_form) in EXECUTION_CHECKS.items():
         if task not in execution_checks():
-            register_execution_check(task, entry_point)
+            register_execution_check(task, check, arm_form)
 
 
 __all__ = ["ENV_IDS", "EXECUTION_CHECKS", "register_envs", "register_execution_checks"]

@@ -35,22 +35,29 @@ robot                           base [m]               yaw    roll      home [ra
 ==============================  =====================  =====  ========  =========================================
 panda (robosuite)               (0, -0.3, -0.2)        π/4    -1.0458   (-1.501, 1.523, 2.103, -2.546, -2.747,
                                                                         1.247, 0)
-ur5e (robosuite)                (-0.15, 0, 0)          0      -π/2      (-0.349, 0.260, -1.939, -4.604, 1.222, 0)
+ur5e (robosuite)                (0.206, -0.45, 0.087)  -π/2   0 (pitch  (0, -2.361, -1.666, 2.457, π/2, 0)
+                                                              π/2)
 franka_emika_panda (menagerie)  (0, -0.3, -0.2)        π/4    -1.0458-π IK from the robosuite Panda's home
-universal_robots_ur5e (men.)    (-0.15, 0, 0)          -π/2   -π/2      IK from the robosuite UR5e's home
+universal_robots_ur5e (men.)    (0.206, -0.45, 0.087)  -π     0 (pitch  IK from the robosuite UR5e's home
+                                                              π/2)
 iiwa (robosuite)                (-0.3, 0, -0.2)        0      0         IK (not checked along the motions)
 any other arm                   (-0.15, 0, 0)          0      0         IK from the file's ``home`` key, else the
                                                                         middle of its ranges, else random seeds
 ==============================  =====================  =====  ========  =========================================
 
+The UR5e stands on a pedestal beside the task plane, turned so that its shoulder lift, elbow and wrist 1 turn about
+world x, the pancake's θ axis: the spatula's (y, z, θ) is then a planar chain of those three joints
+(:mod:`.planar_chain`), whose rated speeds add up about one axis — what a pancake turn needs (a loop), where a
+single wrist joint at π rad/s cannot — and motions polished for it run on exactly those joints.
+
 Reach, checked by following every motion with differential IK (mink, 1 ms, the joint ranges as the only
 limit) from ``home``: the Panda holds 94 of 100 deformed ``keep_end`` pancake motions and 95 of their 100
 sketches within 2 mm / 1° (with 7 joints it gets there by running some joint to its range; its wrist, joint 5,
-stops the rest), the UR5e 100 and 100 with every joint ≥ 0.16 rad inside its range (median 1.1 rad). On the
-frying pan's square ``x_p, y_p ∈ [-0.15, 0.15]`` both reach every pose, the UR5e ≥ 0.8 rad inside its ranges,
-the Panda with a joint at its range. None of the pancake motions keeps within the published joint *speed*
-limits: their tilt rates (median peak 17 rad/s) ask the IK for 6× (Panda) and 5.5× (UR5e) the last joints'
-limits (2.61 and π rad/s).
+stops the rest); the UR5e in its earlier placement (base (-0.15, 0, 0), the roll on wrist 3) held 100 and 100. On
+the frying pan's square ``x_p, y_p ∈ [-0.15, 0.15]`` the Panda reaches every pose with a joint at its range. None of
+the deformed pancake motions keeps within the published joint *speed* limits as they are: their tilt rates (median
+peak 17 rad/s) asked the IK for 6× (Panda) and 5.5× (UR5e, earlier placement) the last joints' limits (2.61 and
+π rad/s); ``deform(..., keep_end=True, robot="ur5e")`` makes them within the UR5e's.
 
 Velocity limits are not in the files: :data:`.limits.RATED_LIMITS` holds the manufacturers' published
 values (and accelerations where published) for the arms named there, each with its document; any other arm gets
@@ -137,7 +144,7 @@ class Placement:
 
 
 _PANDA_HOME = (-1.500511, 1.522837, 2.103322, -2.54637, -2.747437, 1.247156, -0.000102)
-_UR5E_HOME = (-0.348871, 0.259871, -1.938899, -4.604157, 1.221926, 0.0)
+_UR5E_HOME = (0.0, -2.361047, -1.666286, 2.456537, math.pi / 2, 0.0)
 
 PLACEMENTS: dict[str, Placement] = {
     # The Panda cannot hold its flange level and pointing away from its base at its own shoulder height within
@@ -149,12 +156,18 @@ PLACEMENTS: dict[str, Placement] = {
     # Menagerie's Panda is the same arm; its mount frame is robosuite's turned by π about the flange axis.
     "menagerie:franka_emika_panda": Placement(base=(0.0, -0.3, -0.2), yaw=math.pi / 4, roll=-1.0458 - math.pi,
                                               seed=_PANDA_HOME),
-    "robosuite:ur5e": Placement(base=(-0.15, 0.0, 0.0), roll=-math.pi / 2, home=_UR5E_HOME),
+    # The UR5e stands on a pedestal beside the task plane, its base turned so that its three parallel pitch joints
+    # (shoulder lift, elbow, wrist 1) turn about world x, the pancake's θ axis: the arm moves in the task plane and
+    # their rated speeds add up about one axis (3 × π rad/s), which a pancake turn needs (``sim.planar_chain``). The
+    # wrist 2 joint at π/2 and the tool bent to the flange's side (pitch π/2) hold the handle along +x with wrist 3
+    # out of the plane; the shoulder's axis lies 0.45 m to the side of the pancake's origin and 0.1 m below it, the
+    # elbow up, wrist 1 0.1 m below the blade and 0.1 m ahead of it (the side the turn's loop needs).
+    "robosuite:ur5e": Placement(base=(0.206, -0.45, 0.087), yaw=-math.pi / 2, pitch=math.pi / 2, home=_UR5E_HOME),
     # The iiwa's joint-4 range does not let it hold the tool level at its shoulder height 0.15 m ahead of the
     # origin; from the table top 0.3 m back it can (home by IK; reach along the motions not measured).
     "robosuite:iiwa": Placement(base=(-0.3, 0.0, -0.2)),
     # Menagerie's UR5e turns its base by +90° in its file; turned back, it is robosuite's arm.
-    "menagerie:universal_robots_ur5e": Placement(base=(-0.15, 0.0, 0.0), yaw=-math.pi / 2, roll=-math.pi / 2,
+    "menagerie:universal_robots_ur5e": Placement(base=(0.206, -0.45, 0.087), yaw=-math.pi, pitch=math.pi / 2,
                                                  seed=_UR5E_HOME),
 }
 """Per ``"source:name"``; any other arm gets :data:`DEFAULT_PLACEMENT` (home by IK from its file's posture)."""

@@ -148,6 +148,9 @@ MU_OBJECT = 0.5
 """Friction between object and pan: μ = μ' = 0.5 (§3.5.1)."""
 
 TABLE_TOP = -0.2
+TABLE_CLEARANCE = 0.11
+"""[m] The tool's control site stays this far above the table top (the blade and the pancake clear it): the
+simulator refuses a command below (:func:`seqmotion.sim.arm.workspace_problem`)."""
 """Height of the table surface [m]."""
 
 # Where the tasks put the tool (SPEC §§4–5).

@@ -18,17 +18,16 @@ positions (metres vs radians) and the variance floor of :mod:`seqmotion.training
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
-from ..core.execution import BindingLimit, ExecutionCheck, check_execution
+from ..core.execution import BindingLimit, ExecutionCheck
 from ..core.options import TaskOptions, check_count, check_length_range, check_positive
 from ..core.polish import ExactForm
-from ..core.results import FEASIBLE_TOLERANCE, Motion, feasible_of
+from ..core.results import FEASIBLE_TOLERANCE, Motion
 from ..core.task import Task
 from ..core.trained import TrainedModel
 from ..data import pancake as inputs
@@ -67,6 +66,11 @@ POLISH_NORMAL_FLOOR = 4.0
 """[m/s²] The exact polish keeps ``μ n ∓ t`` at least this, so the pancake is pressed on with ≥ 0.4 g.
 An exact motion that sits at the edge (free fall, ``n → 0``) holds in the model's physics but not on an
 arm that tracks it with any error (``benchmarks/RESULTS.md``: executed ``keep_end`` motions)."""
+JOINT_POLISH_NORMAL_FLOOR = 2.0
+"""[m/s²] The normal-force floor of a polish on a robot's joints (``deform(..., keep_end=True, robot="ur5e")``): a turn
+within the joints' rated speeds is a loop that barely presses the pancake on at its top, and the arm follows its
+planned joint path closely. On the UR5e the README's turn was exact at 2 and at 1 m/s² and failed at 4 (IPOPT
+found no such loop within the rated speeds); executed, it kept the pancake at 2 and lost it at 1."""
 POLISH_ACCEL_LIMITS = (30.0, 30.0, 300.0)
 """[m/s², m/s², rad/s²] The exact polish keeps the spatula's accelerations within these: what the MuJoCo
 arm under PD + DOB follows with the pancake on (motions it lost peaked far above them; ``benchmarks/RESULTS.md``).
@@ -325,8 +329,9 @@ class PancakeTask(Task):
         :data:`POLISH_ACCEL_LIMITS`, smoothed by :data:`POLISH_SMOOTHNESS`."""
         cone = cone_constraint(options.mu, margin=POLISH_NORMAL_FLOOR)
         reach = within_reach((0, 1), POLISH_REACH, "within the arm's reach")
-        return ExactForm(3, DT, (cone, reach), (1.0, 1.0, THETA_WEIGHT**2), POLISH_SMOOTHNESS, POLISH_ACCEL_LIMITS,
-                         POLISH_TRAVEL_ACCEL)
+        return ExactForm(3, DT, (cone,), (1.0, 1.0, THETA_WEIGHT**2), POLISH_SMOOTHNESS, POLISH_ACCEL_LIMITS,
+                         POLISH_TRAVEL_ACCEL, workspace=(reach,),
+                         on_joints=(cone_constraint(options.mu, margin=JOINT_POLISH_NORMAL_FLOOR),))
 
     def sketch(self, end: tuple[float, ...], length: int, timing: str = "s_curve") -> np.ndarray:
         """A straight motion from rest at 0 to rest at ``end = (y, z, θ)`` (ch. 4's inputs)."""
@@ -388,17 +393,8 @@ class DeformResult(Motion):
     """
 
     psi: np.ndarray | None = None
-    robot_check: ExecutionCheck | None = None
+    robot_check: ExecutionCheck | None = None  # feasible is False where it finds a limit broken (Motion.feasible)
     per_transition: ClassVar[tuple[str, ...]] = ("violation", "psi")  # load_result checks each is (K-1,)
-
-    @property
-    def feasible(self) -> np.ndarray | bool | None:
-        """Whether the cone holds (max F_c ≤ 0.01 rad) and, where a robot was checked (:attr:`robot_check`), the
-        robot would not stop on it: False when its limits are broken, whatever the cone."""
-        cone = feasible_of(self.violation)
-        if cone is None or self.robot_check is None or self.robot_check.ok is not False:
-            return cone
-        return np.zeros_like(cone, dtype=bool) if np.ndim(cone) else False
 
 
 class Deformer(TrainedModel):
@@ -427,31 +423,28 @@ class Deformer(TrainedModel):
                 limits (:data:`POLISH_ACCEL_LIMITS`): the learned motion is polished into the nearest one
                 that does (IPOPT, a few iterations; see :meth:`TrainedModel.polish`). The learned motion
                 alone (the default) keeps the cone but may end elsewhere and still moving;
-                ``result.exact`` says which were polished.
+                ``result.exact`` says which were polished. An end tilted past the cone's half-angle (atan μ,
+                45° at μ = 1) cannot hold the pancake at rest: the cone holds through the motion's last
+                acceleration, and the pancake leaves the spatula there (released: the flip).
             extend: with ``keep_end``, give a sketch too short to stop within the limits the time it needs
                 (``result.length`` samples instead of K); ``False`` keeps K and flags such a motion instead.
-            robot: also judge whether this robot can execute the motion (``"ur5e"``, ``"panda"``, ``"mh3f"``, …;
-                see ``seqmotion.sim.robots()``): its joint path by the simulator's IK against the rated joint
-                speeds, accelerations, ranges and reach (``result.robot_check``). Where a limit is broken,
-                ``result.feasible`` is False and a ``RuntimeWarning`` names the binding limit and the duration the
-                motion would need. One motion at a time.
+            robot: the robot the motion is for (``"ur5e"``, ``"panda"``, ``"mh3f"``, …; see
+                ``seqmotion.sim.robots()``). With ``keep_end``, the polish also keeps its rated joint speeds (and
+                accelerations where published) and its reach, where its placement turns the spatula with parallel
+                joints (the UR5e's shoulder lift, elbow and wrist 1: ``seqmotion.sim.planar_chain``); the motion
+                then takes the time those speeds need. Every motion is then judged on the robot: its joint path by
+                the simulator's IK against the rated speeds, accelerations, ranges and reach
+                (``result.robot_check``). Where a limit is broken, ``result.feasible`` is False and a
+                ``RuntimeWarning`` names the binding limit and the duration the motion would need. One motion at a
+                time.
 
         Raises:
             ValueError: wrong shape, K < 2, NaN or inf; a batch with ``robot``; an unknown robot.
         """
         _, single = as_trajectories(states, STATE_DIM, "states")  # the pancake's own wording for a bad input
         if robot is not None and not single:
-            raise ValueError("deform(robot=...) checks one motion at a time: pass states of shape (K, 6)")
-        result = self.generate(states, keep_end=keep_end, extend=extend)
-        if robot is None:
-            return result
-        # The simulator computes the verdict (tasks may not import it): its check is registered with the core hook.
-        length = len(result.states) if result.length is None else int(result.length)
-        result.robot_check = check_execution(self.task, np.asarray(result.states)[:length], robot, dt=DT)
-        problem = result.robot_check.problem()
-        if problem is not None:
-            warnings.warn(problem, RuntimeWarning, stacklevel=2)
-        return result
+            raise ValueError("deform(robot=...) makes one motion at a time: pass states of shape (K, 6)")
+        return self.generate(states, keep_end=keep_end, extend=extend, robot=robot)
 
 
 RESULT_PARTS = (BindingLimit, ExecutionCheck)

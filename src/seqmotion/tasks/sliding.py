@@ -24,11 +24,13 @@ for 50 epochs), **C** stage 1 only (L' for 50 epochs).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
+from ..core.execution import BindingLimit, ExecutionCheck, check_execution
 from ..core.options import TaskOptions, check_choice, check_length_range, check_positive
 from ..core.results import Motion, View
 from ..core.task import Task
@@ -348,6 +350,231 @@ class SlidingTask(Task):
 TASK = SlidingTask()
 
 
+ROBOT_KINDS = ("speed", "range", "torque", "acceleration")
+"""The limits :class:`PanJointLimits` maps onto the pan: rated joint speeds, joint ranges (with the reach), torque
+limits, rated joint accelerations."""
+RUN_KINDS = ("speed", "range", "torque")
+"""The limits a simulated run judges (its ``JointReport``: speeds, ranges, reach, torques), kept first by
+:meth:`SlidingPlanner.fit_robot`; rated accelerations are judged by the execution check alone."""
+ROBOT_MARGIN = 0.9
+""":meth:`SlidingPlanner.fit_robot` aims at this share of each rated speed and torque limit: the pan moves between
+two checks, so the linear map about the checked path is off by a few per cent, and the run's joints lag and overshoot
+their reference."""
+ACCEPT_SHARE = 0.95
+""":meth:`SlidingPlanner.fit_robot` accepts a plan once its checked joint speeds and torques stay within this share of
+their limits (rated accelerations, judged by the check alone: within them): a simulated run's measured speeds and
+torques came within ±0.04 of the check's on the Panda's sliding plans."""
+ACCEPT_CLEARANCE = 0.02
+""":meth:`SlidingPlanner.fit_robot` accepts a plan once every joint stays this far from its range's ends [rad]: the
+differential IK holds a joint at an end exactly, and the run's joint then touches or passes it."""
+ACCEL_MARGIN = 0.98
+"""The share of the rated accelerations :class:`PanJointLimits` aims at (only the check judges them, on the path
+the term predicts: a thin margin; more would leave the pan less of the acceleration that makes the object slide)."""
+RANGE_CLEARANCE = 0.05
+"""How far from each end of a joint's range :class:`PanJointLimits` keeps the joint [rad] (the differential IK bends
+the path away from an end it nears, and the run's joints overshoot their reference)."""
+
+
+@dataclass(frozen=True)
+class SlidingExecutionCheck(ExecutionCheck):
+    """Whether a robot can execute a sliding plan's pan motion (:class:`~seqmotion.core.execution.ExecutionCheck`),
+    with what a planner needs to keep the limits (``seqmotion.sim.executable_sliding.check_sliding_executable``
+    computes it).
+
+    Attributes:
+        rated_speed: ``(n,)`` the rated joint speeds judged against [rad/s], or ``None`` (unknown).
+        rated_acceleration: ``(n,)`` the rated joint accelerations [rad/s²], or ``None`` (none published).
+        torque_limit: ``(n,)`` the model's torque limits [N m], or ``None`` (unknown).
+        range_ends: ``(n, 2)`` the joint ranges [rad] (``±inf`` for a continuous joint), or ``None`` (unknown).
+        decel_time: the stop after the plan that was judged with it [s] (the run's constant deceleration to rest).
+        accel_window: the joint speeds were averaged over this many samples before being differenced into
+            accelerations.
+        worst_share: limit kind (``"speed"``, ``"acceleration"``, ``"torque"``, ``"range"``, ``"reach"``) → the
+            largest share of it the plan uses (> 1: broken), for each kind judged.
+        pan_map: ``(N, n, 2)`` [rad/m]: per sample of the judged joint path (the plan's K, then its stop), the joint
+            velocities per unit pan velocity along x and y (``q̇ ≈ pan_map[k] @ v_pan``), or ``None``.
+        joint_path: ``(N, n)`` the judged joint path [rad], or ``None``.
+        pan_path, pan_velocity: ``(N, 2)`` the pan positions [m] and velocities [m/s] it was judged for (the plan's,
+            then its stop), or ``None``.
+        torque_bias, mass_path: ``(M, n)`` [N m] and ``(M, n, n)`` [kg m²]: the torques are ``mass_path[i] @ q̈ +
+            torque_bias[i]`` at the path's acceleration samples (inverse dynamics), or ``None``.
+        (The last six are derived from the path, so not saved with a plan: ``None`` once loaded.)
+    """
+
+    rated_speed: np.ndarray | None = None
+    rated_acceleration: np.ndarray | None = None
+    torque_limit: np.ndarray | None = None
+    range_ends: np.ndarray | None = None
+    decel_time: float = 0.0
+    accel_window: int = 1
+    worst_share: dict[str, float] = field(default_factory=dict)
+    pan_map: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    joint_path: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    pan_path: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    pan_velocity: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    torque_bias: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    mass_path: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+
+    def fix(self) -> str:
+        """What would make the plan executable, in words (``""`` where it already is or nothing is known)."""
+        if self.ok is not False or self.binding is None:
+            return ""
+        change = "the pan's motion itself must change (planner.plan(command, robot=...) refines it to keep them)"
+        if self.time_scale is not None and self.needed_duration is not None:
+            return (f"the same joint paths would need ≥ {self.needed_duration:.2f} s instead of {self.duration:.2f} s "
+                    f"({self.time_scale:.2f}× slower), but a slower pan slides the object differently: {change}")
+        return change
+
+    def kept(self, kinds: tuple[str, ...] = ROBOT_KINDS, share: float = 1.0, clearance: float = 0.0) -> bool | None:
+        """Whether the limits of ``kinds`` (of :data:`ROBOT_KINDS`; ``"range"`` with the reach) are kept, each rated
+        speed and torque limit within ``share`` of it (rated accelerations, which only this check judges: within
+        them), each joint at least ``clearance`` [rad] from its range's ends: None where the speeds or ranges asked
+        for are unknown; unknown torques and unpublished accelerations count as kept (``ok`` says what is known)."""
+        if any(kind in self.unknown for kind in kinds if kind in ("speed", "range")):
+            return None
+        for kind in kinds:
+            limit = 1.0 if kind == "acceleration" else share
+            if kind in ("speed", "torque", "acceleration") and self.worst_share.get(kind, 0.0) > limit:
+                return False
+        if "range" in kinds:
+            margin = float(np.min(self.range_margin, initial=np.inf)) if self.range_margin is not None else np.inf
+            worst = max(self.worst_share.get("range", 0.0), self.worst_share.get("reach", 0.0))
+            if worst > 1.0 or margin < clearance:
+                return False
+        return True
+
+
+RESULT_PARTS = (BindingLimit, ExecutionCheck, SlidingExecutionCheck)
+"""The dataclasses a saved :class:`SlidingPlan` nests: ``load_result`` finds them by name in this module."""
+
+
+class PanJointLimits:
+    """A robot's joint limits as a penalty on a sliding plan's pan motion (ch. 4: limits as a latent objective).
+
+    Built from an execution check of a plan (:class:`SlidingExecutionCheck`, with its ``pan_map``): the rated joint
+    speeds and accelerations, the torque limits and the joint ranges are mapped through the arm's Jacobian (and mass
+    matrix) along that plan's joint path into what they allow the pan. For plan states ``(B, K, 8)`` (the run's stop
+    after them added as the check adds it) the joints are predicted to first order about the checked path:
+    ``q[k] = q_path[k] + M_k (p_pan[k] − p_path[k])`` and ``q̇[k] = q̇_path[k] + M_k (v̄_pan[k] − v̄_path[k])``
+    (``M_k``: ``pan_map``; ``v̄``: the pan's velocity over the period), ``q̈`` as differences of ``q̇`` over the
+    check's averaging window, ``τ = H q̈ + c`` with the path's mass matrices and the rest of its inverse dynamics —
+    at the checked plan itself exactly what the check measured. Each is held against ``margin`` × its rated speed or
+    torque limit (accelerations: :data:`ACCEL_MARGIN`), the positions against the range less :data:`RANGE_CLEARANCE`
+    at each end. The penalty is ``Σ_k Σ_j max(0, share − 1)²`` per trajectory, in shares of those limits. The map
+    is a linearisation at the checked plan: check again and rebuild it once the pan has moved
+    (:meth:`SlidingPlanner.fit_robot` does).
+
+    Args:
+        check: a :class:`SlidingExecutionCheck` with its ``pan_map`` (a fresh check: a loaded one has none).
+        kinds: the limits to keep, of :data:`ROBOT_KINDS` (an unknown or unpublished one is skipped).
+        margin: the share of each rated speed and torque limit aimed at (0 < margin ≤ 1).
+        dt: the sample period [s].
+    """
+
+    def __init__(self, check: SlidingExecutionCheck, kinds: tuple[str, ...] = ROBOT_KINDS,
+                 margin: float = ROBOT_MARGIN, dt: float = DT) -> None:
+        if check.pan_map is None or check.joint_path is None or check.pan_path is None or check.pan_velocity is None:
+            raise ValueError("PanJointLimits needs a fresh execution check of a plan on a robot with rated speeds "
+                             "(check.pan_map is None: the rated speeds are unknown, or the check was loaded from a "
+                             "file)")
+        unknown = sorted(set(kinds) - set(ROBOT_KINDS))
+        if unknown:
+            raise ValueError(f"kinds must be among {ROBOT_KINDS}, got {unknown}")
+        check_positive("margin", margin)
+        if margin > 1:
+            raise ValueError(f"margin must be in (0, 1], got {margin}")
+        self.map = torch.from_numpy(np.asarray(check.pan_map, dtype=np.float64))
+        self.path = torch.from_numpy(np.asarray(check.joint_path, dtype=np.float64))
+        self.pan_path = torch.from_numpy(np.asarray(check.pan_path, dtype=np.float64))
+        self.pan_velocity = torch.from_numpy(np.asarray(check.pan_velocity, dtype=np.float64))
+        self.speeds = torch.diff(self.path, dim=0) / dt  # the checked path's own q̇: the prediction is exact there
+        self.dt, self.window = float(dt), max(1, int(check.accel_window))
+        self.n_stop = round(float(check.decel_time) / dt)
+        self.length = len(self.map) - self.n_stop  # the plan's K
+        self.speed = self._limit("speed" in kinds, check.rated_speed, margin)
+        self.accel = self._limit("acceleration" in kinds, check.rated_acceleration, max(margin, ACCEL_MARGIN))
+        self.torque = None
+        if check.torque_bias is not None and check.mass_path is not None:
+            self.torque = self._limit("torque" in kinds, check.torque_limit, margin)
+            self.bias = torch.from_numpy(np.asarray(check.torque_bias, dtype=np.float64))
+            self.mass = torch.from_numpy(np.asarray(check.mass_path, dtype=np.float64))
+        self.mid = self.half = None
+        if "range" in kinds and check.range_ends is not None:
+            lo, hi = np.asarray(check.range_ends, dtype=np.float64).T
+            finite = np.isfinite(lo) & np.isfinite(hi)
+            self.mid = torch.from_numpy(np.where(finite, (lo + hi) / 2, 0.0))
+            self.half = torch.from_numpy(np.where(finite, (hi - lo) / 2 - RANGE_CLEARANCE, np.inf))
+
+    @staticmethod
+    def _limit(wanted: bool, rated: np.ndarray | None, margin: float) -> torch.Tensor | None:
+        return torch.from_numpy(margin * np.asarray(rated, dtype=np.float64)) if wanted and rated is not None else None
+
+    def pan_motion(self, states: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pan's positions and velocities ``(B, N, 2)`` [m, m/s] for plan states ``(B, K, 8)``: the plan's, then
+        the run's constant deceleration to rest (as :func:`seqmotion.sim.kinematics.pan_reference` builds it)."""
+        if states.ndim != 3 or states.shape[1] != self.length or states.shape[-1] < 4:
+            raise ValueError(f"PanJointLimits was built for plans of K = {self.length} samples, got states of shape "
+                             f"{tuple(states.shape)}")
+        pos, vel = states[..., 0:2], states[..., 2:4]
+        if self.n_stop == 0:
+            return pos, vel
+        t = (torch.arange(1, self.n_stop + 1, dtype=states.dtype, device=states.device) * self.dt)[None, :, None]
+        stop = self.n_stop * self.dt
+        v_end, p_end = vel[:, -1:], pos[:, -1:]
+        tail_v = v_end * (1 - t / stop)
+        tail_p = p_end + v_end * t - 0.5 * v_end / stop * t**2
+        return torch.cat([pos, tail_p], 1), torch.cat([vel, tail_v], 1)
+
+    def shares(self, states: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Predicted shares of the (margined) limits: ``"speed"`` ``(B, N-1, n)``, ``"acceleration"`` and
+        ``"torque"`` ``(B, N-1-W, n)``, ``"range"`` ``(B, N, n)``, for the kinds kept."""
+        pos, vel = self.pan_motion(states)
+        m = self.map.to(states.dtype)
+        out: dict[str, torch.Tensor] = {}
+        change = vel - self.pan_velocity.to(states.dtype)
+        qd = self.speeds.to(states.dtype) + torch.einsum("knj,bkj->bkn", m[:-1], 0.5 * (change[:, 1:] + change[:, :-1]))
+        if self.speed is not None:
+            out["speed"] = qd.abs() / self.speed.to(states.dtype)
+        if (self.accel is not None or self.torque is not None) and qd.shape[1] > self.window:
+            w = self.window
+            qdd = (qd[:, w:] - qd[:, :-w]) / (w * self.dt)  # the check's: speeds averaged over w, then differenced
+            if self.accel is not None:
+                out["acceleration"] = qdd.abs() / self.accel.to(states.dtype)
+            if self.torque is not None and qdd.shape[1] == len(self.bias):
+                tau = torch.einsum("kij,bkj->bki", self.mass.to(states.dtype), qdd) + self.bias.to(states.dtype)
+                out["torque"] = tau.abs() / self.torque.to(states.dtype)
+        if self.mid is not None and self.half is not None:
+            q = self.path.to(states.dtype) + torch.einsum("knj,bkj->bkn", m, pos - self.pan_path.to(states.dtype))
+            out["range"] = (q - self.mid.to(states.dtype)).abs() / self.half.to(states.dtype)
+        return out
+
+    def __call__(self, states: torch.Tensor, accel: torch.Tensor | None = None) -> torch.Tensor:
+        """``(B,)`` ``Σ max(0, share − 1)²`` over samples, joints and the kinds kept."""
+        total = torch.zeros(states.shape[0], dtype=states.dtype, device=states.device)
+        for share in self.shares(states).values():
+            total = total + (torch.relu(share - 1.0) ** 2).sum((1, 2))
+        return total
+
+
+def command_tracking(command: np.ndarray, alpha_end: float = 0.3, alpha_jerk: float = 10.0,
+                     pan_limit: float = PAN_LIMIT, alpha_range: float = 10.0):  # noqa: ANN201 - a closure
+    """``f(states, accel) -> (B,)``: the object's squared distance from ``command`` ``(K, 4)`` [mm²], averaged over
+    the plan, plus ``refine_plan``'s default terms (end error, jerk, pan range; ``seqmotion.latent.sliding.Tracking``
+    with its default recipe)."""
+    target = torch.from_numpy(np.asarray(command, dtype=np.float64))[None]
+
+    def f(states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:
+        c = target.to(states.dtype)
+        value = 1e6 * ((states[..., 4:6] - c[..., :2]) ** 2).sum(-1).mean(-1)
+        value = value + alpha_end * 1e6 * ((states[:, -1, 4:6] - c[:, -1, :2]) ** 2).sum(-1)
+        if accel.shape[1] > 1:
+            value = value + alpha_jerk * (accel[:, 1:] - accel[:, :-1]).norm(dim=-1).mean(-1)
+        over = torch.relu(states[..., :2].norm(dim=-1) - pan_limit)
+        return value + alpha_range * 1e6 * (over**2).mean(-1)
+
+    return f
+
+
 @dataclass
 class SlidingPlan(Motion):
     """A planned pan motion (a leading B axis on every field for a batch): a
@@ -358,6 +585,9 @@ class SlidingPlan(Motion):
             ``[x, y, vx, vy]`` as the 2-D contact model predicts; ``pan_states`` and ``rel_states`` are its halves.
         accel: ``(K-1, 2)`` the pan accelerations ``û_p[0..K-2]`` [m/s²] (``pan_accel``).
         latent: ``(L·H,)`` the command's latent.
+        robot_check: with ``plan(..., robot=…)`` / ``refine_plan(..., robot=…)``: whether that robot can execute the
+            pan motion (:class:`SlidingExecutionCheck`: its joint speeds, accelerations, torques, ranges and reach
+            against the robot's limits, and the binding one); None otherwise. ``feasible`` reads it.
         uncertainty: ``(K, 2)`` the model's predicted std of the object's x, y [m] per sample (its Gaussian
             head's covariance propagated through the pan integrator and the contact model's Jacobian).
         errors: ``tracking_rmse_m``, ``end_error_m``, ``end_speed_m_s``, ``travel_share``, ``pan_max_m``
@@ -369,7 +599,18 @@ class SlidingPlan(Motion):
         (the last five, and ``exact``, are :class:`~seqmotion.core.results.TrustSignals`)
     """
 
+    robot_check: ExecutionCheck | None = None
+
     views = {"pan_accel": View("accel"), "pan_states": View("states", 0, 4), "rel_states": View("states", 4, 8)}
+
+    @property
+    def feasible(self) -> np.ndarray | bool | None:
+        """With a robot check (:attr:`robot_check`): whether that robot can execute the plan — False where a limit is
+        broken, True where every needed limit is known and kept, None where some is unknown. Without one, None (the
+        plan has no constraint of its own)."""
+        if self.robot_check is None:
+            return super().feasible
+        return self.robot_check.ok
 
 
 class SlidingPlanner(TrainedModel):
@@ -377,7 +618,8 @@ class SlidingPlanner(TrainedModel):
 
     task = "sliding"
 
-    def plan(self, command: object, mu: float | None = None, mu_dyn: float | None = None) -> SlidingPlan:
+    def plan(self, command: object, mu: float | None = None, mu_dyn: float | None = None, robot: object = None,
+             limits: tuple[str, ...] = ROBOT_KINDS) -> SlidingPlan:
         """Plan pan accelerations that make the object follow ``command``.
 
         Args:
@@ -385,10 +627,203 @@ class SlidingPlanner(TrainedModel):
             mu, mu_dyn: the friction of the 2-D physics the plan is rolled out in (default: the
                 model's nominal ``options.mu``, ``options.mu_dyn``; the model is never told them,
                 it reacts to the object's simulated motion). The plan records them: ``plan.physics``.
+            robot: plan for this robot (``"panda"``, ``"ur5e"``, …; ``seqmotion.sim.robots()``): the plan is checked
+                on the robot's joint path (the simulator's IK along the pan command of the run, its stop included;
+                ``plan.robot_check``) and, where a limit is broken, its latent is refined with the robot's limits as
+                objective terms (:meth:`fit_robot`) until they hold. ``plan.feasible`` is then whether the robot can
+                execute it: False, with a ``RuntimeWarning`` naming the binding limit, where a rated limit is broken
+                after all. One command at a time; seconds instead of milliseconds where the plain plan breaks a limit.
+            limits: with ``robot``, the limits the plan is refined to keep, of :data:`ROBOT_KINDS` (default all:
+                rated joint speeds, joint ranges with the reach, torque limits, rated joint accelerations where
+                published). Every limit is judged whatever this says: :data:`RUN_KINDS` (``("speed", "range",
+                "torque")``) keeps what a simulated run judges and leaves a plan that breaks the rated accelerations
+                ``feasible`` False. On the Panda the rated accelerations cap the pan's acceleration at about μg for
+                μ = 0.5, so a plan keeping them barely slides the object: a second ``RuntimeWarning`` says so when
+                keeping the limits left the object much farther from the command than the plain plan
+                (``benchmarks/bench_sliding_robot_limits.py``).
+
+        Raises:
+            ValueError: wrong shape, K < 2, NaN or inf; a batch with ``robot``; an unknown robot or limit kind.
         """
         physics = self.physics.replace(mu=mu, mu_dyn=mu_dyn)  # checked once, recorded on the plan
-        as_trajectories(command, 4, "command")  # the planner's own wording for a bad input
-        return self.generate(command, physics=physics)
+        _, single = as_trajectories(command, 4, "command")  # the planner's own wording for a bad input
+        if robot is None:
+            return self.generate(command, physics=physics)
+        if not single:
+            raise ValueError("plan(robot=...) plans one command at a time: pass a command of shape (K, 4)")
+        check_limit_kinds(limits)
+        plain = self.generate(command, physics=physics)
+        plan = self.fit_robot(command, plain, robot, limits)
+        warn_if_not_executable(plan, plain, tuple(limits))
+        return plan
+
+    def fit_robot(self, command: object, plan: SlidingPlan, robot: object, limits: tuple[str, ...] = ROBOT_KINDS,
+                  objective: object = None, rounds: int = 24, steps: int = 10, lr: float = 0.02,
+                  weight: float = 10.0, growth: float = 1.5, polish_rounds: int = 3,
+                  margin: float = ROBOT_MARGIN) -> SlidingPlan:
+        """Refine a plan's latent until ``robot`` can execute it: the robot's limits as latent objective terms (ch. 4).
+
+        The plan is checked on the robot (the execution check the simulator registers: its IK along the pan command,
+        the run's stop included). While a limit of ``limits`` is broken, ``steps`` Adam updates of the latent minimise
+        ``objective + w · PanJointLimits`` (the rated joint speeds and accelerations, torque limits and ranges mapped
+        through the arm's Jacobian and mass matrix along the checked joint path onto the pan's velocity, acceleration
+        and position: :class:`PanJointLimits`), then the plan is checked again and the map rebuilt about it; ``w``
+        grows ``growth``× after each round that did not keep them, and once they are kept ``polish_rounds`` more
+        rounds at that weight lower the objective. A plan counts as keeping them with :data:`ACCEPT_SHARE` of each
+        rated speed, torque and acceleration and :data:`ACCEPT_CLEARANCE` from each range end (a margin for the run's
+        tracking). The limits a simulated run judges (:data:`RUN_KINDS`) come first, then the rest of ``limits`` on
+        top. Of the plans made (the given one included), the one keeping most of ``limits`` — all of them, else the
+        run's — with the lowest ``objective`` is returned; of plans keeping neither, the one breaking them least.
+
+        Args:
+            command: ``(K, 4)`` the command ``plan`` was made for.
+            plan: a plan of it (one, not a batch) decoded from ``plan.latent``, at the physics it records.
+            robot: the robot's name or object.
+            limits: the limits to keep, of :data:`ROBOT_KINDS`.
+            objective: ``f(states, accel) -> (B,)`` to keep low meanwhile (default: :func:`command_tracking`, the
+                object's squared distance from the command in mm² with ``refine_plan``'s end, jerk and range terms).
+            rounds: the most check-and-refine rounds per stage; ``steps``: Adam updates per round; ``lr``: their
+                learning rate (latent units); ``weight``: the limit term's first weight; ``growth``: its factor per
+                round; ``polish_rounds``: rounds after the limits are kept; ``margin``: the share of each rated speed
+                and torque limit the term aims at.
+
+        Returns:
+            A :class:`SlidingPlan` with ``robot_check`` set (the given plan where it kept ``limits`` already, or where
+            the robot's limits are unknown).
+        """
+        batch, single = as_trajectories(command, 4, "command")
+        if not single:
+            raise ValueError("fit_robot plans one command at a time: pass a command of shape (K, 4)")
+        if np.ndim(plan.states) != 2 or len(plan.states) != batch.shape[1] or plan.latent is None:
+            raise ValueError(f"plan must be one plan of the command's {batch.shape[1]} samples, decoded from a latent")
+        check_limit_kinds(limits)
+        for name, value in (("rounds", rounds), ("steps", steps), ("polish_rounds", polish_rounds)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        check_positive("lr", lr)
+        check_positive("weight", weight)
+        check_positive("growth", growth)
+        physics = plan.physics if plan.physics is not None else self.physics
+        f = command_tracking(batch[0], pan_limit=float(self.options.pan_limit)) if objective is None else objective
+        x0 = self.start_state(torch.from_numpy(batch)).double()
+        k = batch.shape[1]
+        first = tuple(kind for kind in RUN_KINDS if kind in limits)
+        stages = [kinds for kinds in (first, tuple(limits)) if kinds]
+        if len(stages) == 2 and set(stages[0]) == set(stages[1]):
+            stages = stages[:1]
+
+        def meets(check: SlidingExecutionCheck, kinds: tuple[str, ...]) -> bool:
+            return bool(check.kept(kinds, ACCEPT_SHARE, ACCEPT_CLEARANCE))
+
+        def rank(check: SlidingExecutionCheck) -> int:  # 2: every limit asked kept, 1: the first stage's, 0: neither
+            return 2 if meets(check, tuple(limits)) else 1 if meets(check, stages[0]) else 0
+
+        def judge(z: torch.Tensor) -> tuple[SlidingExecutionCheck, float]:
+            with torch.no_grad():
+                states, accel = self.decode_torch(z, x0, k, physics)
+                value = float(f(states.double(), accel.double())[0])
+            return check_execution(self.task, states[0].double().numpy(), robot, dt=DT), value
+
+        z = torch.as_tensor(np.asarray(plan.latent, dtype=np.float32))[None]
+        check, value = judge(z)
+        if check.kept(tuple(limits)) is None or meets(check, tuple(limits)) or check.pan_map is None:
+            plan.robot_check = check
+            return plan
+        best = (z, check, value, rank(check))
+        for kinds in stages:
+            if meets(check, kinds):
+                continue
+            w, kept_for = float(weight), 0
+            z = best[0].clone().requires_grad_(True)
+            opt = torch.optim.Adam([z], lr=lr)
+            for _ in range(rounds):
+                term = PanJointLimits(check, kinds, margin)
+                for _ in range(steps):
+                    s, u = self.decode_torch(z, x0, k, physics)
+                    s, u = s.double(), u.double()
+                    (grad,) = torch.autograd.grad((f(s, u) + w * term(s, u)).sum(), z)
+                    if not torch.isfinite(grad).all():
+                        break
+                    z.grad = grad
+                    opt.step()
+                check, value = judge(z.detach())
+                r = rank(check)
+                if r > best[3] or (r == best[3] and (value < best[2] if r else _worst(check) < _worst(best[1]))):
+                    best = (z.detach().clone(), check, value, r)
+                if check.pan_map is None:
+                    break
+                if kept_for or meets(check, kinds):  # kept: a few more rounds at this weight for the objective
+                    kept_for += 1
+                    if kept_for > polish_rounds:
+                        break
+                else:
+                    w *= growth
+            check = best[1]
+            if not meets(check, kinds):
+                break  # the next stage adds limits to these: it would start from a plan that breaks them
+        z, check = best[0], best[1]
+        result = self.decode(z[0].numpy(), x0[0].numpy(), k, physics)
+        trust = self.assess(batch[0], result.states, result.accel, z[0].numpy(), physics=physics)
+        result.errors, result.out_of_distribution, result.ood_reasons, result.uncertainty = trust
+        result.robot_check = check
+        return result
+
+
+def check_limit_kinds(limits: object) -> None:
+    """``ValueError`` unless ``limits`` is a non-empty tuple or list of :data:`ROBOT_KINDS`."""
+    if isinstance(limits, str) or not isinstance(limits, tuple | list) or not limits or not all(
+            kind in ROBOT_KINDS for kind in limits):
+        raise ValueError(f"limits must be a non-empty tuple of {ROBOT_KINDS}, got {limits!r}")
+
+
+def _worst(check: SlidingExecutionCheck) -> float:
+    """The largest share of the limits a simulated run judges (speeds, ranges, reach)."""
+    return max((check.worst_share.get(kind, 0.0) for kind in (*RUN_KINDS, "reach")), default=0.0)
+
+
+def pan_acceleration_reach(check: SlidingExecutionCheck) -> tuple[float, float] | None:
+    """The least and the most pan acceleration [m/s²] the rated joint accelerations allow, over the directions of the
+    pan's plane, at the plan's first sample (``|M_j d| a ≤ q̈_max,j`` for every joint j, ``M``: ``pan_map``), or None
+    (no map, or no rated accelerations)."""
+    if check.pan_map is None or check.rated_acceleration is None:
+        return None
+    angles = np.linspace(0.0, np.pi, 181)
+    directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    per_joint = np.abs(directions @ np.asarray(check.pan_map[0]).T)  # (directions, n) [rad/m]
+    reach = np.min(np.asarray(check.rated_acceleration) / np.maximum(per_joint, 1e-12), axis=1)
+    return float(reach.min()), float(reach.max())
+
+
+TRADE_OFF = 1.5
+"""A plan kept within a robot's limits whose object RMSE exceeds this many times the plain plan's (and
+:data:`TRACKING_TOLERANCE`) gets a warning: keeping them cost the task."""
+
+
+def warn_if_not_executable(plan: SlidingPlan, plain: SlidingPlan | None = None,
+                           limits: tuple[str, ...] = ROBOT_KINDS) -> None:
+    """A ``RuntimeWarning`` naming the binding limit when ``plan.robot_check`` says the robot cannot execute it, and
+    one saying what keeping ``limits`` cost when the object strays far more than in ``plain`` (the plan without
+    them; :data:`TRADE_OFF`)."""
+    check = plan.robot_check
+    problem = None if check is None else check.problem()
+    if problem is not None:
+        warnings.warn(problem, RuntimeWarning, stacklevel=3)
+    if plain is None or plan is plain or check is None or not plan.errors or not plain.errors:
+        return
+    rmse, before = float(plan.errors["tracking_rmse_m"]), float(plain.errors["tracking_rmse_m"])
+    if rmse > max(TRADE_OFF * before, TRACKING_TOLERANCE):
+        hint = ""
+        if set(limits) - set(RUN_KINDS):
+            hint = f"; limits={RUN_KINDS} keeps only what a simulated run judges"
+            reach = pan_acceleration_reach(check)
+            mu = getattr(plan.physics, "mu", None)
+            if reach is not None and mu is not None:
+                hint = (f" (its rated joint accelerations let the pan accelerate at {reach[0]:.1f}–{reach[1]:.1f} m/s² "
+                        f"by direction at its start; the object slips at μg = {mu * contact.GRAVITY:.1f} m/s²)"
+                        + hint)
+        warnings.warn(f"within {'/'.join(limits)} limits of {check.robot} the object stays {rmse * 1e3:.1f} mm RMS "
+                      f"from its command (the plan without them: {before * 1e3:.1f} mm){hint}", RuntimeWarning,
+                      stacklevel=3)
 
 
 SlidingTask.model_class = SlidingPlanner

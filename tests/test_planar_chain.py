@@ -1,0 +1,128 @@
+"""The UR5e turns the spatula with its three parallel pitch joints: the planar chain they form, its kinematics and
+inverse dynamics against MuJoCo's, and the polish on those joints (a turn within the rated limits)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seqmotion.data import pancake as gen
+from seqmotion.sim import robot_models as rb
+
+pytest.importorskip("mink", reason="standard robot arms need mink (pip install 'seqmotion[robots]')")
+pytestmark = pytest.mark.skipif(
+    "ur5e" not in {r.name for r in rb.robots()},
+    reason="no UR5e model here: robosuite's model files or Menagerie's universal_robots_ur5e are needed")
+
+from seqmotion.sim.planar_chain import (  # noqa: E402 - after the skip: MuJoCo models needed
+    SINGULARITY_CLEARANCE,
+    chain_joints,
+    chain_task,
+    chain_torques,
+    flange_clearance,
+    planar_chain,
+)
+
+
+@pytest.fixture(scope="module")
+def chain():
+    return planar_chain("ur5e")
+
+
+def test_the_ur5e_turns_the_spatula_with_its_pitch_joints(chain):
+    assert chain.joints == ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint")
+    assert chain.upper == pytest.approx(0.425, abs=1e-3) and chain.fore == pytest.approx(0.392, abs=1e-3)
+    assert planar_chain("mh3f") is None  # the built-in arm turns the spatula with its wrist
+    if "panda" in {r.name for r in rb.robots()}:
+        assert planar_chain("panda") is None
+
+
+def test_forward_kinematics_inverts_the_inverse(chain):
+    states = gen.straight((0.15, -0.1, 1.5), 400)
+    joints = chain_joints(chain, states)
+    assert np.allclose(joints[0, :3], chain.home[list(chain.index)], atol=1e-6)  # the origin is the home posture
+    accel = np.diff(joints[:, 3:], axis=0) / 1e-3
+    again, spatula_accel = chain_task(chain, joints, accel)
+    assert np.allclose(again, states, atol=1e-9)
+    implied = np.diff(states[:, 3:], axis=0) / 1e-3
+    assert np.median(np.abs(spatula_accel - implied)) < 0.05  # exact accelerations vs their 1 ms differences
+
+
+def test_the_chains_inverse_dynamics_is_mujocos(chain):
+    import mujoco
+
+    from seqmotion.sim.scene import get_scene
+
+    scene = get_scene("pancake", "ur5e")
+    data = mujoco.MjData(scene.model)
+    rng = np.random.default_rng(0)
+    dofs = np.array(scene.arm_dof)[list(chain.index)]
+    for _ in range(3):
+        q = chain.home[list(chain.index)] + rng.uniform(-1, 1, 3)
+        qd, qdd = rng.uniform(-3, 3, 3), rng.uniform(-30, 30, 3)
+        data.qpos[scene.arm_qpos] = chain.home
+        data.qpos[np.array(scene.arm_qpos)[list(chain.index)]] = q
+        data.qvel[:], data.qacc[:] = 0.0, 0.0
+        data.qvel[dofs], data.qacc[dofs] = qd, qdd
+        mujoco.mj_inverse(scene.model, data)
+        assert np.allclose(chain_torques(chain, q, qd, qdd), data.qfrc_inverse[dofs], atol=0.05)
+
+
+@pytest.fixture(scope="module")
+def turn(deformer):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = deformer.deform(TURN, keep_end=True, robot="ur5e")
+    return result, [w for w in caught if issubclass(w.category, RuntimeWarning)]
+
+
+TURN = gen.straight((0.1, -0.1, 2.2), 400)
+"""A turn past the cone's half-angle in 0.4 s: its learned motion asks the UR5e's joints for 2–3× their rated speeds."""
+
+
+def test_a_turn_becomes_executable_on_the_ur5e(turn):
+    result, said = turn
+    check = result.robot_check
+    assert result.exact and result.feasible is True and check.ok is True and not said
+    assert result.length > 800  # a loop at the rated speeds takes longer than the 0.4 s sketch
+    assert check.speed_share.max() <= 1.0 and check.torque_share.max() <= 1.0 and check.range_margin.min() > 0
+    assert np.allclose(result.states[result.length - 1, :3], TURN[-1, :3], atol=1e-6)
+
+
+def test_the_turn_keeps_the_pancake_and_the_limits_when_executed(turn):
+    from seqmotion import sim
+
+    result, _ = turn
+    run = sim.run_pancake(result.states[: result.length], gains="ch2", robot="ur5e")
+    assert not run.contact_lost and run.joints.problem is None
+    assert run.joints.speed_share.max() <= 1.0 and run.joints.torque_share.max() < 1.0
+
+
+def test_the_simulators_ik_follows_the_chains_joint_path(turn, chain):
+    from seqmotion.sim.executable import _joint_path
+    from seqmotion.sim.kinematics import planar_reference
+    from seqmotion.sim.scene import get_scene
+
+    result, _ = turn
+    states = result.states[: result.length]
+    ref = planar_reference(states, decel_time=0.0, hold_time=0.0)
+    path, _ = _joint_path(get_scene("pancake", "ur5e"), ref.pos, ref.quat, 1e-3)
+    planned = chain_joints(chain, states)[:, :3]
+    assert np.abs(path[:, list(chain.index)] - planned).max() < 1e-3
+    others = [j for j in range(6) if j not in chain.index]
+    assert np.abs(path[:, others] - chain.home[others]).max() < 1e-3  # pan, wrist 2 and 3 hold still
+    assert flange_clearance(chain, states).min() >= SINGULARITY_CLEARANCE - 1e-3  # imposed at the 4 ms knots
+
+
+def test_the_learned_motion_alone_is_flagged_by_name(deformer):
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = deformer.deform(gen.straight((0.2, 0.0, 2.5), 500), robot="ur5e")
+    check = result.robot_check
+    assert result.feasible is False and check.ok is False and check.binding.share > 1
+    said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert len(said) == 1 and said[0].startswith("not executable on ur5e") and "needs ≥" in said[0]
