@@ -319,15 +319,10 @@ def flange_clearance(chain: PlanarChain, states: Any, cos: Any = np.cos, sin: An
 
 def _link_angles(chain: PlanarChain) -> tuple[float, float]:
     """The upper and fore links' angles in the task plane at home [rad] (from +y toward +z)."""
+    elbow = _home_elbow(chain)
     wrist = chain.wrist  # W − P at θ = 0, and P = 0 at home
-    d = wrist - chain.shoulder
-    dist = float(np.linalg.norm(d))
-    along = (dist**2 + chain.upper**2 - chain.fore**2) / (2 * dist)
-    across = chain.elbow * math.sqrt(max(chain.upper**2 - along**2, 0.0))
-    e = chain.shoulder + (along * d + across * np.array([-d[1], d[0]])) / dist
-    a1 = math.atan2(e[1] - chain.shoulder[1], e[0] - chain.shoulder[0])
-    a2 = math.atan2(wrist[1] - e[1], wrist[0] - e[0])
-    return a1, a2
+    return (math.atan2(elbow[1] - chain.shoulder[1], elbow[0] - chain.shoulder[0]),
+            math.atan2(wrist[1] - elbow[1], wrist[0] - elbow[0]))
 
 
 def _forward(chain: PlanarChain, q: Any, qd: Any, qdd: Any, cos: Any, sin: Any) -> tuple[Any, ...]:

@@ -45,11 +45,7 @@ any other arm                   (-0.15, 0, 0)          0      0         IK from 
                                                                         middle of its ranges, else random seeds
 ==============================  =====================  =====  ========  =========================================
 
-The UR5e stands on a pedestal beside the task plane, turned so that its shoulder lift, elbow and wrist 1 turn about
-world x, the pancake's θ axis: the spatula's (y, z, θ) is then a planar chain of those three joints
-(:mod:`.planar_chain`), whose rated speeds add up about one axis — what a pancake turn needs (a loop), where a
-single wrist joint at π rad/s cannot — and motions polished for it run on exactly those joints.
-
+The UR5e's shoulder lift, elbow and wrist 1 turn about world x, the pancake's θ axis (:mod:`.planar_chain`).
 Reach, checked by following every motion with differential IK (mink, 1 ms, the joint ranges as the only
 limit) from ``home``: the Panda holds 94 of 100 deformed ``keep_end`` pancake motions and 95 of their 100
 sketches within 2 mm / 1° (with 7 joints it gets there by running some joint to its range; its wrist, joint 5,
