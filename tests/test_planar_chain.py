@@ -126,3 +126,25 @@ def test_the_learned_motion_alone_is_flagged_by_name(deformer):
     assert result.feasible is False and check.ok is False and check.binding.share > 1
     said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
     assert len(said) == 1 and said[0].startswith("not executable on ur5e") and "needs ≥" in said[0]
+
+
+def test_a_turn_the_arm_cannot_end_at_rest_ends_as_near_as_it_can_rising_and_braking(deformer):
+    """Turned to 2.9 rad at the start point: to hold the pancake on a spatula tilted past the cone's half-angle while
+    it comes to rest, the arm has to brake a rising spatula at more than g; within the UR5e's rated speeds that loop
+    cannot end where it started, so the motion ends at rest as near as it can, says so, and stays executable."""
+    import warnings
+
+    from seqmotion import sim
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = deformer.deform(gen.straight((0.0, 0.0, 2.9), 500), keep_end=True, robot="ur5e")
+    said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert not result.exact and result.feasible is True and result.robot_check.ok is True
+    assert len(said) == 1 and "ends at rest as near as they allow" in said[0] and "ur5e" in said[0]
+    states = result.states[: result.length]
+    assert 1.5 < states[-1, 2] < 2.9 and np.abs(states[-1, 3:]).max() < 1e-6  # short of the turn, at rest
+    assert (states[-40:-1, 4] > 0).all()  # rising into the stop…
+    assert (result.accel[result.length - 40 : result.length - 1, 1] < -9.8).all()  # …braking at more than g
+    run = sim.run_pancake(states, gains="ch2", robot="ur5e")
+    assert not run.contact_lost and run.joints.problem is None

@@ -72,13 +72,25 @@ def test_a_gentle_motion_is_executable_on_the_ur5e(deformer):
 
 
 def test_the_built_in_arm_says_its_limits_are_unknown(deformer):
-    plain = deformer.deform(README_TURN)
-    result = deformer.deform(README_TURN, robot="mh3f")
+    plain = deformer.deform(GENTLE)
+    result = deformer.deform(GENTLE, robot="mh3f")
     check = result.robot_check
-    assert check.ok is None and check.binding is None and check.needed_duration is None
+    assert check.ok is None and check.binding is None and check.needed_duration is None and check.lost is None
     assert {"speed", "range"} <= set(check.unknown)
     assert "unknown" in check.describe()
     assert result.feasible == plain.feasible  # unknown limits neither pass nor fail the motion
+
+
+def test_a_motion_whose_stop_hits_the_table_is_not_executable_even_with_unknown_limits(deformer):
+    """The learned README turn ends at 2.9 m/s: the 0.1 s stop the simulator appends takes the spatula down to the
+    table. Executing it says so, whatever the arm's unknown rated limits."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = deformer.deform(README_TURN, robot="mh3f")
+    check = result.robot_check
+    assert check.ok is False and result.feasible is False and "down at the table" in check.lost
+    said = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert len(said) == 1 and said[0].startswith("not executable on mh3f") and "workspace" in said[0]
 
 
 def test_a_batch_with_a_robot_is_refused(deformer):

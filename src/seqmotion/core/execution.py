@@ -93,6 +93,10 @@ class ExecutionCheck:
             ``None`` where no timing can fix it (a range or reach limit broken) or the speeds are unknown.
         needed_duration: ``time_scale × duration`` [s], or ``None``.
         unknown: limit kind → why it is unknown (not checked).
+        lost: where the robot layer also executes the motion in simulation (the pancake's check: PD + DOB in MuJoCo,
+            the task's object on the tool), what the execution lost and what would cure it, in words (e.g. the
+            pancake leaving the spatula at t = 0.62 s, or the tool down at the table); ``ok`` is then False whatever
+            the limits. ``None``: kept, or not executed.
     """
 
     ok: bool | None
@@ -111,10 +115,13 @@ class ExecutionCheck:
     unknown: dict[str, str] = field(default_factory=dict)
     torque_peak: np.ndarray | None = None
     torque_share: np.ndarray | None = None
+    lost: str | None = None
 
     def fix(self) -> str:
         """What would make the motion executable, in words (``""`` where it already is or nothing is known)."""
-        if self.ok is not False or self.binding is None:
+        if self.ok is not False:
+            return ""
+        if self.binding is None or self.binding.share <= 1.0:  # none broken: `lost` says what failed and why
             return ""
         if self.time_scale is not None and self.needed_duration is not None:
             return (f"needs ≥ {self.needed_duration:.2f} s instead of {self.duration:.2f} s at these joint paths "
@@ -123,10 +130,15 @@ class ExecutionCheck:
         return f"no slower timing fixes a {self.binding.kind} limit: the path itself must change"
 
     def problem(self) -> str | None:
-        """``"not executable on <robot>: <binding limit>; <what it needs>"``, or ``None`` where ``ok`` is not False."""
-        if self.ok is not False or self.binding is None:
+        """``"not executable on <robot>: <binding limit or what was lost>; <what it needs>"``, or ``None`` where
+        ``ok`` is not False."""
+        if self.ok is not False:
             return None
-        return f"not executable on {self.robot}: {self.binding.describe()}; {self.fix()}"
+        if self.binding is not None and self.binding.share > 1.0:
+            return f"not executable on {self.robot}: {self.binding.describe()}; {self.fix()}"
+        if self.lost is not None:
+            return f"not executable on {self.robot}: {self.lost}"
+        return None
 
     def describe(self) -> str:
         """One line for people: executable or not on the robot, the binding limit, what would fix it, unknowns."""

@@ -54,8 +54,6 @@ class ArmForm:
         robot: the robot, ``"name (source)"``.
         constraints: constraints on the task's states and inputs that replace the built-in arm's
             :attr:`ExactForm.workspace` (e.g. a reach).
-        time_scale: ``states (K, S) -> s ≥ 1``: how many times slower a motion must run for its joint speeds to keep
-            the rated ones (the polish starts a too-fast motion at its retimed copy, s× longer).
         joint_space: where the polish runs on the robot's joints instead
             (:class:`~seqmotion.physics.transcription.JointSpace`: rated speeds, ranges, … as its own constraints,
             the task's on its forward kinematics), or ``None``.
@@ -68,7 +66,6 @@ class ArmForm:
 
     robot: str
     constraints: tuple[Constraint, ...]
-    time_scale: Callable[[np.ndarray], float]
     joint_space: JointSpace | None = None
     to_joints: Callable[[np.ndarray], np.ndarray] | None = None
     to_task: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
@@ -108,13 +105,21 @@ def rest_to_rest_accel(
     return tuple(round(float(n), 1) for n in need) if over else None
 
 
-ARM_ITERATIONS = 400
-"""IPOPT iterations each try of a polish on a robot's joints gets (:class:`ArmForm`): turning a motion about a
-fixed point into a loop the joints can run took 230–450 on the README's turn on the UR5e."""
+ARM_MIN_DURATION = 1.0
+"""[s] The shortest motion a polish on a robot's joints plans (:class:`ArmForm`; a longer input keeps its length): a
+turn past the cone's half-angle becomes a loop of the arm within its rated speeds, and on the UR5e every one of 25
+README-style turns (θ 2–3 rad, 0.3–0.8 s sketches) found a loop that ends at rest within 1 s. A much longer one is no
+safer: slow loops press the pancake on more weakly, and executed motions of 5–10 s lost it."""
+ARM_ITERATIONS = 150
+"""IPOPT iterations of the exact polish on a robot's joints, started from the motion that ends as near the end pose as
+the limits allow: one it can reach converged in 14–70 on the UR5e; one it cannot is given up on here (1–2 s)."""
 ARM_ATTEMPTS = 2
-"""Tries of a polish on a robot's joints (at the learned motion's time slowed to the rated speeds, then
-:data:`EXTEND_GROWTH` × longer): where two fail, more time seldom helped (turns ending near π rad failed at 3, 4 and
-6× the learned motion's time), and each costs seconds."""
+"""Tries of the near-end polish on a robot's joints (:data:`ARM_MIN_DURATION`, then :data:`EXTEND_GROWTH` × longer):
+from standing still it converged in 22–62 iterations on every turn tried."""
+ARM_EXACT_REACH = 0.03
+"""Where the motion that ends as near the end pose as a robot's limits allow still misses it by more than this (in the
+task's polish metric: metres, radians times their weight), the exact polish is not tried: on the UR5e every turn
+whose near end missed by ≤ 0.023 (e.g. 0.22 rad) polished exactly, those missing by ≥ 0.076 never did."""
 
 FALLBACK_END_WEIGHT = 1000.0
 """``keep_end``'s fallback, where no motion reaches the end pose exactly: the weight per metre (per radian,

@@ -31,7 +31,9 @@ from . import registry, trust
 from .execution import arm_form_for, check_execution, execution_check_for
 from .polish import (
     ARM_ATTEMPTS,
+    ARM_EXACT_REACH,
     ARM_ITERATIONS,
+    ARM_MIN_DURATION,
     COLD_ITERATIONS,
     EXTEND_ATTEMPTS,
     EXTEND_COLD_ITERATIONS,
@@ -328,21 +330,27 @@ class TrainedModel(PretrainedModel):
         return retry
 
     def polish_on_arm(
-        self, x0: np.ndarray, accel: np.ndarray, states: np.ndarray, arm: ArmForm,
-        constraints: Sequence[Constraint] = (), params: Sequence[np.ndarray] = (),
+        self, x0: np.ndarray, accel: np.ndarray, arm: ArmForm, constraints: Sequence[Constraint] = (),
+        params: Sequence[np.ndarray] = (),
     ) -> Solution:
-        """:meth:`polish` within a robot's limits (``arm``), the time it needs found as ``keep_end`` finds it: the
-        motion ``states`` ``(K, S)`` (inputs ``accel`` ``(K-1, d)`` from ``x0``) slowed down to the rated speeds
-        (:attr:`ArmForm.time_scale`), then :data:`EXTEND_GROWTH` × longer per try, up to :data:`ARM_ATTEMPTS`
-        tries. The first solution that holds, else the last try's."""
-        steps = math.ceil(len(accel) * arm.time_scale(np.asarray(states)))
-        for _ in range(ARM_ATTEMPTS):
-            solution = self.polish(x0, retimed(accel, steps), constraints, params, warm=False,
-                                   cold_iterations=ARM_ITERATIONS, symbolic="MX", arm=arm)
+        """:meth:`polish` within a robot's limits (``arm``), for the caller's ``constraints`` (latent optimisation's
+        ``exact=True``): the motion at least :data:`ARM_MIN_DURATION` long (``accel`` ``(K-1, d)`` from ``x0``
+        retimed to it), IPOPT started from that motion, then from standing still :data:`EXTEND_GROWTH` × longer.
+        The first solution that holds, else the last try's."""
+        steps = self._arm_steps(len(accel), extend=True)
+        for attempt in range(ARM_ATTEMPTS):
+            ref = retimed(accel, steps)
+            solution = self.polish(x0, ref, constraints, params, start=ref if attempt == 0 else np.zeros_like(ref),
+                                   warm=False, symbolic="MX", arm=arm)
             if self._holds(solution):
                 break
             steps = math.ceil(steps * EXTEND_GROWTH)
         return solution
+
+    def _arm_steps(self, steps: int, extend: bool) -> int:
+        """The inputs a polish on a robot's joints plans: ``steps``, at least :data:`ARM_MIN_DURATION` with
+        ``extend``."""
+        return max(steps, math.ceil(ARM_MIN_DURATION / self._dt() - 1e-9)) if extend else steps
 
     def _polish_in_joints(
         self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint], params: Sequence[np.ndarray],
@@ -371,10 +379,16 @@ class TrainedModel(PretrainedModel):
 
         hold, knots = arm.hold, math.ceil(len(accel) / arm.hold)
 
+        low, high = ((np.full(2 * space.dim, -np.inf), np.full(2 * space.dim, np.inf)) if space.state_bounds is None
+                     else (np.asarray(b, dtype=float) for b in space.state_bounds))
+
         def joint_inputs(task_accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            """The start's joint state and the joint accelerations held over each knot (their means)."""
+            """The start's joint state and the joint accelerations held over each knot (their means), of the joint
+            speeds held within their bounds: where the motion passes a singularity or out of reach, the IK's speeds
+            run to infinity, and the polish only needs a start and a reference to stay near."""
             joints = to_joints(integrate_numpy(x0, task_accel, dt))
-            fine = np.diff(joints[:, space.dim:], axis=0) / dt
+            speeds = np.clip(np.nan_to_num(joints[:, space.dim:]), low[space.dim:], high[space.dim:])
+            fine = np.diff(speeds, axis=0) / dt
             fine = np.concatenate([fine, np.zeros((knots * hold - len(fine), space.dim))])
             return joints[0], fine.reshape(knots, hold, space.dim).mean(axis=1)
 
@@ -442,8 +456,9 @@ class TrainedModel(PretrainedModel):
 
         ``robot``: a robot the motion is for (a name such as ``"ur5e"``, or a robot object; one motion at a time).
         With ``keep_end``, the polish also keeps that robot's rated limits where the robot layer can state them as
-        constraints (``seqmotion.core.execution.arm_form_for``; the motion may take longer: its learned copy slowed
-        down to the rated speeds is where it starts). Either way the result is judged on the robot
+        constraints (``seqmotion.core.execution.arm_form_for``; the motion may take longer, and where the end pose is
+        out of the robot's reach with the task's constraint held, it ends as near as it can:
+        :meth:`_polish_end_on_arm`). Either way the result is judged on the robot
         (``result.robot_check``, an :class:`~seqmotion.core.execution.ExecutionCheck`): where a limit is broken
         ``result.feasible`` is False and a ``RuntimeWarning`` names the binding limit and what would fix it.
 
@@ -516,8 +531,7 @@ class TrainedModel(PretrainedModel):
         """Polish each motion onto ``end`` (see :meth:`generate`): ``(states, accel, exact (B,), length (B,),
         iterations (B,))``, padded to the longest motion by holding its end state with zero input; ``iterations``:
         IPOPT's, summed over every polish the motion took (longer tries, the fallback). With ``arm`` (a robot's
-        limits), a motion whose joints would outrun the rated speeds starts from its own copy slowed down by
-        :attr:`ArmForm.time_scale` (the same path, s× longer: speeds /s, accelerations /s²)."""
+        limits): :meth:`_polish_end_on_arm`."""
         constraint, values = end
         columns = list(constraint.key[1])
         exact = np.zeros(len(states), dtype=bool)
@@ -527,6 +541,10 @@ class TrainedModel(PretrainedModel):
         motions = []
         for b in range(len(states)):
             motions.append((states[b].numpy(), reference[b]))
+            if arm is not None:
+                motions[b], exact[b], iterations[b] = self._polish_end_on_arm(b, x0[b], reference[b], end[0],
+                                                                              values[b], arm, extend, motions[b])
+                continue
             steps = len(reference[b])
             if not extend:
                 need = rest_to_rest_accel(x0[b], columns, values[b], steps, form)
@@ -536,34 +554,32 @@ class TrainedModel(PretrainedModel):
                                   f"{need}); it keeps the learned motion", RuntimeWarning, stacklevel=4)
                     continue
             steps = steps_to_stop(x0[b], columns, values[b], steps, form) if extend else steps
-            if arm is not None and extend:
-                steps = max(steps, math.ceil(len(reference[b]) * arm.time_scale(motions[b][0])))
-            attempts = 1 if not extend else ARM_ATTEMPTS if arm is not None else EXTEND_ATTEMPTS
+            attempts = EXTEND_ATTEMPTS if extend else 1
             for attempt in range(attempts):
-                if arm is not None:  # the learned motion retimed to the length tried
-                    ref = retimed(reference[b], steps)
-                else:  # after the input's end the polish stays near rest (zero input) while it brings it to a stop
-                    ref = np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
+                # after the input's end the polish stays near rest (zero input) while it brings it to a stop
+                ref = np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
                 # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
                 # starts from a motion that only the task's constraint still separates from exact
                 start = reach_end(x0[b], ref, columns, values[b], np.array(form.accel_weights), form.dt)
                 last = attempt == attempts - 1  # a failing try is cut short: a longer one will likely succeed
                 # MX: a motion's length (its input's, or an extended one) seldom recurs soon, and "auto" would
                 # build the slow-to-build SX graph on its second request
-                iterations_cap = COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS
                 solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
-                                       cold_iterations=ARM_ITERATIONS if arm is not None else iterations_cap,
-                                       symbolic="MX", arm=arm)
+                                       cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
+                                       symbolic="MX")
                 iterations[b] += solution.iterations
                 if self._holds(solution):
                     motions[b], exact[b] = (solution.states, solution.accel), True
                     break
                 steps = math.ceil(steps * EXTEND_GROWTH)
             if not exact[b]:  # at the longest time tried (``ref``)
-                near_states, near_accel, spent = self._nearest_rest(b, x0[b], ref, columns, values[b],
-                                                                    solution.status, motions[b], arm)
-                motions[b] = (near_states, near_accel)
-                iterations[b] += spent
+                # from standing still — feasible for the constraint, limits and reach from a start at rest — toward
+                # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
+                # IPOPT converges less often
+                near, miss = self._nearest_rest(x0[b], ref, columns, values[b])
+                iterations[b] += near.iterations
+                motions[b] = self._settle_near(b, near, miss, solution.status, motions[b], "the acceleration limits "
+                                               "and the reach", 6)
         length = np.array([len(s) for s, _ in motions])
         longest = int(length.max())
         states = torch.from_numpy(np.stack([np.concatenate([s, np.repeat(s[-1:], longest - len(s), 0)])
@@ -571,6 +587,45 @@ class TrainedModel(PretrainedModel):
         accel = torch.from_numpy(np.stack([np.concatenate([a, np.zeros((longest - 1 - len(a), a.shape[1]))])
                                            for _, a in motions]))
         return states, accel, exact, length, iterations
+
+    def _polish_end_on_arm(
+        self, b: int, x0: np.ndarray, reference: np.ndarray, end: Constraint, values: np.ndarray, arm: ArmForm,
+        extend: bool, learned: tuple[np.ndarray, np.ndarray],
+    ) -> tuple[tuple[np.ndarray, np.ndarray], bool, int]:
+        """``keep_end`` within a robot's limits, for motion ``b`` (inputs ``reference`` ``(K-1, d)`` from ``x0``).
+
+        First the motion, at least :data:`ARM_MIN_DURATION` long (with ``extend``), that ends at rest as near the end
+        pose as the task's constraint and the robot's limits allow (:meth:`_nearest_rest`: from standing still,
+        which the arm can always do, IPOPT finds it in a few dozen iterations); then, where that misses the pose by
+        at most :data:`ARM_EXACT_REACH`, the exact polish from it. An end the arm cannot reach with the pancake on —
+        a turn past the cone's half-angle has to end rising, braking at more than g, so it ends higher and further
+        out than the spatula starts — is not searched for at length: the near motion is kept, flagged. Returns
+        ``((states, accel), exact, iterations)``."""
+        columns = list(end.key[1])
+        steps, spent = self._arm_steps(len(reference), extend), 0
+        for _ in range(ARM_ATTEMPTS if extend else 1):
+            ref = retimed(reference, steps)
+            near, miss = self._nearest_rest(x0, ref, columns, values, arm)
+            spent += near.iterations
+            if self._holds(near):
+                break
+            steps = math.ceil(steps * EXTEND_GROWTH)
+        else:
+            warnings.warn(f"keep_end: the polish failed on motion {b} within {arm.robot}'s limits ({near.status}); "
+                          "it keeps the learned motion", RuntimeWarning, stacklevel=6)
+            return learned, False, spent
+        form = self.exact_form()
+        pose = [self.state_layout.index(f) for f in self.task_def.end_pose[0]]
+        weights = np.array([form.accel_weights[c] if c < form.dim else 1.0 for c in pose])
+        status = "not tried: the nearest end within the limits is too far from it"
+        if math.sqrt(float(np.sum(weights * miss**2))) <= ARM_EXACT_REACH:
+            solution = self.polish(x0, ref, [end], [values], start=near.accel, warm=False,
+                                   cold_iterations=ARM_ITERATIONS, symbolic="MX", arm=arm)
+            spent += solution.iterations
+            if self._holds(solution):
+                return (solution.states, solution.accel), True, spent
+            status = solution.status
+        return self._settle_near(b, near, miss, status, learned, f"{arm.robot}'s limits", 7), False, spent
 
     def _holds(self, solution: Solution) -> bool:
         """Whether a polish converged with the task's constraint held (to :data:`POLISH_VIOLATION_TOLERANCE`)."""
@@ -580,15 +635,12 @@ class TrainedModel(PretrainedModel):
                                      or float(violation.max()) <= POLISH_VIOLATION_TOLERANCE)
 
     def _nearest_rest(
-        self, b: int, x0: np.ndarray, ref: np.ndarray, columns: list[int], values: np.ndarray, status: str,
-        learned: tuple[np.ndarray, np.ndarray], arm: ArmForm | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, int]:
-        """``keep_end``'s fallback for motion ``b``, whose end pose no polish reached (e.g. a pose that the
-        arm can hold the pancake at only from beyond its reach): the motion as long as ``ref`` that
-        ends at rest, keeps the task's constraint, limits and reach exactly, and ends as near the end pose as
-        they allow (weighted by :data:`FALLBACK_END_WEIGHT`) — executable, and flagged (``exact`` stays False,
-        the trust signals give its end error). If even that fails, the learned motion as it is. Last: the IPOPT
-        iterations this took."""
+        self, x0: np.ndarray, ref: np.ndarray, columns: list[int], values: np.ndarray, arm: ArmForm | None = None,
+    ) -> tuple[Solution, np.ndarray]:
+        """The motion as long as ``ref`` that ends at rest, keeps the task's constraint and the limits (the built-in
+        arm's, or ``arm``'s) exactly, and ends as near the end pose as they allow (weighted by
+        :data:`FALLBACK_END_WEIGHT`), from standing still toward the learned inputs ``ref``; and its miss of the end
+        pose ``(n_pose,)`` [the pose fields' units]. ``values``: ``keep_end``'s end values on ``columns``."""
         form = self.exact_form()
         pose = [self.state_layout.index(f) for f in self.task_def.end_pose[0]]
         rates = [c for c in columns if c not in pose]
@@ -596,21 +648,26 @@ class TrainedModel(PretrainedModel):
         weights = [FALLBACK_END_WEIGHT * math.sqrt(form.accel_weights[c]) if c < form.dim else FALLBACK_END_WEIGHT
                    for c in pose]
         rest = end_values(rates, "end at rest")
-        # from standing still — feasible for the constraint, limits and reach from a start at rest — toward
-        # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
-        # IPOPT converges less often
         solution = self.polish(x0, ref, [rest], [np.zeros(len(rates))], start=np.zeros_like(ref), warm=False,
                                symbolic="MX", end_cost=(pose, weights, target), arm=arm)
-        if self._holds(solution):
-            miss = np.abs(solution.states[-1, pose] - target)
-            warnings.warn(f"keep_end: motion {b} cannot end at its input's end pose within the task's constraint, "
-                          f"the acceleration limits and the reach ({status}); it ends at rest as near as they allow, "
-                          f"{np.round(miss, 4).tolist()} from it ({', '.join(self.task_def.end_pose[0])})",
-                          RuntimeWarning, stacklevel=5)
-            return solution.states, solution.accel, solution.iterations
+        return solution, np.abs(solution.states[-1, pose] - target)
+
+    def _settle_near(
+        self, b: int, near: Solution, miss: np.ndarray, status: str, learned: tuple[np.ndarray, np.ndarray],
+        limits: str, stacklevel: int,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``keep_end``'s fallback for motion ``b``, whose end pose no polish reached (``status``; e.g. a pose the
+        arm can hold the pancake at only from beyond its reach): the near motion (:meth:`_nearest_rest`) if it holds —
+        executable, and flagged (``exact`` stays False, the trust signals give its end error) —, else the learned
+        motion as it is; either way a warning says which."""
+        if self._holds(near):
+            warnings.warn(f"keep_end: motion {b} cannot end at its input's end pose within the task's constraint and "
+                          f"{limits} ({status}); it ends at rest as near as they allow, {np.round(miss, 4).tolist()} "
+                          f"from it ({', '.join(self.task_def.end_pose[0])})", RuntimeWarning, stacklevel=stacklevel)
+            return near.states, near.accel
         warnings.warn(f"keep_end: the polish failed on motion {b} ({status}; ending at rest near its end pose: "
-                      f"{solution.status}); it keeps the learned motion", RuntimeWarning, stacklevel=5)
-        return *learned, solution.iterations
+                      f"{near.status}); it keeps the learned motion", RuntimeWarning, stacklevel=stacklevel)
+        return learned
 
     def decode(self, latent: object, x0: object, length: int, physics: Physics | None = None) -> Any:
         """Decode latents ``(L·H,)``/``(B, L·H)`` from start states ``(S,)``/``(B, S)`` into ``length`` samples

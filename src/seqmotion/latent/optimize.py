@@ -592,7 +592,7 @@ def _polish(
         if arm is None:
             solution = model.polish(x0_np[i], accel_np[i], [c for c, _ in constraints], params)
         else:  # one trajectory, which may take longer than the latent stage's: the result holds what was found
-            solution = model.polish_on_arm(x0_np[i], accel_np[i], states[i].numpy(), arm,
+            solution = model.polish_on_arm(x0_np[i], accel_np[i], arm,
                                            [c for c, _ in constraints], params)
             out_states, out_accel = (torch.from_numpy(a)[None] for a in (solution.states, solution.accel))
         iterations[i], found = solution.iterations, solution.status

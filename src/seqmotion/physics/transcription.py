@@ -138,7 +138,7 @@ class Transcription:
         start = time.perf_counter()
         if joint_space is not None:  # the double integrator runs on the joints; the task's constraints on FK
             dim, constraints = joint_space.dim, constraints + joint_space.constraints
-        self.dim, self.length, self.constraints = dim, length, constraints
+        self.dim, self.length, self.constraints, self.dt = dim, length, constraints, dt
         k, s = length, 2 * dim
         a_mat, b_mat = transition_matrices(dim, dt)
         sym = {"SX": ca.SX, "MX": ca.MX}[symbolic]
@@ -205,7 +205,7 @@ class Transcription:
         """
         x0 = np.asarray(x0, np.float64)
         guess = np.asarray(guess, np.float64)
-        states = integrate_numpy(x0, guess)
+        states = integrate_numpy(x0, guess, self.dt)
         p = [x0] + [np.asarray(v, np.float64).reshape(-1) for v in params]
         if reference is not None:
             p.append(np.asarray(reference, np.float64).reshape(-1))
@@ -219,7 +219,7 @@ class Transcription:
         status = str(stats["return_status"])
         accel = np.array(sol["x"][: self.n_accel]).reshape(self.length - 1, self.dim)
         return Solution(
-            accel=accel, states=integrate_numpy(x0, accel), status=status,
+            accel=accel, states=integrate_numpy(x0, accel, self.dt), status=status,
             success=status in ("Solve_Succeeded", "Solved_To_Acceptable_Level"),
             infeasible=status in ("Infeasible_Problem_Detected", "Restoration_Failed"),
             iterations=int(stats["iter_count"]), seconds=seconds,

@@ -24,12 +24,13 @@ over where the tilt passes 90°); one that ends within 45° asks for it to be he
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..core.execution import ExecutionCheck
 from ..data.trajectories import tracking_rmse
 from ..physics.pancake import MU, check_mu, cone_half_angle, violation
 from .arm import (
@@ -43,8 +44,9 @@ from .arm import (
     prepare_reference,
     single_trajectory,
 )
-from .backend import GRAVITY
+from .backend import CONTROL_DT, GRAVITY
 from .control import Gains, resolve_gains
+from .executable import check_executable
 from .kinematics import Reference, planar_reference, planar_tilt, quat_to_matrix, rotation_angle
 from .scene import BLADE_HALF, MU_PANCAKE, PANCAKE_MASS, PANCAKE_ORIGIN
 
@@ -288,6 +290,39 @@ def run_pancake(
     log = execute("pancake", ref, gains, model_bias=model_bias, object_height=0.0, object_offset=np.zeros(2),
                   object_mass=PANCAKE_MASS, settle_time=settle_time, media=media, robot=robot)
     return _pancake_metrics(ref, log, arr, mu, decel_time)
+
+
+def check_pancake_executable(states: object, robot: Any, dt: float = CONTROL_DT) -> ExecutionCheck:
+    """Whether ``robot`` can execute planar spatula states with the pancake on: the joint path against the robot's
+    limits (:func:`~seqmotion.sim.executable.check_executable`), then, where no limit is broken, the motion executed
+    in MuJoCo under PD + DOB (:func:`run_pancake`, the chapter-2 gains, its 0.1 s stop and no hold): where the pancake
+    leaves the spatula during the motion (the arm's tracking error broke the friction cone that the plan kept), or
+    the command leaves the arm's workspace (e.g. down at the table), ``ok`` is False and ``lost`` says which. What
+    the registered check of the pancake task runs (:mod:`seqmotion.sim.registration`), so a motion
+    ``deform(..., robot=…)`` calls feasible has been executed with the pancake kept; it costs one simulated run
+    (~0.3 s for a 1 s motion).
+
+    Args:
+        states: ``(K, 6)`` ``[y, z, θ, v_y, v_z, v_θ]`` [m, m, rad, m/s, m/s, rad/s], K ≥ 2.
+        robot: a robot's name, a :class:`~seqmotion.sim.robot_models.Robot`, or ``None`` / ``"mh3f"`` for the
+            built-in arm.
+        dt: the states' sample period [s] (the simulator runs at 1 ms: other periods are judged kinematically only).
+    """
+    check = check_executable(states, robot, dt=dt)
+    if check.ok is False or abs(dt - CONTROL_DT) > 1e-12:
+        return check
+    try:
+        run = run_pancake(states, robot=robot, hold_time=0.0)
+    except ValueError as error:  # the command leaves the workspace (e.g. down at the table): not executable either
+        return replace(check, ok=False, lost=f"{error} (with the simulator's 0.1 s stop after the motion's end): the "
+                                            "motion must stay within the arm's workspace")
+    if not run.contact_lost:
+        return check
+    lost = (f"the pancake left the spatula at t = {run.contact_lost_time:.3f} s when the arm executed the motion "
+            f"(PD + DOB in MuJoCo: slid {run.max_slip * 1e3:.0f} mm, lifted {run.max_gap * 1e3:.0f} mm); the joints "
+            "kept their limits, but the arm's tracking error broke the friction cone the plan kept: the motion needs "
+            "more margin (a gentler one, or one pressing the pancake on harder)")
+    return replace(check, ok=False, lost=lost)
 
 
 def _planar_command(ref: Reference) -> np.ndarray:

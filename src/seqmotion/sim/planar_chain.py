@@ -451,17 +451,10 @@ def arm_form(robot: str | Robot | None, dt: float) -> ArmForm | None:
     if standard is None or chain is None or standard.limits.velocity is None:
         return None
     limits = standard.limits
-    speed = limits.velocity[list(chain.index)]
-
-    def time_scale(states: np.ndarray) -> float:
-        qd, _ = chain_joint_speeds(chain, states)
-        share = float(np.max(np.abs(qd) / (SPEED_MARGIN * speed), initial=0.0))
-        return max(1.0, share) if math.isfinite(share) else 1.0
-
     lowest = TABLE_TOP + TABLE_CLEARANCE + TABLE_MARGIN - float(PANCAKE_ORIGIN[2])  # task z [m]
     above_table = Constraint("the spatula above the table", ("above_table", lowest),
                              lambda x, u, p: x[1, 1:], lowest, math.inf)
-    return ArmForm(limits.robot, (above_table,), time_scale, joint_space(chain, limits),
+    return ArmForm(limits.robot, (above_table,), joint_space(chain, limits),
                    lambda states: chain_joints(chain, states), lambda j, a: chain_task(chain, j, a), JOINT_HOLD)
 
 

@@ -43,7 +43,8 @@ def register_envs() -> None:
             register(id=env_id, entry_point=entry_point)
 
 
-EXECUTION_CHECKS = {"pancake": ("seqmotion.sim.executable:check_executable", "seqmotion.sim.planar_chain:arm_form"),
+EXECUTION_CHECKS = {"pancake": ("seqmotion.sim.pancake:check_pancake_executable",
+                                "seqmotion.sim.planar_chain:arm_form"),
                     "sliding": ("seqmotion.sim.executable_sliding:check_sliding_executable", None)}
 """Task → the string entry points of its robot execution check and of its robot's polish constraints
 (``deform(robot=…)``; MuJoCo imported on first use)."""
