@@ -3,10 +3,11 @@
     python benchmarks/bench_robot_limits.py [--n 100] [--seed 2031] [--robots ur5e panda mh3f]
                                             [--out benchmarks/results_robot_limits.json]
 
-Two sets per robot, ``--n`` motions each:
+Sets per robot, ``--n`` motions each:
 
 * **turns**: README-style turn sketches, ``straight((y, z, θ), K)`` with θ ~ U(2, 3) rad, y, z ~ U(−0.2, 0.2) m and
   K ~ U(300, 800) samples (0.3–0.8 s) — :func:`turn_sketches`;
+* **peer**: the whole-arm OCP peer's 20 sketches (``benchmarks/peers/arm_ocp.py``, its seed 0), for the side-by-side;
 * **generator**: the task's own input generator, fresh position-type sketches (``data.pancake.position_type``, the
   chapter-2 inputs: ends up to ±0.3 m and ±π rad, 0.1–0.5 s).
 
@@ -18,7 +19,10 @@ run's ``JointReport`` finds no limit broken (ranges, rated speeds, torque limits
 when it also ends at the sketch's end pose (the polish converged; otherwise it ends at rest as near as the limits
 allow, its end error recorded). A motion called feasible that
 drops the pancake or breaks a limit when executed is a **false feasible** (the target is zero). Motions not called
-feasible are counted by the binding limit their verdict names (a motion without a verdict would be silent).
+feasible are counted by the binding limit their verdict names (a motion without a verdict would be silent). The
+pancake's verdict itself runs the motion in MuJoCo where no limit is broken (``sim.pancake.check_pancake_executable``),
+so a motion the polish made but the arm's tracking lost is flagged ``executed`` here rather than executed again;
+those flags count how often the plan alone would have been wrong.
 Times are wall seconds of ``deform`` (polish and verdict), per motion.
 """
 
@@ -26,9 +30,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 import warnings
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 
@@ -54,6 +60,23 @@ def generator_sketches(n: int, seed: int) -> list[np.ndarray]:
     return [batch.states[i, : int(batch.lengths[i])] for i in range(n)]
 
 
+def _binding(check: object) -> str | None:
+    """The kind of limit a verdict names; ``"executed"`` where no limit is broken but the verdict's own simulated run
+    lost the pancake or left the workspace (``ExecutionCheck.lost``)."""
+    if check.lost is not None and (check.binding is None or check.binding.share <= 1.0):
+        return "executed"
+    return None if check.binding is None else check.binding.kind
+
+
+def peer_sketches(n: int) -> list[np.ndarray]:
+    """The whole-arm OCP peer's own ``n`` turn sketches (``benchmarks/peers/arm_ocp.py --n 20 --seed 0``): the same
+    motions, for success and time side by side."""
+    sys.path.insert(0, str(Path(__file__).parent / "peers"))
+    from arm_ocp import turn_sketches as peer_turns
+
+    return peer_turns(n, 0)
+
+
 def one(deformer: object, sketch: np.ndarray, robot: str, execute: bool) -> dict:
     from seqmotion import sim
 
@@ -67,7 +90,7 @@ def one(deformer: object, sketch: np.ndarray, robot: str, execute: bool) -> dict
     row = {
         "seconds": seconds, "exact": bool(result.exact), "feasible": bool(result.feasible),
         "verdict": None if check.ok is None else bool(check.ok),
-        "binding": None if check.binding is None else check.binding.kind,
+        "binding": _binding(check), "lost": check.lost,
         "binding_joint": None if check.binding is None else check.binding.joint,
         "duration_s": (length - 1) * 1e-3, "sketch_s": (len(sketch) - 1) * 1e-3,
         "speed_share_max": None if check.speed_share is None else float(np.max(check.speed_share)),
@@ -103,7 +126,9 @@ def summarise(rows: list[dict]) -> dict:
         "feasible_but_verdict_unknown": sum(r["verdict"] is None for r in feasible),
         "flagged": len(flagged),
         "flagged_by": dict(Counter(f"{r['binding']}:{r['binding_joint']}" for r in flagged)),
-        "silent": sum(r["feasible"] and r["verdict"] is not True for r in rows),
+        # called feasible without a verdict that it is executable and without a warning saying why not
+        "silent": sum(r["feasible"] and r["verdict"] is not True and not r["warned"] for r in rows),
+        "kept_when_executed": sum(r.get("kept", False) for r in rows),
         "seconds_median": float(np.median(seconds)), "seconds_p95": float(np.percentile(seconds, 95)),
         "duration_median_s": float(np.median([r["duration_s"] for r in rows])),
     }
@@ -119,12 +144,13 @@ def main() -> None:
     parser.add_argument("--out", default="benchmarks/results_robot_limits.json")
     args = parser.parse_args()
     deformer = sm.load_pretrained("pancake")
-    sets = {"turns": turn_sketches(args.n, args.seed), "generator": generator_sketches(args.n, args.seed)}
+    sets = {"turns": lambda: turn_sketches(args.n, args.seed),
+            "generator": lambda: generator_sketches(args.n, args.seed), "peer": lambda: peer_sketches(args.n)}
     out: dict = {"machine": machine_description(), "n": args.n, "seed": args.seed, "results": {}}
     for robot in args.robots:
         for name in args.sets:
             rows = []
-            for i, sketch in enumerate(sets[name]):
+            for i, sketch in enumerate(sets[name]()):
                 rows.append(one(deformer, sketch, robot, not args.no_execute))
                 print(robot, name, i, {k: v for k, v in rows[-1].items() if k != "warned"}, flush=True)
                 if (i + 1) % 10 == 0:

@@ -124,3 +124,21 @@ def test_the_cli_refuses_an_unknown_robot(tmp_path, capsys):
 def feasible_of_cone(result) -> bool:  # noqa: ANN001 - a DeformResult
     """The cone's verdict alone (what ``feasible`` was before a robot was checked)."""
     return bool(result.violation.max() <= FEASIBLE_TOLERANCE)
+
+
+@needs_ur5e
+def test_optimize_makes_the_motion_for_the_robot_and_says_when_it_cannot(tmp_path, capsys):
+    """``seqmotion optimize --robot``: with --exact the polish keeps the UR5e's limits (exit 0, judged executable);
+    the latent stage's motion alone spins the spatula past the wrist's rating (exit 3, one warning line)."""
+    made = tmp_path / "made.npz"
+    assert main(["optimize", "--target", "0.1", "0.1", "2.3", "--exact", "--robot", "ur5e", "--output",
+                 str(made)]) == 0
+    assert "executable on ur5e" in capsys.readouterr().out
+    assert sm.load_result(made).feasible is True
+    alone = tmp_path / "alone.npz"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        code = main(["optimize", "--target", "0.1", "0.1", "2.3", "--robot", "ur5e", "--output", str(alone)])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == EXIT_INEXACT and sm.load_result(alone).feasible is False
+    assert len(lines) == 1 and lines[0].startswith("seqmotion optimize: warning: not executable on ur5e")

@@ -61,6 +61,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "the polish cannot make it exact, the latent stage's motion is still written, marked inexact "
                         "(a .npz holds exact False; a .csv has no place for the mark), one 'seqmotion optimize: "
                         "warning:' line says why (exit code 3)")
+    p.add_argument("--robot", metavar="NAME",
+                   help="the robot the motion is for (see `seqmotion robots`): with --exact the polish also keeps its "
+                        "rated limits where the robot layer states them as constraints (the UR5e's joint speeds, "
+                        "ranges and torques), and the result is judged on it either way. Where it cannot execute "
+                        "the motion, what was made is still written (a .npz holds feasible False), one 'seqmotion "
+                        "optimize: warning: not executable on …' line names the binding limit (exit code 3)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--output", required=True, help=".npz (the result: seqmotion.load_result reads it back) or .csv "
                    "(plain columns for other tools)")
@@ -71,9 +77,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..api import resolve_model
     from ..errors import EXIT_INEXACT, MAX_LENGTH, check_number, said_by
-    from ..io import check_writable
+    from ..io import check_not_an_input, check_output, check_writable, read_trajectory, write_arrays
     from ..tasks import TrainedModel
-    from ..training.files import check_not_an_input, check_output, read_trajectory, write_arrays
     from . import optimize_latent, optimize_trajectory
     from .objectives import EndPose, Ranges
 
@@ -84,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
         check_not_an_input(path, option, {"--input": args.input})
     if args.exact is None:
         args.exact = args.preset == "j2"
-    if args.steps is not None and args.steps < 0:
-        raise ValueError(f"--steps must be ≥ 0 (0: no update, the input's own motion), got {args.steps}")
+    if args.steps is not None:
+        check_number("--steps (0: no update, the input's own motion)", args.steps, minimum=0, integer=True)
     if args.lr is not None:
         check_number("--lr", args.lr, minimum=0, strict_minimum=True)
     if args.length is not None:
@@ -96,6 +101,14 @@ def run(args: argparse.Namespace) -> int:
     model = resolve_model(args.model)
     if not isinstance(model, TrainedModel):
         raise ValueError(f"{args.model} is a {type(model).__name__}, not a sequence-to-sequence motion model")
+    if args.robot is not None:  # refused before the work: a task without a check, a robot not here
+        from ..core.execution import execution_check_for
+
+        try:
+            execution_check_for(model.task_def.name)
+            _resolve_robot(args.robot)
+        except ValueError as exc:
+            raise ValueError(f"--robot {args.robot}: {exc}") from None
     task = model.task_def
     if args.preset == "j2":
         objective = Ranges()
@@ -114,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     if args.optimizer == "lm" and args.lr is not None:
         raise ValueError("--lr is the step size of gradient descent; Levenberg–Marquardt (--optimizer lm) takes none")
     method: dict = {"optimizer": args.optimizer, "lr": args.lr if args.lr is not None else "auto",
-                    "exact": args.exact}
+                    "exact": args.exact, "robot": args.robot}
     # a missed constraint is printed below, with the other terms; a failed polish in one line, not Python's text
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -124,7 +137,9 @@ def run(args: argparse.Namespace) -> int:
         else:
             res = optimize_latent(model, states, objective, steps=steps,
                                   init="encoder" if args.case == 1 else "random", seed=args.seed, **method)
-    polish_failures = said_by(caught, "exact polish failed on ")
+    robot_said = [w for w in caught if str(w.message).startswith("not executable on ")]
+    not_executable = said_by(robot_said, "not executable on ")
+    polish_failures = said_by([w for w in caught if w not in robot_said], "exact polish failed on ")
     steps = len(res.history) - 1
     violation = res.violation
     columns = {"states": res.states, "accel": res.accel, "history": res.history}
@@ -160,13 +175,28 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {line}")
     if args.plot:
         _plot(model, res, columns.get("violation"), Path(args.plot))
+    if res.robot_check is not None:
+        print(f"  {res.robot_check.describe()}")
+    code = 0
     if res.exact is False:
         why = "; ".join(polish_failures) or "the polish did not converge"
         mark = "marked inexact (exact False)" if args.output.lower().endswith(".npz") else "a .csv: no exact flag"
         print(f"seqmotion optimize: warning: --exact could not make the exact motion: {why}; {args.output} holds "
               f"what was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        return EXIT_INEXACT
-    return 0
+        code = EXIT_INEXACT
+    if not_executable:  # made, but not what was asked: a motion the robot would stop on
+        mark = "feasible False" if args.output.lower().endswith(".npz") else "a .csv: no feasible flag"
+        print(f"seqmotion optimize: warning: not executable on {not_executable[0]}; {args.output} holds what was "
+              f"made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
+        code = EXIT_INEXACT
+    return code
+
+
+def _resolve_robot(name: str) -> object:
+    """The robot called ``name`` (``ValueError`` naming the robots there are), through the simulator's registry."""
+    from ..sim.robot_models import resolve_robot
+
+    return resolve_robot(name)
 
 
 def _plot(model: Any, res: Any, violation: np.ndarray | None, path: Path) -> None:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.execution import ExecutionCheck, arm_form_for, execution_check_for
+from ..core.execution import BindingLimit, ExecutionCheck, arm_form_for, execution_check_for
 from ..core.polish import POLISH_VIOLATION_TOLERANCE, ArmForm
 from ..core.results import FEASIBLE_TOLERANCE, Motion
 from ..core.trained import TrainedModel
@@ -35,6 +35,10 @@ from .objectives import Objective, Term, for_model
 
 MAX_STEPS = 1_000_000
 """More updates than this in one call is a typo."""
+
+RESULT_PARTS = (BindingLimit, ExecutionCheck)
+"""The dataclasses a saved result of this module holds besides itself (a robot's verdict): ``load_result`` rebuilds
+them from this module's names."""
 
 
 @dataclass
@@ -507,8 +511,7 @@ def _on_device(model: object, device: object) -> Any:
 
 
 def _check_steps(steps: object) -> None:
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or not 0 <= steps <= MAX_STEPS:
-        raise ValueError(f"steps must be an integer in [0, {MAX_STEPS}], got {steps!r}")
+    check_number("steps", steps, minimum=0, maximum=MAX_STEPS, integer=True)
 
 
 def _exact_constraints(model: TrainedModel, objective: Objective, physics: Physics) -> list:

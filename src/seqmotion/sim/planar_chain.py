@@ -73,11 +73,6 @@ JOINT_HOLD = 4
 .ArmForm`): four times fewer variables, and IPOPT ~4× faster; the friction cone, imposed at the knots with the polish's
 normal-force floor, still held at every sample of the README's turns."""
 
-REACH_MARGIN = 0.02
-"""[m] The polish keeps the shoulder–wrist distance this far inside the chain's reach (``upper + fore``) and
-outside its inner limit (``|upper − fore|``): a stretched or folded elbow is singular, where the joint speeds a
-spatula speed needs are unbounded."""
-
 
 @dataclass(frozen=True)
 class PlanarChain:
@@ -127,8 +122,11 @@ class PlanarChain:
 
     @property
     def reach(self) -> tuple[float, float]:
-        """The shoulder–wrist distances the polish keeps within [m] (:data:`REACH_MARGIN` inside the chain's)."""
-        return abs(self.upper - self.fore) + REACH_MARGIN, self.upper + self.fore - REACH_MARGIN
+        """The shoulder–wrist distances [m] of the elbow :data:`ELBOW_MARGIN` from folded and from stretched: the polish
+        keeps the elbow within them (:func:`joint_space`), so the closed-form IK (:func:`chain_joints`) of any pose it
+        plans is exact, and pulls a pose out of them back in."""
+        square, cross = self.upper**2 + self.fore**2, 2 * self.upper * self.fore * math.cos(ELBOW_MARGIN)
+        return math.sqrt(square - cross), math.sqrt(square + cross)
 
 
 def planar_chain(robot: str | Robot | None) -> PlanarChain | None:
@@ -458,6 +456,6 @@ def arm_form(robot: str | Robot | None, dt: float) -> ArmForm | None:
                    lambda states: chain_joints(chain, states), lambda j, a: chain_task(chain, j, a), JOINT_HOLD)
 
 
-__all__ = ["ELBOW_MARGIN", "JOINT_HOLD", "PARALLEL_TOLERANCE", "REACH_MARGIN", "SINGULARITY_CLEARANCE", "SPEED_MARGIN",
+__all__ = ["ELBOW_MARGIN", "JOINT_HOLD", "PARALLEL_TOLERANCE", "SINGULARITY_CLEARANCE", "SPEED_MARGIN",
            "TORQUE_MARGIN", "PlanarChain", "arm_form", "chain_joint_speeds", "chain_joints", "chain_task",
            "chain_torques", "flange_clearance", "joint_space", "planar_chain"]
