@@ -10,7 +10,7 @@ import pytest
 
 from seqmotion.cli import main
 from seqmotion.data import pancake as sketches
-from seqmotion.training.files import parse_csv, read_trajectory
+from seqmotion.io import parse_csv, read_trajectory
 
 NAMES = ("y", "z", "theta", "v_y", "v_z", "v_theta")
 

@@ -22,8 +22,8 @@ import seqmotion as sm
 from seqmotion.cli import main
 from seqmotion.data import pancake as inputs
 from seqmotion.data import sliding as commands
+from seqmotion.io import parse_csv, read_trajectory, write_arrays
 from seqmotion.training import checkpoint as ckpt
-from seqmotion.training.files import parse_csv, read_trajectory, write_arrays
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +67,7 @@ def test_every_writer_goes_through_the_atomic_helper():
     pattern = re.compile(r"np\.savez\(\s*(?!buffer)|np\.savetxt\(\s*(?!buffer)|\.savefig\(\s*(?!tmp)|"
                          r"\.write_text\(|\.write_bytes\(|open\([^)]*[\"'](?:w|a|wb|ab)[\"']|imageio\.imwrite\(\s*(?!tmp)|"
                          r"get_writer\(\s*(?!tmp)|h5py\.File\([^)]*[\"']w[\"']")
-    allowed = {"io.py": {"wb", "xb"}, "training/loop.py": {"a"}}  # io.py: the one atomic-write helper
+    allowed = {"io/__init__.py": {"wb", "xb"}, "training/loop.py": {"a"}}  # io/: the one atomic-write helper
     offenders = []
     for path in sorted(root.rglob("*.py")):
         rel = path.relative_to(root).as_posix()
@@ -77,11 +77,12 @@ def test_every_writer_goes_through_the_atomic_helper():
             if pattern.search(line) and not line.lstrip().startswith("#"):
                 if rel in allowed and any(f'"{m}"' in line for m in allowed[rel]):
                     continue  # the helper itself; the metrics log appends rows (flushed one by one)
-                if rel == "lfd/dataset.py" and "h5py.File(tmp" in line:
+                if rel in ("lfd/dataset.py", "lfd/data/dataset.py") and "h5py.File(tmp" in line:
                     continue
                 if rel == "training/pretrained.py" and "(tmp / CARD).write_bytes" in line:
                     continue  # inside a temporary directory that is renamed whole
-                if rel == "lfd/lerobot.py" and ("(tmp / " in line or "path.write_text(json.dumps" in line):
+                if rel in ("lfd/lerobot.py", "lfd/data/lerobot.py") and ("(tmp / " in line
+                                                                       or "path.write_text(json.dumps" in line):
                     continue  # a LeRobot folder is written inside a temporary directory renamed whole
                 offenders.append(f"{rel}:{number}: {line.strip()}")
     assert not offenders, "\n".join(offenders)

@@ -23,8 +23,8 @@ import pytest
 import seqmotion as sm
 from seqmotion.cli import main
 from seqmotion.errors import MAX_LENGTH
-from seqmotion.training import files
-from seqmotion.training.files import read_trajectory
+from seqmotion.io import read_trajectory
+from seqmotion.io import trajectories as files
 
 
 def npz_declaring(path: Path, shape: tuple[int, ...], key: str = "states", descr: str = "<f8") -> Path:

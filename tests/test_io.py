@@ -98,3 +98,49 @@ def test_io_is_the_lowest_layer():
     top |= {n.module.split(".")[0] for n in tree.body if isinstance(n, ast.ImportFrom) and n.level == 0}
     assert top <= {"__future__", "io", "json", "os", "shutil", "uuid", "collections", "contextlib", "pathlib",
                    "typing", "numpy"}, top
+
+
+@pytest.mark.parametrize("text, match", [
+    ('{"a": NaN}', "a is nan, not a finite number"),
+    ('{"a": {"b": [0, -Infinity]}}', r"a\.b\[1\] is -inf, not a finite number"),
+    ('{"a": 1e999}', "a is inf, not a finite number"),
+    ("[1, 2]", "must hold a JSON object, got list"),
+    ('{"a": ', "not valid JSON"),
+    (b'{"a": "\xff"}', "not valid JSON"),
+])
+def test_the_json_reader_is_strict_and_names_the_file(tmp_path, text, match):
+    path = tmp_path / "c.json"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(ValueError, match=match) as caught:
+        io.read_json(path, "--config")
+    assert f"--config {path}" in str(caught.value)
+
+
+def test_the_json_reader_caps_size_and_tells_a_missing_file_from_a_corrupt_one(tmp_path):
+    path = tmp_path / "c.json"
+    with pytest.raises(ValueError, match="does not exist"):
+        io.read_json(path)
+    assert io.read_json(path, missing=None) is None
+    path.write_text('{"a": [1.5, null]}')
+    assert io.read_json(path, missing=None) == {"a": [1.5, None]}
+    assert io.read_json(path, max_bytes=10**6) == {"a": [1.5, None]}
+    with pytest.raises(ValueError, match="larger than"):
+        io.read_json(path, max_bytes=4)
+    path.write_text("[1, 2]")
+    assert io.read_json(path, object_required=False) == [1, 2]
+    with pytest.raises(ValueError, match="is a directory"):
+        io.read_json(tmp_path)
+
+    class Mine(ValueError):
+        pass
+
+    path.write_text("{")
+    with pytest.raises(Mine, match="not valid JSON"):
+        io.read_json(path, error=Mine)
+
+
+def test_the_trajectory_files_live_in_io():
+    from seqmotion.io import trajectories
+
+    assert io.read_trajectory is trajectories.read_trajectory and io.write_arrays is trajectories.write_arrays
+    assert io.MAX_FILE_BYTES == trajectories.MAX_FILE_BYTES

@@ -41,7 +41,7 @@ WORKER = r'''
 import builtins, json, os, signal, sys, time, traceback
 
 import numpy, torch  # imported once, before any fork
-import seqmotion, seqmotion.api, seqmotion.cli, seqmotion.tasks, seqmotion.training.files
+import seqmotion, seqmotion.api, seqmotion.cli, seqmotion.tasks, seqmotion.io.trajectories
 import seqmotion.physics.sliding, seqmotion.training.trainer
 
 seqmotion.core.registry.names()

@@ -24,9 +24,9 @@ from hypothesis import strategies as st  # noqa: E402
 from hypothesis.extra import numpy as hnp  # noqa: E402
 
 import seqmotion as sm  # noqa: E402
+from seqmotion.io import parse_csv, read_trajectory  # noqa: E402
 from seqmotion.physics import pancake as pancake_physics  # noqa: E402
 from seqmotion.physics import sliding as sliding_physics  # noqa: E402
-from seqmotion.training.files import parse_csv, read_trajectory  # noqa: E402
 
 SCALE = float(os.environ.get("SEQMOTION_PROPERTY_SCALE", "1"))
 """Multiplies every property's example count (the default run tries 60 or 25 inputs per property)."""

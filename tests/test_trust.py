@@ -118,6 +118,16 @@ def test_calibration_ships_with_the_model_and_is_made_on_the_fly_elsewhere(defor
     assert trust.read_calibration(path.parent, deformer.config["weights_sha256"]).n == 64
 
 
+@pytest.mark.parametrize("text, match", [("{not json", "not valid JSON"), ("[]", "JSON object"),
+                                         ('{"upper": NaN}', "NaN"), ('{"format": "other"}', "not a trust calibration")])
+def test_a_missing_calibration_is_none_and_a_corrupt_one_an_error_naming_it(tmp_path, text, match):
+    assert trust.read_calibration(tmp_path) is None
+    (tmp_path / trust.TRUST_FILE).write_text(text)
+    with pytest.raises(ValueError, match=match) as caught:
+        trust.read_calibration(tmp_path)
+    assert str(tmp_path / trust.TRUST_FILE) in str(caught.value)
+
+
 def test_first_of_indexes_the_trust_fields():
     from seqmotion.tasks.pancake import DeformResult
 

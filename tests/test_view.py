@@ -25,6 +25,7 @@ from seqmotion.core.options import TaskOptions
 from seqmotion.core.task import Task
 from seqmotion.data.trajectories import TensorBatch, TrajectoryBatch, draw_lengths, s_curve
 from seqmotion.errors import check_number
+from seqmotion.io import read_arrays
 from seqmotion.models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
 from seqmotion.physics.integrator import DT
 from seqmotion.physics.layout import StateLayout
@@ -32,7 +33,6 @@ from seqmotion.physics.parameters import Physics
 from seqmotion.tasks import train
 from seqmotion.training.config import TrainConfig
 from seqmotion.training.curriculum import Curriculum, CurriculumParams
-from seqmotion.training.files import read_arrays
 from seqmotion.training.losses import encode_and_rollout, sample_mask
 from seqmotion.view import commands, scene3d
 from seqmotion.view.sessions import (

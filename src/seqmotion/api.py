@@ -8,12 +8,12 @@ directory is a pretrained model named after the folder.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 from . import tasks
 from .errors import CheckpointError
+from .io import read_json
 from .training import checkpoint as ckpt
 from .training.device import resolve_device
 
@@ -80,13 +80,14 @@ def pretrained_models() -> dict[str, Path]:
 
 
 def pretrained_task(name: str) -> str | None:
-    """The task of a shipped model (read from its config), or None if there is no such model."""
+    """The task of a shipped model (read from its config), or None if there is no such model or its config is
+    unreadable (loading it says why)."""
     directory = pretrained_models().get(name)
     if directory is None:
         return None
     try:
-        return json.loads((directory / ckpt.CONFIG).read_text()).get("task")
-    except (OSError, json.JSONDecodeError):
+        return read_json(directory / ckpt.CONFIG, "model config").get("task")
+    except ValueError:
         return None
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import json
 import os
 import sys
 import time
@@ -51,7 +50,7 @@ def write_result(path: str, result: object, columns: dict[str, np.ndarray], name
     if Path(path).suffix.lower() == ".npz":
         result.save(path, extra=columns)
     else:
-        from seqmotion.training.files import write_arrays
+        from seqmotion.io import write_arrays
 
         write_arrays(path, columns, names)
 
@@ -61,6 +60,7 @@ def write_result(path: str, result: object, columns: dict[str, np.ndarray], name
 
 def cmd_train(args: argparse.Namespace) -> int:
     from seqmotion import tasks
+    from seqmotion.errors import check_number
     from seqmotion.training.curriculum import Curriculum
 
     task = tasks.get(args.task)
@@ -69,10 +69,9 @@ def cmd_train(args: argparse.Namespace) -> int:
             f"task {args.task!r} is not trained by `seqmotion train`"
             + (f": {task.trained_by}" if getattr(task, "trained_by", None) else "")
         )
-    if args.max_steps is not None and args.max_steps < 1:
-        raise ValueError(f"--max-steps must be at least 1, got {args.max_steps}")
-    if args.epochs is not None and args.epochs < 1:
-        raise ValueError(f"--epochs must be at least 1, got {args.epochs}")
+    for option, value in (("--max-steps", args.max_steps), ("--epochs", args.epochs)):
+        if value is not None:
+            check_number(option, value, minimum=1, integer=True)
     from seqmotion.training.device import resolve_device
 
     try:
@@ -126,14 +125,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_deform(args: argparse.Namespace) -> int:
+    from seqmotion.io import check_not_an_input, check_output, check_writable, read_trajectory
     from seqmotion.physics.integrator import DoubleIntegratorDynamics, implied_accel
-    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory
 
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--input": args.input})
     if args.plot is not None:  # refused before the work, like --output
-        from seqmotion.io import check_writable
-
         check_writable(args.plot, (".png", ".pdf", ".svg"), "--plot")
         check_not_an_input(args.plot, "--plot", {"--input": args.input, "--output": args.output})
     model = _trained_model(args.model)
@@ -290,7 +287,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     from seqmotion.data import sliding as commands
     from seqmotion.errors import MAX_LENGTH, check_number
-    from seqmotion.training.files import check_not_an_input, check_output, read_trajectory
+    from seqmotion.io import check_not_an_input, check_output, read_trajectory
 
     check_output(args.output)
     check_not_an_input(args.output, "--output", {"--command": args.command_file})
@@ -398,13 +395,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     import seqmotion as sm
     from seqmotion import tasks
+    from seqmotion.io import read_json
     from seqmotion.training.checkpoint import resolve_model_dir
     from seqmotion.training.pretrained import check_pretrained_name, export_pretrained
 
     check_pretrained_name(args.name)
     if args.to is not None:
         check_writable_dir(Path(args.to), "--to")
-    metrics = read_json(args.metrics, "--metrics") if args.metrics is not None else None
+    metrics = read_json(args.metrics, "--metrics") if args.metrics is not None else None  # a JSON object
     source = resolve_model_dir(Path(args.run))
     model = sm.load(source)
     if hasattr(model, "check_finished"):
@@ -573,16 +571,6 @@ def check_writable_dir(path: Path, what: str) -> Path:
     from seqmotion.io import check_writable_dir as check
 
     return check(path, what)
-
-
-def read_json(path: str | Path, what: str) -> object:
-    """A JSON input file; ``ValueError`` naming ``what`` when it is missing or not JSON."""
-    try:
-        return json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise ValueError(f"{what} {path}: {exc.strerror or exc}") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{what} {path} is not JSON: {exc}") from None
 
 
 def _one_line(exc: BaseException) -> str:

@@ -118,8 +118,56 @@ def check_number(
     return number
 
 
+def check_json_number(
+    name: str, value: object, *, minimum: float | None = None, maximum: float | None = None,
+    strict_minimum: bool = False, integer: bool = False,
+) -> float | int:
+    """:func:`check_number` for a value a JSON config stores: a NumPy scalar other than ``float64`` (which is a
+    ``float``) is refused too, as ``json.dumps`` cannot write it."""
+    if isinstance(value, np.generic) and not isinstance(value, float):
+        raise ValueError(f"{name} must be a plain Python number, got the NumPy {type(value).__name__} {value!r}")
+    return check_number(name, value, minimum=minimum, maximum=maximum, strict_minimum=strict_minimum, integer=integer)
+
+
+def check_finite_array(
+    name: str, values: object, *, minimum: float | None = None, strict_minimum: bool = False
+) -> np.ndarray:
+    """``values`` as a float64 array of finite real numbers (each ≥ ``minimum``, > with ``strict_minimum``), or
+    ``ValueError`` naming ``name`` (and the first NaN or inf)."""
+    arr = as_float_array(values, name)
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0].tolist()
+        raise ValueError(f"{name} must be finite, got NaN or inf (first at index {bad})")
+    if minimum is not None and (np.any(arr < minimum) or (strict_minimum and np.any(arr == minimum))):
+        raise ValueError(f"{name} must be {'>' if strict_minimum else '≥'} {minimum:g} throughout, got {values!r}")
+    return arr
+
+
 def check_finite_result(value: np.ndarray, what: str) -> np.ndarray:
     """Raise instead of returning NaN/inf produced inside a computation."""
     if not np.all(np.isfinite(value)):
         raise ValueError(f"{what} produced NaN or inf; the input is probably far outside the model's range")
     return value
+
+
+def check_friction(
+    mu: object, mu_dyn: object = None, *, maximum: float | None = None, between: str = "two surfaces",
+    note: str = "",
+) -> tuple[float, float | None]:
+    """Friction coefficients [dimensionless] as floats, or ``ValueError`` naming the rule broken: the static μ a
+    finite number > 0 (and at most ``maximum`` when given), the dynamic μ' — when given — a finite number with
+    ``0 ≤ μ' ≤ μ``. ``between`` names the surfaces and ``note`` is added to the message of a μ above ``maximum``.
+
+    Returns:
+        ``(mu, mu_dyn)``: ``mu_dyn`` None where it was not given.
+    """
+    static = float(check_number("mu", mu, minimum=0.0, strict_minimum=True))
+    if maximum is not None and static > maximum:
+        raise ValueError(f"mu = {static:g} is no friction coefficient {between} can have (at most {maximum:g}{note})")
+    if mu_dyn is None:
+        return static, None
+    dynamic = float(check_number("mu_dyn", mu_dyn, minimum=0.0))
+    if dynamic > static:
+        raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu = {static:g}, "
+                         f"mu_dyn = {dynamic:g}")
+    return static, dynamic

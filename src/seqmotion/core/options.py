@@ -17,9 +17,7 @@ import json
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
-import numpy as np
-
-from ..errors import MAX_LENGTH, check_number
+from ..errors import MAX_LENGTH, check_json_number
 
 T = TypeVar("T", bound="TaskOptions")
 
@@ -79,23 +77,15 @@ class TaskOptions:
 # --- checks used by the tasks' __post_init__ -----------------------------------------------------
 
 
-def _json_number(name: str, value: Any) -> None:
-    """Options are stored as JSON: a NumPy scalar other than ``float64`` (a ``float``) passes the number checks
-    but not ``json.dumps``."""
-    if isinstance(value, np.generic) and not isinstance(value, float):
-        raise ValueError(f"option {name} must be a plain Python number, got the NumPy {type(value).__name__} {value!r}")
-
-
 def check_positive(name: str, value: Any, allow_zero: bool = False) -> None:
-    """Refuse a value that is not a finite number > 0 (≥ 0 with ``allow_zero``)."""
-    _json_number(name, value)
-    check_number(f"option {name}", value, minimum=0.0, strict_minimum=not allow_zero)
+    """Refuse a value that is not a finite number > 0 (≥ 0 with ``allow_zero``); options are stored as JSON, so a
+    NumPy scalar is refused too (:func:`~seqmotion.errors.check_json_number`)."""
+    check_json_number(f"option {name}", value, minimum=0.0, strict_minimum=not allow_zero)
 
 
 def check_count(name: str, value: Any, minimum: int = 1, maximum: int = MAX_LENGTH) -> None:
-    """Refuse a value that is not an integer in ``[minimum, maximum]``."""
-    _json_number(name, value)
-    check_number(f"option {name}", value, minimum=minimum, maximum=maximum, integer=True)
+    """Refuse a value that is not an integer in ``[minimum, maximum]`` (a NumPy scalar too)."""
+    check_json_number(f"option {name}", value, minimum=minimum, maximum=maximum, integer=True)
 
 
 def check_length_range(name: str, value: Any, minimum: int = 2) -> None:

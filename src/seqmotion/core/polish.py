@@ -4,12 +4,14 @@ move needs (what ``keep_end`` and ``exact=True`` build on; the NLP is :mod:`seqm
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from ..physics.transcription import Constraint, JointSpace
+from ..physics.integrator import integrate_numpy
+from ..physics.transcription import Constraint, JointSpace, Solution, transcription
 
 
 @dataclass(frozen=True)
@@ -157,8 +159,6 @@ def steps_to_stop(x0: np.ndarray, columns: list[int], values: np.ndarray, steps:
     return need
 
 
-
-
 def retimed(accel: np.ndarray, steps: int) -> np.ndarray:
     """Inputs ``(N, d)`` of a motion from rest, run ``s = steps / N`` times slower: ``(steps, d)`` resampled along
     the same time axis and scaled by ``1/s²``, so the motion follows (nearly) the same path at 1/s the speed."""
@@ -166,3 +166,61 @@ def retimed(accel: np.ndarray, steps: int) -> np.ndarray:
     scale = steps / n
     t = np.arange(steps) / scale
     return np.stack([np.interp(t, np.arange(n), accel[:, j]) for j in range(accel.shape[1])], axis=1) / scale**2
+
+
+def polish_in_joints(
+    form: ExactForm, arm: ArmForm, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint],
+    params: Sequence[np.ndarray], start: np.ndarray | None, cold_iterations: int, symbolic: str,
+    end_cost: tuple[Sequence[int], Sequence[float], np.ndarray] | None,
+) -> Solution:
+    """:meth:`~seqmotion.core.trained.TrainedModel.polish` of a task's motion (``form``) on a robot's joints
+    (``arm.joint_space``): the motion is mapped to the joints by the arm's inverse kinematics, IPOPT moves the joints
+    (cold: the change from a motion about a fixed point to one an arm can run is no small step) with the robot's
+    limits as their own constraints and the task's on the forward kinematics, and the result comes back as the task's
+    states and inputs (exact forward kinematics at every sample: the states' recursion through the inputs then holds
+    to O(dt³) per sample, not to rounding).
+
+    The joints' accelerations are held over ``arm.hold`` samples (the NLP's knots; the motion may grow by up to
+    ``hold - 1`` samples to a whole number of knots): the joint path between knots is the double integrator's
+    exactly, so speeds and the end state are exact, and the task's constraint, imposed at the knots, is judged
+    at every sample by the caller."""
+    space, to_joints, to_task = arm.joint_space, arm.to_joints, arm.to_task
+    task = form.constraints if form.on_joints is None else form.on_joints
+    own = task + arm.constraints  # the robot's own limits stand for the built-in arm's accelerations
+    every = own + tuple(constraints)
+    # the joints' own constraints come after the task's in the NLP (Transcription appends them)
+    values = ([np.zeros(0)] * len(own) + [np.asarray(p, np.float64) for p in params]
+              + [np.zeros(0)] * len(space.constraints))
+    dt = form.dt
+
+    hold, knots = arm.hold, math.ceil(len(accel) / arm.hold)
+
+    low, high = ((np.full(2 * space.dim, -np.inf), np.full(2 * space.dim, np.inf)) if space.state_bounds is None
+                 else (np.asarray(b, dtype=float) for b in space.state_bounds))
+
+    def joint_inputs(task_accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The start's joint state and the joint accelerations held over each knot (their means), of the joint
+        speeds held within their bounds: where the motion passes a singularity or out of reach, the IK's speeds
+        run to infinity, and the polish only needs a start and a reference to stay near."""
+        joints = to_joints(integrate_numpy(x0, task_accel, dt))
+        speeds = np.clip(np.nan_to_num(joints[:, space.dim:]), low[space.dim:], high[space.dim:])
+        fine = np.diff(speeds, axis=0) / dt
+        fine = np.concatenate([fine, np.zeros((knots * hold - len(fine), space.dim))])
+        return joints[0], fine.reshape(knots, hold, space.dim).mean(axis=1)
+
+    q0, reference = joint_inputs(accel)
+    _, guess = joint_inputs(accel if start is None else start)
+    kwargs: dict[str, Any] = {"dt": hold * dt, "accel_weights": (1.0,) * space.dim,
+                              "smoothness": form.smoothness / hold**2, "symbolic": symbolic,
+                              "joint_space": space}
+    target = None
+    if end_cost is not None:
+        columns, weights, target = end_cost
+        kwargs |= {"end_columns": tuple(int(c) for c in columns), "end_weights": tuple(map(float, weights))}
+    nlp = transcription(space.dim, knots + 1, every, max_iter=cold_iterations, **kwargs)
+    solution = nlp.solve(q0, guess, values, reference=reference, end_target=target)
+    # the joints' accelerations are held over each knot: the 1 ms motion is the same motion, exactly
+    joint_accel = np.repeat(solution.accel, hold, axis=0)
+    states, task_accel = to_task(integrate_numpy(q0, joint_accel, dt), joint_accel)
+    return Solution(accel=task_accel, states=states, status=solution.status, success=solution.success,
+                    infeasible=solution.infeasible, iterations=solution.iterations, seconds=solution.seconds)

@@ -23,9 +23,10 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from .. import io
+from ..errors import check_json_number
+from ..io import read_npz, write_arrays
 from ..physics.layout import StateLayout
 from ..physics.parameters import Physics
-from ..training.files import read_npz, write_arrays
 from . import registry
 
 FEASIBLE_TOLERANCE = 0.01
@@ -300,7 +301,7 @@ def load_result(path: str | Path) -> TrustSignals:
     """Read a result written by ``result.save(path)``: the same class (``Motion``, ``DeformResult``,
     ``SlidingPlan``, ``OptimizationResult``, a plug-in's) with equal fields.
 
-    Read without pickle (:func:`seqmotion.training.files.read_npz`: sizes checked before anything is
+    Read without pickle (:func:`seqmotion.io.read_npz`: sizes checked before anything is
     decompressed), and nothing but the result classes and their dataclasses is ever built.
 
     Raises:
@@ -556,8 +557,8 @@ class View:
         if self.source not in ("states", "accel"):
             raise ValueError(f"a View reads 'states' or 'accel', got {self.source!r}")
         for name, value in (("start", self.start), ("stop", self.stop)):
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
-                raise ValueError(f"a View's {name} must be an integer ≥ 0, got {value!r}")
+            if value is not None:
+                check_json_number(f"a View's {name}", value, minimum=0, integer=True)
         if self.stop is not None and self.stop <= self.start:
             raise ValueError(f"a View's stop ({self.stop}) must lie after its start ({self.start})")
 

@@ -18,9 +18,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import MAX_LENGTH, CheckpointError, as_float_array, as_trajectories, check_finite_result, check_number
+from ..errors import (
+    MAX_LENGTH,
+    CheckpointError,
+    as_float_array,
+    as_trajectories,
+    check_finite_array,
+    check_finite_result,
+    check_number,
+)
 from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig, rollout
-from ..physics.integrator import DT, integrate_numpy, reach_end
+from ..physics.integrator import DT, reach_end
 from ..physics.layout import StateLayout
 from ..physics.parameters import Physics
 from ..physics.transcription import Constraint, Solution, end_values, input_limits, transcription
@@ -43,6 +51,7 @@ from .polish import (
     WARM_ITERATIONS,
     ArmForm,
     ExactForm,
+    polish_in_joints,
     rest_to_rest_accel,
     retimed,
     steps_to_stop,
@@ -302,8 +311,8 @@ class TrainedModel(PretrainedModel):
         """
         form = self.exact_form()
         if arm is not None and arm.joint_space is not None:
-            return self._polish_in_joints(x0, accel, constraints, params, start, cold_iterations, symbolic,
-                                          end_cost, arm)
+            return polish_in_joints(form, arm, x0, accel, constraints, params, start, cold_iterations, symbolic,
+                                    end_cost)
         limits = () if form.accel_limits is None else (input_limits(form.accel_limits, "acceleration limits"),)
         own = form.constraints + (form.workspace if arm is None else arm.constraints) + limits
         every = own + tuple(constraints)
@@ -351,63 +360,6 @@ class TrainedModel(PretrainedModel):
         """The inputs a polish on a robot's joints plans: ``steps``, at least :data:`ARM_MIN_DURATION` with
         ``extend``."""
         return max(steps, math.ceil(ARM_MIN_DURATION / self._dt() - 1e-9)) if extend else steps
-
-    def _polish_in_joints(
-        self, x0: np.ndarray, accel: np.ndarray, constraints: Sequence[Constraint], params: Sequence[np.ndarray],
-        start: np.ndarray | None, cold_iterations: int, symbolic: str,
-        end_cost: tuple[Sequence[int], Sequence[float], np.ndarray] | None, arm: ArmForm,
-    ) -> Solution:
-        """:meth:`polish` on a robot's joints (``arm.joint_space``): the motion is mapped to the joints by the arm's
-        inverse kinematics, IPOPT moves the joints (cold: the change from a motion about a fixed point to one an arm
-        can run is no small step) with the robot's limits as their own constraints and the task's on the forward
-        kinematics, and the result comes back as the task's states and inputs (exact forward kinematics at every
-        sample: the states' recursion through the inputs then holds to O(dt³) per sample, not to rounding).
-
-        The joints' accelerations are held over ``arm.hold`` samples (the NLP's knots; the motion may grow by up to
-        ``hold - 1`` samples to a whole number of knots): the joint path between knots is the double integrator's
-        exactly, so speeds and the end state are exact, and the task's constraint, imposed at the knots, is judged
-        at every sample by the caller (:meth:`_holds`)."""
-        form = self.exact_form()
-        space, to_joints, to_task = arm.joint_space, arm.to_joints, arm.to_task
-        task = form.constraints if form.on_joints is None else form.on_joints
-        own = task + arm.constraints  # the robot's own limits stand for the built-in arm's accelerations
-        every = own + tuple(constraints)
-        # the joints' own constraints come after the task's in the NLP (Transcription appends them)
-        values = ([np.zeros(0)] * len(own) + [np.asarray(p, np.float64) for p in params]
-                  + [np.zeros(0)] * len(space.constraints))
-        dt = form.dt
-
-        hold, knots = arm.hold, math.ceil(len(accel) / arm.hold)
-
-        low, high = ((np.full(2 * space.dim, -np.inf), np.full(2 * space.dim, np.inf)) if space.state_bounds is None
-                     else (np.asarray(b, dtype=float) for b in space.state_bounds))
-
-        def joint_inputs(task_accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            """The start's joint state and the joint accelerations held over each knot (their means), of the joint
-            speeds held within their bounds: where the motion passes a singularity or out of reach, the IK's speeds
-            run to infinity, and the polish only needs a start and a reference to stay near."""
-            joints = to_joints(integrate_numpy(x0, task_accel, dt))
-            speeds = np.clip(np.nan_to_num(joints[:, space.dim:]), low[space.dim:], high[space.dim:])
-            fine = np.diff(speeds, axis=0) / dt
-            fine = np.concatenate([fine, np.zeros((knots * hold - len(fine), space.dim))])
-            return joints[0], fine.reshape(knots, hold, space.dim).mean(axis=1)
-
-        q0, reference = joint_inputs(accel)
-        _, guess = joint_inputs(accel if start is None else start)
-        kwargs: dict[str, Any] = {"dt": hold * dt, "accel_weights": (1.0,) * space.dim,
-                                  "smoothness": form.smoothness / hold**2, "symbolic": symbolic,
-                                  "joint_space": space}
-        target = None
-        if end_cost is not None:
-            columns, weights, target = end_cost
-            kwargs |= {"end_columns": tuple(int(c) for c in columns), "end_weights": tuple(map(float, weights))}
-        nlp = transcription(space.dim, knots + 1, every, max_iter=cold_iterations, **kwargs)
-        solution = nlp.solve(q0, guess, values, reference=reference, end_target=target)
-        # the joints' accelerations are held over each knot: the 1 ms motion is the same motion, exactly
-        joint_accel = np.repeat(solution.accel, hold, axis=0)
-        states, task_accel = to_task(integrate_numpy(q0, joint_accel, dt), joint_accel)
-        return Solution(accel=task_accel, states=states, status=solution.status, success=solution.success,
-                        infeasible=solution.infeasible, iterations=solution.iterations, seconds=solution.seconds)
 
     # --- differentiable maps (latent optimisation works on these) -------------------------------
 
@@ -692,8 +644,8 @@ class TrainedModel(PretrainedModel):
             )
         if z.shape[0] == 0:
             raise ValueError("latent has an empty batch (B = 0)")
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(start))):
-            raise ValueError("latent and x0 must be finite (NaN or inf given)")
+        check_finite_array("latent", z)
+        check_finite_array("x0", start)
         return torch.from_numpy(z), start, single
 
     def rollout_with_std(

@@ -25,7 +25,6 @@ run directory without one. ``seqmotion calibrate-trust MODEL`` (re)writes the fi
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..io import atomic_write_json
+from ..io import atomic_write_json, read_json
 from ..physics.integrator import DT
 from ..physics.layout import StateLayout
 from ..training.config import TrainConfig
@@ -294,12 +293,21 @@ def calibrate(model: Any, n: int = DEFAULT_N, seed: int = 0,
 
 
 def read_calibration(directory: str | Path, weights_sha256: str | None = None) -> TrustCalibration | None:
-    """``directory/trust.json`` if it is there, readable and (given ``weights_sha256``) for these weights."""
+    """``directory/trust.json``; ``None`` when there is none, or (given ``weights_sha256``) when it is for other
+    weights (a stale calibration: the caller computes one).
+
+    Raises:
+        ValueError: naming the file, when it is there but unreadable, not strict JSON (:func:`seqmotion.io.read_json`)
+            or not a trust calibration.
+    """
     path = Path(directory) / TRUST_FILE
-    try:
-        record = TrustCalibration.from_dict(json.loads(path.read_text()))
-    except (OSError, ValueError):
+    data = read_json(path, "trust calibration", missing=None)
+    if data is None:
         return None
+    try:
+        record = TrustCalibration.from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"trust calibration {path}: {exc}") from None
     if weights_sha256 is not None and record.weights_sha256 not in (None, weights_sha256):
         return None
     return record

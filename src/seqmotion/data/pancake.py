@@ -16,6 +16,7 @@ import math
 import numpy as np
 import torch
 
+from ..errors import check_number
 from ..physics.integrator import DT, integrate
 from ..physics.pancake import GRAVITY
 from .trajectories import TrajectoryBatch, combine, draw_lengths, normalized_time, path_states, quadratic_through
@@ -127,8 +128,7 @@ def mixture(
 
     This is the input mixture the chapter-2 curriculum moves through (epochs 61–80).
     """
-    if not 0.0 <= accel_type_prob <= 1.0:
-        raise ValueError(f"accel_type_prob must be in [0, 1], got {accel_type_prob}")
+    check_number("accel_type_prob", accel_type_prob, minimum=0.0, maximum=1.0)
     pick_accel = rng.random(n) < accel_type_prob
     lengths = draw_lengths(rng, n, length)
     parts = []

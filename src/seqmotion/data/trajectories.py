@@ -13,6 +13,7 @@ from functools import lru_cache
 import numpy as np
 import torch
 
+from ..errors import check_number
 from ..physics.integrator import DT
 
 
@@ -83,9 +84,7 @@ def draw_lengths(rng: np.random.Generator, n: int, length: int | tuple[int, int]
             raise ValueError(f"per-trajectory lengths must be ({n},) integers >= 2, got {length!r}")
         return length.astype(np.int64)
     if isinstance(length, (int, np.integer)):
-        if length < 2:
-            raise ValueError(f"trajectory length must be at least 2, got {length}")
-        return np.full(n, int(length))
+        return np.full(n, check_number("trajectory length", length, minimum=2, integer=True))
     lo, hi = (int(v) for v in length)
     if not 2 <= lo <= hi:
         raise ValueError(f"length range must satisfy 2 <= lo <= hi, got ({lo}, {hi})")
@@ -195,8 +194,8 @@ def s_curve(tau: np.ndarray, accel_fraction: float = 1 / 3, jerk_fraction: float
         ``(s, ds/dτ, d²s/dτ²)`` with the shape of ``tau``; s goes 0 → 1 with zero velocity and
         acceleration at both ends (jerk-limited acceleration/deceleration).
     """
-    if not 0 < accel_fraction <= 0.5 or not 0 < jerk_fraction <= 1:
-        raise ValueError("need 0 < accel_fraction <= 0.5 and 0 < jerk_fraction <= 1")
+    check_number("accel_fraction", accel_fraction, minimum=0.0, strict_minimum=True, maximum=0.5)
+    check_number("jerk_fraction", jerk_fraction, minimum=0.0, strict_minimum=True, maximum=1.0)
     grid, s, ds, dds = _s_curve_table(float(accel_fraction), float(jerk_fraction))
     flat = np.asarray(tau, dtype=np.float64).ravel()
     out = [np.interp(flat, grid, table).reshape(np.shape(tau)) for table in (s, ds, dds)]

@@ -424,16 +424,21 @@ def read_contract(directory: str | Path) -> dict[str, Any]:
     """
     directory = Path(directory)
     path = directory / CONTRACT
+    # A standalone copy of seqmotion.io.read_json (size cap, UTF-8 JSON, an object at the top): this file ships
+    # inside every bundle, whose runner works without seqmotion installed. A NaN or an infinity is refused below
+    # by the schema (check_contract), which names its field.
     try:
         size = path.stat().st_size
         if size > MAX_CONTRACT_BYTES:
             raise ValueError(f"{path} is {size} bytes, larger than any contract ({MAX_CONTRACT_BYTES})")
-        contract = json.loads(path.read_bytes())
+        data = path.read_bytes()
     except FileNotFoundError:
         raise ValueError(f"{directory} holds no exported model (no {CONTRACT})") from None
     except OSError as exc:
         raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+    try:
+        contract = json.loads(data)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise ValueError(f"{path} is not valid JSON: {exc}") from None
     if not isinstance(contract, dict):
         raise ValueError(f"{path} must hold a JSON object, got {type(contract).__name__}")

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import as_float_array
+from ..errors import as_float_array, check_finite_array
 from ..physics.layout import StateLayout
 from ..physics.transcription import Constraint, end_bands, end_values, state_limits
 from .terms import (
@@ -95,8 +95,7 @@ class EndPose(Objective):
         target_arr = as_float_array(target, "target")
         if target_arr.ndim not in (1, 2) or target_arr.shape[-1] < 1 or target_arr.size == 0:
             raise ValueError(f"target must be one value per end-pose field or (B, n), got shape {target_arr.shape}")
-        if not np.all(np.isfinite(target_arr)):
-            raise ValueError(f"target must be finite, got {target_arr.tolist()}")
+        check_finite_array("target", target_arr)
         _check_weight("alpha", alpha)
         if mu is not None:
             _check_weight("mu", mu, positive=True)

@@ -27,7 +27,7 @@ import torch
 
 from ..core.results import FEASIBLE_TOLERANCE
 from ..data import pancake as sketches
-from ..errors import check_number
+from ..errors import check_finite_array, check_number
 from ..physics import pancake as physics
 from ..physics.integrator import DT, implied_accel, integrate_numpy
 from ..physics.transcription import Constraint, scale_rows, transcription
@@ -203,8 +203,8 @@ def solve_end_pose(
 ) -> PeerResult:
     """Solve J1 for one ``target`` ``(y, z, θ)`` [m, m, rad] at friction ``mu`` with IPOPT, cold from the S-curve
     (see the module docstring)."""
-    target_arr = np.asarray(target, dtype=np.float64)
-    if target_arr.shape != (3,) or not np.all(np.isfinite(target_arr)):
+    target_arr = check_finite_array("target (y, z, theta)", target)
+    if target_arr.shape != (3,):
         raise ValueError(f"target must be a finite (y, z, theta), got {target!r}")
     nlp = transcription(3, length, (physics.cone_constraint(mu),), dt=dt, end_columns=(0, 1, 2),
                         end_weights=D_WEIGHTS, max_iter=max_iter, symbolic="SX")  # cached: reused per target

@@ -9,7 +9,6 @@ objectives that reach for a task's fields (``EndPose``, ``AtRest``, ``Ranges``);
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -18,6 +17,7 @@ import numpy as np
 import torch
 
 from ..core.results import FEASIBLE_TOLERANCE
+from ..errors import check_number
 from ..physics.layout import StateLayout
 from ..physics.transcription import Constraint
 
@@ -181,9 +181,7 @@ class Sum(Objective):
 
 class Scaled(Objective):
     def __init__(self, weight: float, inner: Objective) -> None:
-        if not math.isfinite(weight):
-            raise ValueError(f"an objective's weight must be finite, got {weight}")
-        self.weight, self.inner = weight, inner
+        self.weight, self.inner = float(check_number("an objective's weight", weight)), inner
 
     def bind(self, model: Any) -> Objective:
         return Scaled(self.weight, self.inner.bind(model))
@@ -417,11 +415,7 @@ def _check_fields(fields: object) -> None:
 
 def _check_weight(name: str, value: Any, positive: bool = False) -> float:
     """``value`` as a float; ``ValueError`` naming ``name`` unless it is a finite number ≥ 0 (> 0 if ``positive``)."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.floating) or not math.isfinite(value):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    if value < 0 or (positive and value == 0):
-        raise ValueError(f"{name} must be {'>' if positive else '≥'} 0, got {value!r}")
-    return float(value)
+    return float(check_number(name, value, minimum=0.0, strict_minimum=positive))
 
 
 def _np(value: torch.Tensor) -> np.ndarray:

@@ -15,6 +15,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..errors import check_number
+
 LSTMState = tuple[tuple[torch.Tensor, torch.Tensor], ...]
 
 
@@ -80,8 +82,8 @@ class StackedLSTM(nn.Module):
 
     def __init__(self, input_size: int, hidden_size: int, num_layers: int) -> None:
         super().__init__()
-        if num_layers < 1 or hidden_size < 1:
-            raise ValueError("num_layers and hidden_size must be positive")
+        check_number("num_layers", num_layers, minimum=1, integer=True)
+        check_number("hidden_size", hidden_size, minimum=1, integer=True)
         self.hidden_size, self.num_layers = hidden_size, num_layers
         sizes = [input_size] + [hidden_size] * (num_layers - 1)
         self.cells = nn.ModuleList(LayerNormLSTMCell(s, hidden_size) for s in sizes)

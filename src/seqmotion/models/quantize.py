@@ -20,6 +20,8 @@ import copy
 import torch
 from torch import nn
 
+from ..errors import check_number
+
 
 def _packed_kernel_available() -> bool:
     if not hasattr(torch, "_weight_int8pack_mm"):  # a private op: guard every use
@@ -77,8 +79,7 @@ def quantize_int8(model: nn.Module, min_features: int = 256) -> nn.Module:
     Small layers stay in float32: they cost little and quantising them buys nothing. The copy is
     for inference (no gradients flow to int8 weights); the original is untouched.
     """
-    if min_features < 1:
-        raise ValueError(f"min_features must be ≥ 1, got {min_features}")
+    check_number("min_features", min_features, minimum=1)
     quantized = copy.deepcopy(model).eval()
     for name, module in list(quantized.named_modules()):
         for child_name, child in list(module.named_children()):

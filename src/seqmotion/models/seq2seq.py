@@ -34,8 +34,11 @@ from typing import Protocol, TypeVar
 import torch
 from torch import nn
 
+from ..errors import check_json_number
 from .lstm import LSTMState, StackedLSTM
 
+DEFAULT_CHUNK = 50
+"""C, the samples one decoder step emits, unless a task's model config says otherwise (SPEC §1)."""
 SIZE_BOUNDS = {
     "encoder_input_dim": 4096,
     "decoder_input_dim": 4096,
@@ -84,7 +87,7 @@ class Seq2SeqConfig:
     encoder_input_dim: int
     decoder_input_dim: int
     output_dim: int
-    chunk: int = 50
+    chunk: int = DEFAULT_CHUNK
     layers: int = 2
     hidden: int = 64
     head_hidden: int = 0
@@ -102,10 +105,11 @@ class Seq2SeqConfig:
             ValueError: naming the first bad field.
         """
         for name, bound in SIZE_BOUNDS.items():
-            value = getattr(self, name)
-            low = 0 if name == "head_hidden" else 1
-            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= bound:
-                raise ValueError(f"{name} must be an integer in [{low}, {bound}], got {value!r}")
+            value, low = getattr(self, name), 0 if name == "head_hidden" else 1
+            try:
+                check_json_number(name, value, minimum=low, maximum=bound, integer=True)
+            except ValueError:  # one message for every way a size is wrong: it states the range
+                raise ValueError(f"{name} must be an integer in [{low}, {bound}], got {value!r}") from None
         if self.chunk * max(self.encoder_input_dim, self.decoder_input_dim) * self.hidden > MAX_LAYER_WEIGHTS:
             raise ValueError(
                 f"chunk × input features × hidden = {self.chunk} × "
@@ -138,14 +142,11 @@ class Seq2SeqConfig:
                 continue
             if not isinstance(value, list | tuple) or len(value) != dim:
                 raise ValueError(f"{name} needs {dim} entries, got {value!r}")
+            scales = name != "output_offset"  # they divide or scale: > 0
             for v in value:
-                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                    raise ValueError(f"{name} entries must be finite numbers, got {value!r}")
-                if name != "output_offset" and not v > 0:
-                    raise ValueError(f"{name} entries must be positive (they divide or scale), got {value!r}")
-        sigma = self.sigma_min
-        if isinstance(sigma, bool) or not isinstance(sigma, int | float) or not (math.isfinite(sigma) and sigma > 0):
-            raise ValueError(f"sigma_min must be a finite number > 0 (it keeps S_u positive definite), got {sigma!r}")
+                check_json_number(f"{name} entries", v, minimum=0.0 if scales else None, strict_minimum=scales)
+        check_json_number("sigma_min (it keeps S_u positive definite)", self.sigma_min, minimum=0.0,
+                          strict_minimum=True)
 
     @property
     def latent_dim(self) -> int:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import as_trajectories, check_number
+from ..errors import as_trajectories, check_friction
 from .integrator import DT, implied_accel
 from .layout import StateLayout
 from .parameters import Physics
@@ -47,8 +47,9 @@ class PancakePhysics(Physics):
 
 
 def check_mu(mu: object) -> float:
-    """``mu`` as a float, or ``ValueError`` unless it is a positive finite number (a friction coefficient)."""
-    return float(check_number("mu", mu, minimum=0.0, strict_minimum=True))
+    """``mu`` as a float, or ``ValueError`` unless it is a positive finite number (a friction coefficient): the
+    library's one friction check, :func:`~seqmotion.errors.check_friction`, for the pancake's one μ."""
+    return check_friction(mu)[0]
 
 
 def cone_half_angle(mu: float) -> float:

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import check_finite_array, check_number
 from .integrator import DT, integrate_numpy, transition_matrices
 
 SymbolicFn = Callable[[Any, Any, Any], Any]
@@ -252,8 +253,7 @@ def transcription(
     reference and solution are then the joints', and ``constraints`` (and the end cost) are the task's, evaluated
     on its forward kinematics.
     """
-    if length < 2:
-        raise ValueError(f"a transcribed motion needs at least 2 samples, got {length}")
+    check_number("a transcribed motion's length (samples)", length, minimum=2, integer=True)
     if accel_weights is None and end_columns is None:
         raise ValueError("a transcription needs a cost: accel_weights (polish) or end_columns (end error)")
     if symbolic not in ("auto", "SX", "MX"):
@@ -304,9 +304,11 @@ def end_bands(
 def state_limits(columns: Sequence[int], limits: Sequence[float], name: str = "limits") -> Constraint:
     """``|x[k, columns[j]]| ≤ limits[j]`` for every sample from 1 on (sample 0 is the given start), scaled so each
     bound is ±1."""
-    cols, lims = tuple(int(c) for c in columns), tuple(float(v) for v in limits)
-    if not cols or len(cols) != len(lims) or not all(np.isfinite(v) and v > 0 for v in lims):
-        raise ValueError(f"state limits must be positive and finite, one per column, got {limits!r} for {cols}")
+    cols = tuple(int(c) for c in columns)
+    lims = tuple(float(v) for v in np.ravel(check_finite_array("state limits", limits, minimum=0.0,
+                                                                strict_minimum=True)))
+    if not cols or len(cols) != len(lims):
+        raise ValueError(f"state limits need one limit per column, got {limits!r} for {cols}")
     scale = tuple(1.0 / v for v in lims)
     return Constraint(name, ("state_limits", cols, lims), lambda x, u, p: scale_rows(x[list(cols), 1:], scale),
                       -1.0, 1.0)
@@ -314,9 +316,9 @@ def state_limits(columns: Sequence[int], limits: Sequence[float], name: str = "l
 
 def input_limits(limits: Sequence[float], name: str = "input limits") -> Constraint:
     """``|u[k, j]| ≤ limits[j]`` for every sample (scaled so each bound is ±1)."""
-    scale = 1.0 / np.asarray(limits, dtype=float)
-    if scale.ndim != 1 or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
-        raise ValueError(f"input limits must be positive and finite, one per input, got {limits!r}")
+    scale = 1.0 / check_finite_array("input limits", limits, minimum=0.0, strict_minimum=True)
+    if scale.ndim != 1:
+        raise ValueError(f"input limits need one limit per input, got {limits!r}")
     return Constraint(name, ("input_limits", *map(float, limits)), lambda x, u, p: scale_rows(u, scale), -1.0, 1.0)
 
 
@@ -324,8 +326,7 @@ def within_reach(columns: Sequence[int], radius: float, name: str = "within reac
     """``|x[k, columns]| ≤ radius`` for every sample: the positions stay in a disc (ball) about the origin
     — a robot's workspace, conservatively (scaled so the bound is 1)."""
     cols = tuple(int(c) for c in columns)
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"a reach radius must be positive and finite, got {radius!r}")
+    check_number("a reach radius", radius, minimum=0.0, strict_minimum=True)
 
     def build(x: Any, u: Any, p: Any) -> Any:
         return sum(x[c, :] ** 2 for c in cols) / radius**2

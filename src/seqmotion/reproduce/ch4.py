@@ -28,12 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from ..data import pancake as inputs
-from ..io import atomic_write_text, pyplot, save_figure
+from ..io import atomic_write_text, pyplot, save_figure, write_arrays
 from ..latent import optimize_latent, optimize_trajectory
 from ..latent.objectives import EndPose, Ranges
 from ..physics.pancake import cone_half_angle
 from ..tasks.pancake import FEASIBLE_TOLERANCE, Deformer
-from ..training.files import write_arrays
 from .ch2 import load_deformer
 
 TARGETS = np.array([(y, z, t) for y in (-0.1, 0.0, 0.1) for z in (-0.1, 0.0, 0.1) for t in (-math.pi, 0.0, math.pi)])

@@ -87,7 +87,7 @@ def list_robots(args: argparse.Namespace) -> int:
 def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
     """Arrays from an ``.npz`` (the first key required, the rest optional) or a ``.csv`` (first key; a first
     row of names only is a header, any other text is an error naming its line)."""
-    from ..training.files import read_arrays
+    from ..io import read_arrays
 
     return read_arrays(path, keys)
 
@@ -95,8 +95,7 @@ def _read(path: Path, keys: tuple[str, ...], dim: int) -> dict[str, np.ndarray]:
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse unwritable outputs, and outputs that are the trajectory file itself, before the simulation runs
     (``ValueError`` naming the option)."""
-    from ..io import check_writable
-    from ..training.files import check_not_an_input
+    from ..io import check_not_an_input, check_writable
 
     for option, suffixes in (("video", (".mp4",)), ("snapshots", (".png",)), ("json", None)):
         value = getattr(args, option)

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..data.trajectories import tracking_rmse
+from ..errors import check_finite_array, check_number
 from .arm import workspace_problem
 from .kinematics import planar_reference, stop_accelerations
 
@@ -209,16 +210,15 @@ def run_episode(
         raise ValueError(f"the environment's actions are {base.action_layout}; the model outputs {model.accel_layout}")
     s_dim = base.model_layout.dim
     base.model_state(np.zeros(base.observation_space.shape), model)  # ValueError unless the layouts match
-    sigma = np.zeros(s_dim) if noise is None else np.asarray(noise, dtype=np.float64)
-    if sigma.shape != (s_dim,) or not np.all(np.isfinite(sigma)) or np.any(sigma < 0):
+    sigma = np.zeros(s_dim) if noise is None else check_finite_array("noise σ", noise, minimum=0.0)
+    if sigma.shape != (s_dim,):
         raise ValueError(f"noise must be {s_dim} non-negative σ of {base.model_layout}, got {noise!r}")
     if feedback not in ("measured", "reference"):
         raise ValueError(f"feedback must be 'measured' or 'reference', got {feedback!r}")
     if stop not in ("decel", "generator"):
         raise ValueError(f"stop must be 'decel' or 'generator', got {stop!r}")
     for name, value in (("decel_time", decel_time), ("hold_time", hold_time), ("stop_time", stop_time)):
-        if not (np.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a non-negative number of seconds, got {value!r}")
+        check_number(f"{name} [s]", value, minimum=0.0)
 
     start_wall = time.perf_counter()
     plan = _planned_states(model.generate(inputs))

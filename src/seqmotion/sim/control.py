@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import check_finite_array, check_number
+from .ik import damped_least_squares
 from .observers import DisturbanceObserver
 from .scene import CONTROL_DT, PANCAKE_ORIGIN, Scene, import_mujoco
 
@@ -55,11 +57,12 @@ class Gains:
     name: str = "custom"
 
     def __post_init__(self) -> None:
-        kp, kd = np.asarray(self.kp, dtype=np.float64), np.asarray(self.kd, dtype=np.float64)
-        if kp.shape != (6,) or kd.shape != (6,) or np.any(kp <= 0) or np.any(kd < 0):
+        kp = check_finite_array("gains' kp", self.kp, minimum=0.0, strict_minimum=True)
+        kd = check_finite_array("gains' kd", self.kd, minimum=0.0)
+        if kp.shape != (6,) or kd.shape != (6,):
             raise ValueError(f"gains need 6 positive kp and 6 non-negative kd, got kp={self.kp}, kd={self.kd}")
-        if self.dob_cutoff is not None and not self.dob_cutoff > 0:
-            raise ValueError(f"dob_cutoff must be positive or None, got {self.dob_cutoff}")
+        if self.dob_cutoff is not None:
+            check_number("dob_cutoff [rad/s] (None: no observer)", self.dob_cutoff, minimum=0.0, strict_minimum=True)
 
 
 def _split(position: float, attitude: float) -> tuple[float, ...]:
@@ -512,32 +515,17 @@ def solve_ik(
 ) -> np.ndarray:
     """Joint angles ``(6,)`` that put the tool site at ``pos`` [m] with attitude ``quat``.
 
-    Damped Gauss–Newton from ``seed`` (default: elbow up, wrist bent down by ~1 rad, the
-    branch every scene starts in). Raises ``ValueError`` if the pose is out of reach.
+    Damped Gauss–Newton (:func:`~seqmotion.sim.ik.damped_least_squares`, at most 0.5 rad per iteration) from
+    ``seed`` (default: elbow up, wrist bent down by ~1 rad, the branch every scene starts in; a standard arm's
+    home). Raises ``ValueError`` if the pose is out of reach.
     """
     mujoco = import_mujoco()
     m = scene.model
-    data = mujoco.MjData(m)
     if seed is None:
         robot = getattr(scene, "robot", None)
         seed = DEFAULT_SEED if robot is None else robot.home
-    q = np.array(seed, dtype=np.float64)
-    jac = np.zeros((6, m.nv))
-    err_rot = np.zeros(3)
-    err = np.full(6, np.inf)
-    for _ in range(iterations):
-        data.qpos[scene.arm_qpos] = q
-        mujoco.mj_kinematics(m, data)
-        mujoco.mj_comPos(m, data)
-        site = scene.site
-        mujoco.mju_subQuat(err_rot, quat, data.site_xquat[site])
-        err = np.concatenate([pos - data.site_xpos[site], data.site_xmat[site].reshape(3, 3) @ err_rot])
-        if np.linalg.norm(err) < tolerance:
-            break
-        mujoco.mj_jacSite(m, data, jac[:3], jac[3:], site)
-        j = jac[:, scene.arm_dof]
-        step = j.T @ np.linalg.solve(j @ j.T + 1e-6 * np.eye(6), err)
-        q += step * min(1.0, 0.5 / max(np.abs(step).max(), 1e-12))  # at most 0.5 rad per iteration
+    q, err = damped_least_squares(m, mujoco.MjData(m), scene.site, scene.arm_qpos, scene.arm_dof, pos, quat, seed,
+                                  iterations=iterations, tolerance=tolerance)
     if np.linalg.norm(err) > 1e-6:
         raise ValueError(f"tool pose {np.round(pos, 3).tolist()} is out of the arm's reach (residual {err})")
     return q

@@ -74,7 +74,9 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import check_finite_array
 from .backend import import_mujoco
+from .ik import damped_least_squares
 from .limits import LIMIT_KINDS, RATED_LIMITS, VELOCITY_LIMITS, JointLimits
 from .model_files import check_model_file
 
@@ -266,14 +268,13 @@ class Robot:
             value = np.array(getattr(self, name), dtype=np.float64)
             if value.shape != shape:
                 raise ValueError(f"robot {self.name!r}: {name} must have shape {shape}, got {value.shape}")
-            if name != "joint_range" and not np.all(np.isfinite(value)):
-                raise ValueError(f"robot {self.name!r}: {name} must be finite, got {value}")
+            if name != "joint_range":
+                check_finite_array(f"robot {self.name!r}: {name}", value)
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         if self.source not in ("robosuite", "menagerie"):
             raise ValueError(f"robot source must be 'robosuite' or 'menagerie', got {self.source!r}")
-        if np.any(self.torque_limit <= 0):
-            raise ValueError(f"robot {self.name!r}: torque limits must be positive, got {self.torque_limit}")
+        check_finite_array(f"robot {self.name!r}: torque limits", self.torque_limit, minimum=0.0, strict_minimum=True)
         key = (self.name, self.source, str(self.path), self.joints, self.flange, float(self.tool_roll),
                float(self.base_yaw), float(self.tool_pitch)) + tuple(
             tuple(np.asarray(getattr(self, f)).ravel().tolist())
@@ -688,7 +689,8 @@ def solve_pose(
     margin: float = 0.0,
 ) -> tuple[np.ndarray, float]:
     """Joint angles ``(n,)`` that put ``site`` at ``pos`` ``(3,)`` [m] with rotation ``rot`` ``(3, 3)``, within
-    the joint ranges shrunk by ``margin`` [rad]: damped least squares from ``seed``, clamped to the ranges.
+    the joint ranges shrunk by ``margin`` [rad]: damped least squares from ``seed``, clamped to the ranges
+    (:func:`~seqmotion.sim.ik.damped_least_squares`, at most 0.3 rad per iteration).
 
     Returns:
         The angles and the final residual ``|[Δp, Δθ]|`` [m, rad mixed].
@@ -698,28 +700,13 @@ def solve_pose(
     if sid < 0:
         raise ValueError(f"the model has no site {site!r}")
     ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, _compiled_name(model, j)) for j in robot.joints]
-    qadr = np.array([model.jnt_qposadr[i] for i in ids])
-    dadr = np.array([model.jnt_dofadr[i] for i in ids])
-    lo, hi = robot.joint_range[:, 0] + margin, robot.joint_range[:, 1] - margin
     target = np.zeros(4)
     mujoco.mju_mat2Quat(target, np.asarray(rot, dtype=float).ravel())
-    q = np.clip(np.asarray(seed, dtype=float).copy(), lo, hi)
-    jac = np.zeros((6, model.nv))
-    err = np.full(6, np.inf)
-    err_rot, quat = np.zeros(3), np.zeros(4)
-    for _ in range(iterations):
-        data.qpos[qadr] = q
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        mujoco.mju_mat2Quat(quat, data.site_xmat[sid])
-        mujoco.mju_subQuat(err_rot, target, quat)
-        err = np.concatenate([pos - data.site_xpos[sid], data.site_xmat[sid].reshape(3, 3) @ err_rot])
-        if np.linalg.norm(err) < 1e-10:
-            break
-        mujoco.mj_jacSite(model, data, jac[:3], jac[3:], sid)
-        j = jac[:, dadr]
-        step = j.T @ np.linalg.solve(j @ j.T + 1e-6 * np.eye(6), err)
-        q = np.clip(q + step * min(1.0, 0.3 / max(np.abs(step).max(), 1e-12)), lo, hi)
+    bounds = (robot.joint_range[:, 0] + margin, robot.joint_range[:, 1] - margin)
+    q, err = damped_least_squares(model, data, sid, np.array([model.jnt_qposadr[i] for i in ids]),
+                                  np.array([model.jnt_dofadr[i] for i in ids]), pos, target, seed,
+                                  iterations=iterations, tolerance=1e-10, max_step=0.3, bounds=bounds,
+                                  attitude_from_matrix=True)
     return q, float(np.linalg.norm(err))
 
 

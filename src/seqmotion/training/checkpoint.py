@@ -48,6 +48,8 @@ from ..io import (
     atomic_path,
     atomic_write_bytes,
     json_bytes,
+    parse_json,
+    read_json,
     remove_path,
     temp_sibling,
     write_durable,
@@ -249,17 +251,7 @@ def read_config(directory: str | Path) -> dict:
     path = Path(directory) / CONFIG
     if not path.is_file():
         raise CheckpointError(f"no {CONFIG} in {directory}: not a seqmotion model directory")
-    try:
-        size = path.stat().st_size
-        if size > MAX_CONFIG_BYTES:
-            raise CheckpointError(f"{path} is {size} bytes, larger than any model config ({MAX_CONFIG_BYTES})")
-        config = json.loads(path.read_bytes())
-    except OSError as exc:
-        raise CheckpointError(f"cannot read {path}: {exc.strerror or exc}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise CheckpointError(f"{path} is not valid JSON (corrupt checkpoint?): {exc}") from None
-    if not isinstance(config, dict):
-        raise CheckpointError(f"{path} must hold a JSON object, got {type(config).__name__}: not a model config")
+    config = read_json(path, "model config", max_bytes=MAX_CONFIG_BYTES, error=CheckpointError)
     if config.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a {FORMAT} config (format={config.get('format')!r})")
     for key in ("weights_sha256", "config_sha256"):
@@ -314,9 +306,9 @@ def tensor_shapes(blob: bytes, source: str = "weights") -> dict[str, tuple[int, 
     if size > len(blob) - 8 or size > 100 * 2**20:
         raise CheckpointError(f"{source} is not a readable safetensors file (header of {size} bytes)")
     try:
-        header = json.loads(blob[8 : 8 + size])
+        header = parse_json(blob[8 : 8 + size], "its header")
         return {k: tuple(int(n) for n in v["shape"]) for k, v in header.items() if k != "__metadata__"}
-    except (ValueError, TypeError, KeyError, AttributeError, RecursionError) as exc:
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
         raise CheckpointError(f"{source} is not a readable safetensors file: bad header ({exc})") from None
 
 
@@ -473,7 +465,7 @@ def read_training_checkpoint(path: Path) -> tuple[dict, dict[str, torch.Tensor],
     """Return ``(config, model_tensors, optimizer_state_dict, trainer_state)``."""
     config, tensors = read_model(path)
     try:
-        trainer_state = json.loads((Path(path) / TRAINER_STATE).read_text())
+        trainer_state = read_json(Path(path) / TRAINER_STATE)
         opt_tensors = load_safetensors_bytes((Path(path) / OPTIMIZER).read_bytes())
         optimizer_state = _unflatten_optimizer(opt_tensors, trainer_state.pop("optimizer"))
         if not isinstance(trainer_state.get("step"), int):

@@ -22,6 +22,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
+from ..errors import check_number
+
 Value = float | list[float]
 P = TypeVar("P", bound="CurriculumParams")
 
@@ -71,8 +73,7 @@ class Curriculum:
     stages: list[Stage] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if self.epochs < 1:
-            raise ValueError(f"a curriculum needs at least one epoch, got {self.epochs}")
+        check_number("a curriculum's epochs", self.epochs, minimum=1, integer=True)
         for stage in self.stages:
             if stage.end > self.epochs:
                 raise ValueError(f"stage {stage.start}..{stage.end} ends after the last epoch {self.epochs}")

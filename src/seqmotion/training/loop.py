@@ -46,7 +46,7 @@ from typing import Any
 
 import torch
 
-from ..errors import CheckpointError
+from ..errors import CheckpointError, check_number
 from ..io import atomic_write_bytes
 from . import checkpoint as ckpt
 
@@ -178,10 +178,9 @@ class TrainingLoop:
         writer: bool = True,
         reduce_gradients: Callable[[list[torch.nn.Parameter]], None] | None = None,
     ) -> None:
-        if not (math.isfinite(lr) and lr > 0) or not 0.0 < lr_final_fraction <= 1.0:
-            raise ValueError(f"need lr > 0 and 0 < lr_final_fraction <= 1, got {lr} and {lr_final_fraction}")
-        if isinstance(total_steps, bool) or int(total_steps) != total_steps or total_steps < 0:
-            raise ValueError(f"total_steps must be a non-negative integer, got {total_steps!r}")
+        check_number("lr", lr, minimum=0.0, strict_minimum=True)
+        check_number("lr_final_fraction", lr_final_fraction, minimum=0.0, strict_minimum=True, maximum=1.0)
+        check_number("total_steps", total_steps, minimum=0, integer=True)
         self.module = module
         self.params = list(params)
         self.optimizer = torch.optim.Adam(self.params, lr=lr)

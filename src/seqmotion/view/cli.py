@@ -43,10 +43,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("the viewer needs viser: pip install 'seqmotion[view]'") from None
     import torch
 
-    if args.threads < 1:
-        raise ValueError(f"--threads must be at least 1, got {args.threads}")
-    if not 0 <= args.port <= 65535:
-        raise ValueError(f"--port must be in 0..65535, got {args.port}")
+    from ..errors import check_number
+
+    check_number("--threads", args.threads, minimum=1, integer=True)
+    check_number("--port", args.port, minimum=0, maximum=65535, integer=True)
     from .app import ViewerApp, check_robot
 
     robot = check_robot(args.robot, not args.no_sim)  # an unknown robot: refused before anything starts

@@ -204,7 +204,7 @@ class PancakeFrame:
         return "\n".join([head, *lines])
 
     def columns(self, model: Any) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
-        """Named per-sample arrays for export (``seqmotion.training.files.write_arrays``), each column named by
+        """Named per-sample arrays for export (``seqmotion.io.write_arrays``), each column named by
         ``model``'s layouts: states, accel (``a_y, …``), ψ, the sketch (``sketch.<field>``), the predicted std
         (``std.<field>``) and the latent."""
         cols: dict[str, np.ndarray] = {"states": self.states, "accel": self.accel, "psi": self.psi,
@@ -308,7 +308,7 @@ class PancakeSession:
 
     def export(self, frame: PancakeFrame, path: str | Path) -> Path:
         """Write the frame's motion as ``.csv`` or ``.npz`` (atomically)."""
-        from ..training.files import write_arrays
+        from ..io import write_arrays
 
         cols, heads = frame.columns(self.model)
         return write_arrays(path, cols, heads)
@@ -409,7 +409,7 @@ class SlidingSession:
 
     def export(self, frame: SlidingFrame, path: str | Path) -> Path:
         """Write the frame's command, plan and tracking error as ``.csv`` or ``.npz`` (atomically)."""
-        from ..training.files import write_arrays
+        from ..io import write_arrays
 
         cols, heads = frame.columns(self.model)
         return write_arrays(path, cols, heads)
@@ -571,7 +571,7 @@ class TaskSession:
     def export(self, frame: TaskFrame, path: str | Path) -> Path:
         """Write the frame's input (``input.<field>``) and result (:func:`~seqmotion.core.results.columns_of`: the
         layouts' names) as ``.csv`` or ``.npz`` (atomically)."""
-        from ..training.files import write_arrays
+        from ..io import write_arrays
 
         m = self.model
         cols, heads = columns_of(frame.result, m.state_layout, m.accel_layout, m.uncertainty_names)
@@ -681,7 +681,7 @@ class PushingLatentSession:
     renderer: EGL or OSMesa)."""
 
     def __init__(self, policy: Any, variations: int = 3, seed: int = 0) -> None:
-        from ..sim import pushing
+        from ..lfd.env import pushing
 
         self.policy = policy
         scene = pushing.PushingScene()

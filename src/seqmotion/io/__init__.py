@@ -1,4 +1,8 @@
-"""Every file seqmotion writes: atomically, through one set of functions (bytes, text, JSON, arrays, figures).
+"""Files in one place: every file seqmotion writes (atomically), the trajectory files it reads, the JSON it reads.
+
+This module holds the writers: bytes, text, JSON, arrays, figures, through one set of functions.
+:mod:`.trajectories` reads and writes the trajectory files of the command lines (``.npz``, ``.csv``),
+bounded and strict; :mod:`.jsonfile` is the one strict JSON reader. Their names are exported here too.
 
 A file is written to a temporary name in its own directory, flushed to disk and renamed into
 place, so a reader, or a process killed at any instant, sees the old file or the new one, never
@@ -11,7 +15,7 @@ Outputs are checked before any work is done (:func:`check_writable`, :func:`chec
 so a long computation does not end in an unwritable path.
 
 This is the library's lowest layer beside :mod:`seqmotion.errors`: it imports only the standard
-library and NumPy (matplotlib only inside :func:`pyplot`).
+library, NumPy and :mod:`seqmotion.errors` (matplotlib only inside :func:`pyplot`).
 """
 
 from __future__ import annotations
@@ -319,8 +323,25 @@ def check_writable_dir(directory: str | Path, what: str = "output directory", sh
     return Path(shown)
 
 
+# The readers, beside the writers they use (imported last: they import the writers above).
+from .jsonfile import MAX_JSON_BYTES, parse_json, read_json  # noqa: E402
+from .trajectories import (  # noqa: E402
+    MAX_FILE_BYTES,
+    TRAJECTORY_SUFFIXES,
+    check_declared_size,
+    check_not_an_input,
+    check_output,
+    parse_csv,
+    read_arrays,
+    read_npz,
+    read_trajectory,
+    write_arrays,
+)
+
 __all__ = [
-    "TEMP_MARK", "atomic_path", "atomic_write_bytes", "atomic_write_json", "atomic_write_npz", "atomic_write_text",
-    "check_writable", "check_writable_dir", "json_bytes", "pyplot", "remove_path", "replace_directory",
-    "save_figure", "temp_sibling", "write_durable",
+    "MAX_FILE_BYTES", "MAX_JSON_BYTES", "TEMP_MARK", "TRAJECTORY_SUFFIXES", "atomic_path", "atomic_write_bytes",
+    "atomic_write_json", "atomic_write_npz", "atomic_write_text", "check_declared_size", "check_not_an_input",
+    "check_output", "check_writable", "check_writable_dir", "json_bytes", "parse_csv", "parse_json", "pyplot",
+    "read_arrays", "read_json", "read_npz", "read_trajectory", "remove_path", "replace_directory", "save_figure",
+    "temp_sibling", "write_arrays", "write_durable",
 ]
