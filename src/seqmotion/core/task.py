@@ -10,32 +10,79 @@ chunked seq2seq model. It declares:
 * its *physics* — :meth:`Task.dynamics` (the differentiable ``ChunkDynamics`` the decoder runs
   with), :meth:`Task.start_state`, and optionally :meth:`Task.violation` (its constraint, 0 where
   satisfied) and ``end_pose`` (the fields and weights an end-pose objective reaches for);
-* its **training** — presets (:meth:`Task.train_config`), data (:meth:`Task.sample`) and loss
-  (:meth:`Task.loss`, built from :mod:`seqmotion.training.losses`).
+* its **training** — presets (:meth:`Task.train_config`; as data: :attr:`Task.preset_table` of
+  :class:`Preset`, with the network's scales as class attributes, :meth:`Task.model_config`), data
+  (:meth:`Task.sample`) and loss (:meth:`Task.loss`; the standard one, :meth:`Task.standard_loss`, is the
+  shape likelihood plus the weighted constraint violation, built from :mod:`seqmotion.training.losses`).
 
-A task lives in ``seqmotion/tasks/`` (one module defining ``TASK``) or in the user's own
+A task lives in ``seqmotion/tasks/`` (a module or a folder defining ``TASK``) or in the user's own
 package, registered through the entry-point group ``seqmotion.tasks`` (:mod:`.registry`).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
 from ..data.trajectories import TensorBatch, TrajectoryBatch
-from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Seq2SeqConfig
+from ..models.seq2seq import ChunkDynamics, ChunkedSeq2Seq, Rollout, Seq2SeqConfig
 from ..physics.integrator import DoubleIntegratorDynamics, integrate_covariance
 from ..physics.layout import StateLayout
 from ..physics.parameters import Physics
 from ..training.config import TrainConfig
-from ..training.curriculum import Curriculum, CurriculumParams
+from ..training.curriculum import Curriculum, CurriculumParams, Stage
+from ..training.losses import (
+    encode_and_rollout,
+    masked_mean,
+    per_trajectory,
+    sample_mask,
+    weighted_gaussian_nll,
+)
 from .options import TaskOptions
 from .polish import ExactForm
 from .results import FEASIBLE_TOLERANCE, Motion
 from .trained import TrainedModel
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named training configuration as data (:attr:`Task.preset_table`; :meth:`Task.train_config` builds it).
+
+    Attributes:
+        layers, hidden, chunk: the model's LN-LSTM layers, their width and the samples per step C.
+        batches_per_epoch, batch_size: the data volume per epoch.
+        head_hidden: the width of the Gaussian head's hidden layer (0: none).
+        epochs: the task's curriculum (:meth:`Task.preset_curriculum`) squeezed or stretched to this many epochs
+            (:meth:`Curriculum.scaled`); None: as it is.
+        options: the task's options that differ from their defaults (``{"length": (100, 200)}``).
+    """
+
+    layers: int
+    hidden: int
+    chunk: int
+    batches_per_epoch: int
+    batch_size: int
+    head_hidden: int = 0
+    epochs: int | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TeacherForcingParams(CurriculumParams):
+    """The standard curriculum's one parameter (:meth:`Task.preset_curriculum`): the share of teacher-forced
+    chunks."""
+
+    teacher_forcing_prob: float
+
+
+def teacher_forcing_curriculum() -> Curriculum:
+    """The standard schedule: 40 epochs, every chunk teacher-forced until epoch 5, none from epoch 15."""
+    return Curriculum(epochs=40, initial={"teacher_forcing_prob": 1.0},
+                      stages=[Stage(5, 15, {"teacher_forcing_prob": [1.0, 0.0]})])
 
 
 class Task(ABC):
@@ -61,12 +108,67 @@ class Task(ABC):
     uncertainty_fields: ClassVar[tuple[str, ...] | None] = None
     """The state fields whose covariance the dynamics' ``pos_cov`` output holds (a result's
     ``uncertainty`` columns); None: the first p fields of ``state_layout``."""
+    preset_table: ClassVar[dict[str, Preset]] = {}
+    """The presets :meth:`train_config` builds, by name (a task that sets it has :attr:`presets` its names)."""
+    input_scale: ClassVar[tuple[float, ...] | None] = None
+    """The typical size of each ``input_layout`` column in its unit: the encoder reads ``input / input_scale``
+    (:meth:`model_config`; None: 1)."""
+    state_scale: ClassVar[tuple[float, ...] | None] = None
+    """The same for each ``state_layout`` column, which the decoder reads (None: 1)."""
+    output_scale: ClassVar[tuple[float, ...] | None] = None
+    """The same for each ``accel_layout`` column: ``output = output_offset + output_scale · raw`` (None: 1)."""
+    output_offset: ClassVar[tuple[float, ...] | None] = None
+    """Each ``accel_layout`` column's value for a raw output of 0 (None: 0)."""
+    correlated_pairs: ClassVar[tuple[tuple[int, int], ...] | None] = None
+    """Pairs of ``accel_layout`` columns whose correlation the Gaussian head learns (None: the model's default)."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "preset_table" in cls.__dict__ and "presets" not in cls.__dict__:
+            cls.presets = tuple(cls.preset_table)
 
     # --- training ------------------------------------------------------------------------------
 
-    @abstractmethod
     def train_config(self, preset: str) -> TrainConfig:
-        """The named configuration (at least ``"tiny"`` for tests and ``"small"``)."""
+        """The named configuration (at least ``"tiny"`` for tests and ``"small"``). Default: the preset of
+        :attr:`preset_table` — :meth:`model_config` of its size, :meth:`preset_curriculum` (scaled to its
+        ``epochs``), its batches and its options over the options' defaults.
+
+        Raises:
+            ValueError: a preset the task does not have.
+        """
+        spec = self.preset_table.get(preset)
+        if spec is None:
+            raise ValueError(f"unknown preset {preset!r} for task {self.name}; choose from {self.presets}")
+        curriculum = self.preset_curriculum()
+        if spec.epochs is not None:
+            curriculum = curriculum.scaled(spec.epochs)
+        model = self.model_config(spec.layers, spec.hidden, spec.chunk, spec.head_hidden)
+        return TrainConfig(task=self.name, preset=preset, model=model.to_dict(), curriculum=curriculum.to_dict(),
+                           batches_per_epoch=spec.batches_per_epoch, batch_size=spec.batch_size,
+                           options=self.options_class(**spec.options).to_dict())
+
+    def preset_curriculum(self) -> Curriculum:
+        """The schedule :meth:`train_config`'s presets train with. Default: teacher forcing fading out
+        (:func:`teacher_forcing_curriculum`; its parameter is :class:`TeacherForcingParams`'s)."""
+        return teacher_forcing_curriculum()
+
+    def model_config(self, layers: int, hidden: int, chunk: int, head_hidden: int = 0) -> Seq2SeqConfig:
+        """The model for this task's layouts: the encoder reads ``input_layout``, the decoder the states of
+        ``state_layout`` (as they are: a task whose dynamics map them in ``decoder_input`` overrides this) and it
+        writes ``accel_layout``, each scaled by the class's ``*_scale`` (network numbers near 1); ``layers`` LN-LSTM
+        layers of ``hidden`` cells, ``chunk`` samples per step, a head hidden layer of ``head_hidden`` (0: none)."""
+
+        def listed(values: tuple | None) -> list | None:
+            return None if values is None else [list(v) if isinstance(v, tuple | list) else float(v) for v in values]
+
+        return Seq2SeqConfig(
+            encoder_input_dim=self.input_layout.dim, decoder_input_dim=self.state_layout.dim,
+            output_dim=self.accel_layout.dim, chunk=chunk, layers=layers, hidden=hidden, head_hidden=head_hidden,
+            correlated_pairs=listed(self.correlated_pairs), encoder_input_scale=listed(self.input_scale),
+            decoder_input_scale=listed(self.state_scale), output_scale=listed(self.output_scale),
+            output_offset=listed(self.output_offset),
+        )
 
     def curriculum(self, config: TrainConfig) -> Curriculum:
         """The run's schedule."""
@@ -81,7 +183,6 @@ class Task(ABC):
         """Draw ``n`` training trajectories (NumPy) for the curriculum parameters ``params`` (a
         :attr:`params_class`) and the task's ``options`` (an :attr:`options_class`)."""
 
-    @abstractmethod
     def loss(
         self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: Any, params: Any, options: Any,
         generator: torch.Generator,
@@ -91,7 +192,53 @@ class Task(ABC):
         The trainer hands over ``batch`` already on the model's device (:meth:`TrajectoryBatch.to`), the
         task's ``dynamics`` built once from its options (:meth:`dynamics` at :meth:`physics`), the typed
         curriculum ``params`` and ``options``, and the step's random ``generator`` (teacher forcing's coins).
+        Default: :meth:`standard_loss` of :meth:`rollout`.
         """
+        return self.standard_loss(self.rollout(model, batch, dynamics, params, generator), batch, options)
+
+    def rollout(self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: Any, params: Any,
+                generator: torch.Generator) -> Rollout:
+        """The model's closed loop over ``batch`` from :meth:`start_state`, each chunk teacher-forced by the
+        batch's states with probability ``params.teacher_forcing_prob`` (0 where the curriculum has none) — for a
+        task whose input layout is its state layout."""
+        states, lengths = batch.states, batch.lengths
+        return encode_and_rollout(model, states, lengths, self.start_state(states), dynamics, teacher=states,
+                                  teacher_forcing_prob=getattr(params, "teacher_forcing_prob", 0.0),
+                                  generator=generator)
+
+    def standard_loss(self, out: Rollout, batch: TensorBatch, options: Any) -> tuple[torch.Tensor, dict[str, float]]:
+        """The shape likelihood plus the weighted constraint violation, per trajectory, averaged over the batch —
+        for a task whose input layout is its state layout:
+        ``mean_k alpha_shape · NLL(x[k] | x̂[k], S[k] + floor) + alpha_constraint · violation[k]``, x the position
+        columns the dynamics' ``pos_cov`` ``(B, K-1, p, p)`` is of (:attr:`uncertainty_fields`, else the first p),
+        ``floor`` the option ``variance_floor``; ``alpha_shape``, ``alpha_constraint`` options too (default 1).
+
+        Returns:
+            ``(loss, terms)``: ``L1`` the mean NLL, and with a constraint (:meth:`violation`) ``L2`` the mean
+            violation and ``feasible`` the share of trajectories within the ``max_violation`` tolerance
+            (:meth:`tolerances`).
+        """
+        states, lengths = batch.states, batch.lengths
+        k_max = states.shape[1]
+        valid = sample_mask(lengths, k_max)
+        cov = out.outputs["pos_cov"][:, : k_max - 1]
+        p = cov.shape[-1]
+        gap = (states - out.states[:, :k_max])[:, 1:]
+        if self.uncertainty_fields is None:
+            diff = gap[..., :p]
+        else:
+            diff = gap[..., [self.state_layout.index(name) for name in self.uncertainty_fields]]
+        floor = getattr(options, "variance_floor", None)
+        nll = weighted_gaussian_nll(diff, cov, **({} if floor is None else {"floor": floor}))
+        shape = getattr(options, "alpha_shape", 1.0) * nll
+        violation = self.violation(out.states[:, :k_max], out.accel[:, : k_max - 1], options)
+        if violation is None:
+            return per_trajectory(shape, valid, lengths).mean(), {"L1": masked_mean(nll, valid)}
+        violation = violation * valid
+        loss = per_trajectory(shape + getattr(options, "alpha_constraint", 1.0) * violation, valid, lengths).mean()
+        tolerance = self.tolerances(options).get("max_violation", FEASIBLE_TOLERANCE)
+        feasible = (violation.detach().amax(1) <= tolerance).float().mean()
+        return loss, {"L1": masked_mean(nll, valid), "L2": masked_mean(violation, valid), "feasible": float(feasible)}
 
     def example_inputs(self, n: int, seed: int = 0) -> np.ndarray:
         """``n`` input motions ``(n, K, input_dim)`` like those the task trains on, of one length K (docs,

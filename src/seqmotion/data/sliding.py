@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..errors import check_number
 from ..physics import sliding as contact
 from ..physics.integrator import DT, integrate
 from .trajectories import (
@@ -151,8 +152,7 @@ def mixture(
     ``extras["has_pan"]`` (n,) says where. ``mu``, ``mu_dyn`` (scalars or ``(n,)``) are the
     friction the physics-type commands are rolled out with; ``shaking`` is their pan shaking.
     """
-    if not 0.0 <= bspline_prob <= 1.0:
-        raise ValueError(f"bspline_prob must be in [0, 1], got {bspline_prob}")
+    check_number("bspline_prob", bspline_prob, minimum=0.0, maximum=1.0)
     pick_bspline = rng.random(n) < bspline_prob
     lengths = draw_lengths(rng, n, length)
     mu_all, mud_all = np.broadcast_to(mu, (n,)), np.broadcast_to(mu_dyn, (n,))
@@ -176,8 +176,7 @@ def mixture(
 def along_s_curve(path: Any, length: int, dt: float = DT) -> np.ndarray:
     """A command ``(K, 4)`` following ``path(s) -> (position (K, 2), d position / ds (K, 2))`` for s from 0
     to 1 on an S-curve in time: rest to rest, ``length`` samples."""
-    if length < 2:
-        raise ValueError(f"need length >= 2, got {length}")
+    check_number("length", length, minimum=2, integer=True)
     tau = normalized_time(np.array([length]))[0]
     s, ds, _ = s_curve(tau)
     pos, dpos = path(s)
@@ -189,8 +188,7 @@ def circle(radius: float = 0.05, length: int = 1200, dt: float = DT) -> np.ndarr
 
     It starts at the origin (the circle's centre is at ``(-radius, 0)``) and follows an S-curve in angle.
     """
-    if not radius > 0 or length < 2:
-        raise ValueError("need radius > 0 and length >= 2")
+    check_number("radius", radius, minimum=0.0, strict_minimum=True)
     return along_s_curve(lambda s: (radius * np.stack([np.cos(2 * math.pi * s) - 1.0, np.sin(2 * math.pi * s)], 1),
                                     2 * math.pi * radius * np.stack([-np.sin(2 * math.pi * s),
                                                                      np.cos(2 * math.pi * s)], 1)), length, dt)
@@ -198,8 +196,7 @@ def circle(radius: float = 0.05, length: int = 1200, dt: float = DT) -> np.ndarr
 
 def line(distance: float = 0.05, length: int = 500, dt: float = DT) -> np.ndarray:
     """A command moving the object ``distance`` [m] along x, rest to rest: ``(K, 4)``."""
-    if not distance > 0:
-        raise ValueError(f"need distance > 0, got {distance}")
+    check_number("distance", distance, minimum=0.0, strict_minimum=True)
     return along_s_curve(lambda s: (np.stack([distance * s, 0 * s], 1), np.stack([distance + 0 * s, 0 * s], 1)),
                          length, dt)
 
@@ -207,8 +204,7 @@ def line(distance: float = 0.05, length: int = 500, dt: float = DT) -> np.ndarra
 def figure_eight(half_width: float = 0.02, length: int = 1200, dt: float = DT) -> np.ndarray:
     """A figure-eight ``x = a sin φ, y = (a/2) sin 2φ``, φ from 0 to 2π, from the crossing at the origin:
     ``(K, 4)``, ``a = half_width`` [m]."""
-    if not half_width > 0:
-        raise ValueError(f"need half_width > 0, got {half_width}")
+    check_number("half_width", half_width, minimum=0.0, strict_minimum=True)
 
     def path(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         phi = 2 * math.pi * s

@@ -54,7 +54,7 @@ import json
 import sys
 import tempfile
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +67,7 @@ from ..core.trained import TrainedModel
 from ..io import check_writable_dir, remove_path, replace_directory, temp_sibling, write_durable
 from ..physics.parameters import Physics
 from .bundle import CONTRACT, RANGES, check_contract, check_graph, physics_violation, previous_path, seal
-from .scan import expand_contact_loops
+from .scan import TracedLoop, defined_loops, expand_loops, prefixed, traced_loops
 
 OPSET = 17
 INT8_MIN_FEATURES = 256
@@ -169,9 +169,10 @@ class Violation(nn.Module):
 
 
 def to_onnx(module: nn.Module, args: tuple, inputs: list[str], outputs: list[str],
-            dynamic: dict[str, dict[int, str]]) -> Any:
-    """``module`` traced into an ONNX ModelProto (TorchScript exporter, opset :data:`OPSET`), the sliding contact
-    loop as a ``Scan`` (:func:`~seqmotion.deploy.scan.expand_contact_loops`)."""
+            dynamic: dict[str, dict[int, str]], loops: Sequence[TracedLoop] | None = None) -> Any:
+    """``module`` traced into an ONNX ModelProto (TorchScript exporter, opset :data:`OPSET`), each loop placeholder
+    of ``loops`` as a ``Scan`` (:func:`~seqmotion.deploy.scan.expand_loops`). ``loops``: the dynamics' own
+    ``traced_loops``; None: every placeholder defined (:func:`~seqmotion.deploy.scan.defined_loops`)."""
     import onnx
 
     buffer = io.BytesIO()
@@ -179,29 +180,7 @@ def to_onnx(module: nn.Module, args: tuple, inputs: list[str], outputs: list[str
         warnings.simplefilter("ignore")
         torch.onnx.export(module.eval(), args, buffer, dynamo=False, opset_version=OPSET, input_names=inputs,
                           output_names=outputs, dynamic_axes=dynamic, do_constant_folding=True)
-    return expand_contact_loops(onnx.load_from_string(buffer.getvalue()), OPSET)
-
-
-def _prefixed(graph: Any, prefix: str) -> Any:
-    """A copy of ``graph`` with every value, initializer and node name prefixed (a subgraph's own namespace)."""
-    import onnx
-
-    g = onnx.GraphProto()
-    g.CopyFrom(graph)
-
-    def name(value: str) -> str:
-        return prefix + value if value else value
-
-    for node in g.node:
-        node.name = name(node.name)
-        node.input[:] = [name(v) for v in node.input]
-        node.output[:] = [name(v) for v in node.output]
-    for collection in (g.input, g.output, g.value_info):
-        for value in collection:
-            value.name = name(value.name)
-    for init in g.initializer:
-        init.name = name(init.name)
-    return g
+    return expand_loops(onnx.load_from_string(buffer.getvalue()), OPSET, defined_loops() if loops is None else loops)
 
 
 def encoder_graph(trained: TrainedModel) -> Any:
@@ -219,7 +198,7 @@ def encoder_graph(trained: TrainedModel) -> Any:
                                           torch.zeros(1, hidden)),
                    ["h", "c", "x"], ["h_out", "c_out"], {"h": {1: "B"}, "c": {1: "B"}, "x": {0: "B"},
                                                          "h_out": {1: "B"}, "c_out": {1: "B"}})
-    body = _prefixed(step.graph, "step/")
+    body = prefixed(step.graph, "step/")
     graph = front.graph
     graph.node.extend([
         helper.make_node("Scan", ["h0", "c0", "proj"], ["h_last", "c_last"], name="chunk_loop", body=body,
@@ -432,7 +411,8 @@ def dynamics_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> 
     x, accel = torch.zeros(1, s, dtype=torch.float64), torch.zeros(1, cfg.chunk, d, dtype=torch.float64)
     try:
         proto = to_onnx(step, (x, accel, *vector), ["x", "accel", *(["physics"] if inputs else [])], ["states"],
-                        {"x": {0: "B"}, "accel": {0: "B"}, "states": {0: "B"}})
+                        {"x": {0: "B"}, "accel": {0: "B"}, "states": {0: "B"}},
+                        traced_loops(model.dynamics(physics)))
     except Exception as exc:  # whatever the task's own dynamics code raises under the tracer
         raise ValueError(f"the {task!r} task's dynamics ({type(model.dynamics(physics)).__name__}) cannot be "
                          f"exported as an ONNX graph: tracing their step failed with {type(exc).__name__}: {exc}"
@@ -463,7 +443,7 @@ def outputs_for_graph(model: TrainedModel, physics: Physics, inputs: list[str]) 
     try:
         proto = to_onnx(OutputsFor(model, physics, inputs), (x, accel, *vector),
                         ["x", "accel", *(["physics"] if inputs else [])], ["outputs"],
-                        {"x": {0: "B"}, "accel": {0: "B"}, "outputs": {0: "B"}})
+                        {"x": {0: "B"}, "accel": {0: "B"}, "outputs": {0: "B"}}, traced_loops(model.dynamics(physics)))
     except Exception as exc:  # whatever the task's own code raises under the tracer
         raise ValueError(f"the {task!r} task's outputs_for cannot be exported as an ONNX graph: tracing it failed "
                          f"with {type(exc).__name__}: {exc}") from exc

@@ -31,7 +31,7 @@ import torch
 
 from ..core.execution import check_execution
 from ..core.results import Motion, first_of
-from ..errors import as_trajectories
+from ..errors import as_trajectories, check_number
 from ..physics.integrator import DT
 from ..physics.parameters import Physics
 from ..physics.sliding import GRAVITY, PLAN_LAYOUT
@@ -88,9 +88,7 @@ class Tracking(Objective):
         self.alpha_velocity = _check_weight("alpha_velocity", alpha_velocity)
         self.alpha_end = _check_weight("alpha_end", alpha_end)
         self.alpha_jerk = _check_weight("alpha_jerk", alpha_jerk)
-        if pan_limit is not None and (_check_weight("pan_limit", pan_limit) == 0):
-            raise ValueError("pan_limit must be > 0")
-        self.pan_limit = None if pan_limit is None else float(pan_limit)
+        self.pan_limit = None if pan_limit is None else _check_weight("pan_limit", pan_limit, positive=True)
 
     def bind(self, model: Any) -> Tracking:
         """This objective for a sliding model: refuses any other model; p_lim from its options."""
@@ -218,18 +216,16 @@ def refine_plan(
             raise ValueError("refine_plan(robot=...) plans one command at a time: pass a command of shape (K, 4)")
         check_limit_kinds(limits)
     for name, value in (("steps", steps), ("accel_steps", accel_steps)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-            raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        check_number(name, value, minimum=0, integer=True)
     _check_weight("dither", dither)
     if dither > 0 and accel_steps == 0:
         raise ValueError("dither is applied before the acceleration polish: give accel_steps > 0 as well")
     for name, value in (("lr", lr), ("accel_lr", accel_lr), ("dither_hz", dither_hz)):
-        if _check_weight(name, value) == 0:
-            raise ValueError(f"{name} must be > 0")
-    if isinstance(gains, str) or not gains or not all(
-        isinstance(g, int | float) and not isinstance(g, bool) and math.isfinite(g) and g > 0 for g in gains
-    ):
+        _check_weight(name, value, positive=True)
+    if isinstance(gains, str) or not gains:
         raise ValueError(f"gains must be a non-empty sequence of positive numbers, got {gains!r}")
+    for gain in gains:
+        check_number("each of gains", gain, minimum=0.0, strict_minimum=True)
     if objective is None:  # the measured recipe, within the pan range the planner was trained for
         objective = Tracking(batch, alpha_end=0.3, alpha_jerk=10.0, pan_limit=float(planner.options.pan_limit))
     bound = objective.bind(planner)

@@ -42,7 +42,7 @@ import numba
 import numpy as np
 import torch
 
-from ..errors import as_trajectories, check_number
+from ..errors import as_trajectories, check_finite_array, check_friction, check_number
 from .integrator import DT, CovarianceCarry, integrate, propagate_covariance
 from .layout import StateLayout
 from .parameters import Physics
@@ -74,16 +74,17 @@ class SlidingPhysics(Physics):
     mu_dyn: float = MU_DYN
 
     def __post_init__(self) -> None:
-        mu = check_number("mu", self.mu, minimum=0.0, strict_minimum=True)
-        mu_dyn = check_number("mu_dyn", self.mu_dyn, minimum=0.0)
-        if mu > MAX_FRICTION:
-            raise ValueError(f"mu = {mu:g} is no friction coefficient a pan and object can have (at most "
-                             f"{MAX_FRICTION:g}; the shipped planners were trained at 0.8-1.2)")
-        if mu_dyn > mu:
-            raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu = {mu:g}, "
-                             f"mu_dyn = {mu_dyn:g}")
+        mu, mu_dyn = check_pan_friction(self.mu, self.mu_dyn)
         object.__setattr__(self, "mu", mu)
         object.__setattr__(self, "mu_dyn", mu_dyn)
+
+
+def check_pan_friction(mu: object, mu_dyn: object) -> tuple[float, float]:
+    """Static and dynamic pan–object friction as floats (:func:`~seqmotion.errors.check_friction`: ``0 < μ ≤``
+    :data:`MAX_FRICTION`, ``0 ≤ μ' ≤ μ``), or ``ValueError`` naming the rule broken."""
+    static, dynamic = check_friction(mu, mu_dyn, maximum=MAX_FRICTION, between="a pan and object",
+                                     note="; the shipped planners were trained at 0.8-1.2")
+    return static, float(dynamic)
 
 
 # Which case of eq. 3.9 a step took.
@@ -365,7 +366,20 @@ class ContactLoop(torch.autograd.Function):
     """:func:`contact_loop` as a single node of a traced graph (forward only; used only while tracing). Unrolled,
     the loop is ~15 nodes per sample (1,500 for a chunk of 100); the export turns this node into one ``Scan`` whose
     body is the traced :func:`contact_sample`, the same ops, so the graph computes what the loop does, bit for bit.
+
+    Its ``loop_*`` attributes tell the export so (:class:`seqmotion.deploy.scan.TracedLoop`): the placeholder's
+    inputs are the relative velocity ``v0`` ``(B, 2)`` [m/s] carried from sample to sample, ``−u_p`` and the
+    breakaway velocities ``(B, C, 2)`` read a sample at a time, and ``μ' g`` ``(B, 1)`` [m/s²] read whole; its
+    attribute ``dt`` [s]; its outputs the velocities, moving flags and ``w · v`` of every sample.
     """
+
+    loop_op, loop_domain, loop_name = CONTACT_LOOP_OP, CONTACT_LOOP_DOMAIN, "contact"
+    loop_state = ("v", 2)
+    loop_scanned = (("neg_u", 2), ("brk", 2))
+    loop_constants = (("decel", 1),)
+    loop_outputs = ("v_next", "moving", "turn")
+    loop_attributes = ("dt",)
+    loop_sample = staticmethod(contact_sample)
 
     @staticmethod
     def forward(ctx, v0, neg_u, breaks, slide_decel, dt):  # noqa: ANN001, ANN205
@@ -524,16 +538,11 @@ def rollout(
         ``(pan_states, rel_states)``, each ``(K, 4)`` (or batched), starting at rest at 0:
         the pan ``[x, y, vx, vy]`` and the object relative to it.
     """
-    if np.iscomplexobj(mu) or np.iscomplexobj(mu_dyn):
-        raise ValueError(f"friction must be real numbers, got mu={mu}, mu_dyn={mu_dyn}")
-    try:
-        mu_arr, mud_arr = np.asarray(mu, dtype=np.float64), np.asarray(mu_dyn, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"friction must be numbers, got mu={mu!r}, mu_dyn={mu_dyn!r}: {exc}") from None
-    if not (np.all(mu_arr > 0) and np.all(mud_arr >= 0) and np.all(mud_arr <= mu_arr)):
+    mu_arr = check_finite_array("friction mu", mu, minimum=0.0, strict_minimum=True)
+    mud_arr = check_finite_array("friction mu_dyn", mu_dyn, minimum=0.0)
+    if np.any(mud_arr > mu_arr):
         raise ValueError(f"friction must satisfy mu > 0 and 0 <= mu_dyn <= mu, got mu={mu}, mu_dyn={mu_dyn}")
-    if not dt > 0:
-        raise ValueError(f"dt must be positive, got {dt}")
+    check_number("dt", dt, minimum=0.0, strict_minimum=True)
     accel, single = as_trajectories(pan_accel, ACCEL_DIM, "pan_accel", min_length=1)
     u = torch.from_numpy(accel)
     zero = torch.zeros(u.shape[0], STATE_DIM, dtype=torch.float64)
@@ -566,8 +575,12 @@ class SlidingDynamics:
             states (numba on the CPU, torch elsewhere).
 
     Everything it makes lives on the device of the states and accelerations it is given (friction and
-    ``detach_contact`` are moved there).
+    ``detach_contact`` are moved there). Traced for export, the contact model's per-sample loop is one placeholder
+    node, :class:`ContactLoop`, which the export makes a ``Scan`` (``traced_loops``: :mod:`seqmotion.deploy.scan`).
     """
+
+    traced_loops = (ContactLoop,)
+    """The loop placeholders :meth:`step` traces into."""
 
     def __init__(
         self, mu: float | torch.Tensor = MU, mu_dyn: float | torch.Tensor = MU_DYN, dt: float = DT,

@@ -28,15 +28,14 @@ from ..core.execution import BindingLimit, ExecutionCheck
 from ..core.options import TaskOptions, check_count, check_length_range, check_positive
 from ..core.polish import ExactForm
 from ..core.results import FEASIBLE_TOLERANCE, Motion
-from ..core.task import Task
+from ..core.task import Preset, Task
 from ..core.trained import TrainedModel
 from ..data import pancake as inputs
 from ..data.trajectories import TensorBatch, TrajectoryBatch
 from ..errors import as_trajectories
-from ..models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
+from ..models.seq2seq import DEFAULT_CHUNK, ChunkedSeq2Seq
 from ..physics.integrator import DT, DoubleIntegratorDynamics
 from ..physics.pancake import (
-    ACCEL_DIM,
     ACCEL_LAYOUT,
     MU,
     STATE_DIM,
@@ -48,7 +47,6 @@ from ..physics.pancake import (
     violation_torch,
 )
 from ..physics.transcription import within_reach
-from ..training.config import TrainConfig
 from ..training.curriculum import Curriculum, CurriculumParams, Stage
 from ..training.losses import (
     DEFAULT_VARIANCE_FLOOR,
@@ -117,23 +115,6 @@ def chapter2_curriculum() -> Curriculum:
             Stage(31, 40, {"phi_max": [math.pi / 4, math.pi]}),  # inputs that need deforming
             Stage(61, 80, {"accel_type_prob": [1.0, 0.0]}),  # toward position-type inputs
         ],
-    )
-
-
-def model_config(layers: int, hidden: int, chunk: int = 50) -> Seq2SeqConfig:
-    """The chapter-2/4 architecture: encoder on states, decoder on generated states, 3-D Gaussian inputs."""
-    state_scale = [0.1, 0.1, 1.0, 1.0, 1.0, 10.0]  # m, m, rad, m/s, m/s, rad/s
-    return Seq2SeqConfig(
-        encoder_input_dim=STATE_DIM,
-        decoder_input_dim=STATE_DIM,
-        output_dim=ACCEL_DIM,
-        chunk=chunk,
-        layers=layers,
-        hidden=hidden,
-        correlated_pairs=[[0, 1]],  # ρ_yz (eq. 2.11)
-        encoder_input_scale=state_scale,
-        decoder_input_scale=state_scale,
-        output_scale=[10.0, 10.0, 100.0],  # m/s², m/s², rad/s²
     )
 
 
@@ -214,7 +195,6 @@ class PancakeTask(Task):
     """Learning to deform motions under the friction-cone constraint."""
 
     name = "pancake"
-    presets = ("tiny", "small", "paper")
     options_class = PancakeOptions
     input_layout = STATE_LAYOUT
     state_layout = STATE_LAYOUT
@@ -223,25 +203,22 @@ class PancakeTask(Task):
     params_class = PancakeParams
     end_pose = (("y", "z", "theta"), (1.0, 1.0, THETA_WEIGHT))
 
-    def train_config(self, preset: str) -> TrainConfig:
-        if preset == "small":  # the chapter-4 model: 2 × 64, full curriculum, paper data volume
-            model, bpe, batch, curriculum = model_config(2, 64), 64, 256, chapter2_curriculum()
-        elif preset == "paper":  # ch. 2: 2 × 512 cells, 100 epochs × 64 × 256 = 1,638,400 trajectories
-            model, bpe, batch, curriculum = model_config(2, 512), 64, 256, chapter2_curriculum()
-        elif preset == "tiny":  # seconds on a laptop: for tests
-            model, bpe, batch, curriculum = model_config(2, 16, chunk=10), 2, 8, chapter2_curriculum().scaled(10)
-        else:
-            raise ValueError(f"unknown preset {preset!r} for task pancake; choose from {self.presets}")
-        options = PancakeOptions(length=(20, 60)) if preset == "tiny" else PancakeOptions()
-        return TrainConfig(
-            task=self.name,
-            preset=preset,
-            model=model.to_dict(),
-            curriculum=curriculum.to_dict(),
-            batches_per_epoch=bpe,
-            batch_size=batch,
-            options=options.to_dict(),
-        )
+    # The chapter-2/4 architecture: encoder on states, decoder on generated states, 3-D Gaussian outputs.
+    # tiny: seconds on a laptop, for tests; small: the chapter-4 model, 2 × 64, full curriculum, paper data volume;
+    # paper: ch. 2, 2 × 512 cells, 100 epochs × 64 × 256 = 1,638,400 trajectories.
+    preset_table = {
+        "tiny": Preset(layers=2, hidden=16, chunk=10, batches_per_epoch=2, batch_size=8, epochs=10,
+                       options={"length": (20, 60)}),
+        "small": Preset(layers=2, hidden=64, chunk=DEFAULT_CHUNK, batches_per_epoch=64, batch_size=256),
+        "paper": Preset(layers=2, hidden=512, chunk=DEFAULT_CHUNK, batches_per_epoch=64, batch_size=256),
+    }
+    input_scale = state_scale = (0.1, 0.1, 1.0, 1.0, 1.0, 10.0)  # m, m, rad, m/s, m/s, rad/s
+    output_scale = (10.0, 10.0, 100.0)  # m/s², m/s², rad/s²
+    correlated_pairs = ((0, 1),)  # ρ_yz (eq. 2.11)
+
+    def preset_curriculum(self) -> Curriculum:
+        """The dissertation's 100-epoch schedule (:func:`chapter2_curriculum`)."""
+        return chapter2_curriculum()
 
     def sample(
         self, n: int, rng: np.random.Generator, params: PancakeParams, options: PancakeOptions

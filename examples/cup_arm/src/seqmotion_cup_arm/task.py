@@ -15,8 +15,11 @@ Everything seqmotion needs, written against its public pieces:
   of the same names and recorded on every result; :class:`~.arm.CupArmDynamics` reads both as
   attributes, so an exported dynamics graph takes them as inputs;
 * **data** — random moves between poses with the cup upright (``seqmotion.data.trajectories``);
-* **loss** — the joint angles' likelihood under the covariance propagated through the arm, plus the
-  weighted spill violation; teacher forcing fades out over the curriculum (:class:`CupArmParams`).
+* **presets** — the model's size, data volume and options per preset, as data (``preset_table``), the
+  network's scales beside the layouts;
+* **loss** — seqmotion's standard one (``Task.standard_loss``: the joint angles' likelihood under the
+  covariance propagated through the arm, plus the weighted spill violation) and the end-state error;
+  teacher forcing fades out over seqmotion's standard curriculum.
 """
 
 from __future__ import annotations
@@ -28,21 +31,13 @@ import numpy as np
 import torch
 
 from seqmotion.core.options import check_length_range, check_positive
+from seqmotion.core.task import Preset, TeacherForcingParams
 from seqmotion.data.trajectories import TensorBatch, TrajectoryBatch, draw_lengths, path_states
 from seqmotion.errors import MAX_LENGTH, check_number
-from seqmotion.models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
+from seqmotion.models.seq2seq import ChunkedSeq2Seq
 from seqmotion.physics.integrator import DT, CovarianceCarry
 from seqmotion.physics.layout import StateLayout
 from seqmotion.tasks import Task, TaskOptions
-from seqmotion.training.config import TrainConfig
-from seqmotion.training.curriculum import Curriculum, CurriculumParams, Stage
-from seqmotion.training.losses import (
-    encode_and_rollout,
-    masked_mean,
-    per_trajectory,
-    sample_mask,
-    weighted_gaussian_nll,
-)
 
 from . import arm
 from .arm import HOME, CupArmDynamics, CupArmPhysics
@@ -104,53 +99,36 @@ class CupArmOptions(TaskOptions):
         return math.radians(self.spill_limit_deg)
 
 
-@dataclass(frozen=True)
-class CupArmParams(CurriculumParams):
-    """The curriculum's one parameter: the share of teacher-forced chunks."""
-
-    teacher_forcing_prob: float
-
-
-def model_config(layers: int, hidden: int, chunk: int) -> Seq2SeqConfig:
-    """Angles ~1 rad, speeds ~2 rad/s; torques around the gravity torque at home (~4.9 and 1.5 N·m) with
-    a couple of N·m for accelerating, so the untrained decoder starts by roughly holding the arm up."""
-    scale = [1.0, 1.0, 2.0, 2.0]  # rad, rad, rad/s, rad/s
+def hold_torques() -> tuple[float, ...]:
+    """The gravity torques [N·m] that hold the arm at :data:`~.arm.HOME` with the default payload, to 1 mN·m: the
+    model's output offset, so the untrained decoder starts by roughly holding the arm up."""
     home = torch.tensor([HOME], dtype=torch.float64)
     hold = arm.bias_torques(home, torch.zeros_like(home), CupArmPhysics())[0]
-    return Seq2SeqConfig(
-        encoder_input_dim=4, decoder_input_dim=4, output_dim=2, chunk=chunk, layers=layers, hidden=hidden,
-        correlated_pairs=[[0, 1]], encoder_input_scale=scale, decoder_input_scale=scale, output_scale=[2.0, 1.0],
-        output_offset=[round(float(v), 3) for v in hold],
-    )
+    return tuple(round(float(v), 3) for v in hold)
 
 
 class CupArmTask(Task):
     """Follow joint-space sketches with torques that keep the liquid in the cup."""
 
     name = "cup_arm"
-    presets = ("tiny", "small")
     options_class = CupArmOptions
     physics_class = CupArmPhysics
-    params_class = CupArmParams
+    params_class = TeacherForcingParams
     input_layout = STATE
     state_layout = STATE
     accel_layout = TORQUE
     end_pose = (("q1", "q2"), (1.0, 1.0))
+    preset_table = {
+        "tiny": Preset(layers=1, hidden=16, chunk=10, batches_per_epoch=2, batch_size=8, epochs=4,  # seconds: tests
+                       options={"length": (60, 100), "move": 0.2}),
+        "small": Preset(layers=2, hidden=64, chunk=25, batches_per_epoch=16, batch_size=32),
+    }
+    input_scale = state_scale = (1.0, 1.0, 2.0, 2.0)  # rad, rad, rad/s, rad/s
+    output_scale = (2.0, 1.0)  # N·m: a couple for accelerating, about the gravity torques at home
+    output_offset = hold_torques()
+    correlated_pairs = ((0, 1),)
 
-    def train_config(self, preset: str) -> TrainConfig:
-        curriculum = Curriculum(epochs=40, initial={"teacher_forcing_prob": 1.0},
-                                stages=[Stage(5, 15, {"teacher_forcing_prob": [1.0, 0.0]})])
-        if preset == "small":
-            model, bpe, batch, options = model_config(2, 64, 25), 16, 32, CupArmOptions()
-        elif preset == "tiny":  # seconds: for tests
-            model, bpe, batch = model_config(1, 16, 10), 2, 8
-            curriculum, options = curriculum.scaled(4), CupArmOptions(length=(60, 100), move=0.2)
-        else:
-            raise ValueError(f"unknown preset {preset!r} for task cup_arm; choose from {self.presets}")
-        return TrainConfig(task=self.name, preset=preset, model=model.to_dict(), curriculum=curriculum.to_dict(),
-                           batches_per_epoch=bpe, batch_size=batch, options=options.to_dict())
-
-    def sample(self, n: int, rng: np.random.Generator, params: CupArmParams,
+    def sample(self, n: int, rng: np.random.Generator, params: TeacherForcingParams,
                options: CupArmOptions) -> TrajectoryBatch:
         """Moves from rest to rest between two poses with the cup near upright, through a wobbly middle pose."""
         opt = options
@@ -166,26 +144,21 @@ class CupArmTask(Task):
         """``n`` whole training moves ``(n, K, 4)`` of the ``small`` preset, all of its middle length K."""
         options = self.options(self.train_config("small"))
         k = sum(options.length) // 2
-        return self.sample(n, np.random.default_rng(seed), CupArmParams(0.0), options.replace(length=(k, k))).states
+        params, options = TeacherForcingParams(0.0), options.replace(length=(k, k))
+        return self.sample(n, np.random.default_rng(seed), params, options).states
 
-    def loss(self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: CupArmDynamics, params: CupArmParams,
+    def loss(self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: CupArmDynamics, params: TeacherForcingParams,
              options: CupArmOptions, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
+        """The standard loss (``Task.standard_loss``) plus ``alpha_end`` times the squared end-state error ``L3``."""
         opt, states, lengths = options, batch.states, batch.lengths  # on the model's device
-        k_max = states.shape[1]
-        out = encode_and_rollout(model, states, lengths, states[:, 0], dynamics, teacher=states,
-                                 teacher_forcing_prob=params.teacher_forcing_prob, generator=generator)
-        valid = sample_mask(lengths, k_max)
-        diff = (states - out.states[:, :k_max])[:, 1:, :2]
-        nll = weighted_gaussian_nll(diff, out.outputs["pos_cov"][:, : k_max - 1], floor=opt.variance_floor)
-        violation = self.violation(out.states[:, :k_max], out.accel[:, : k_max - 1], opt) * valid
+        out = self.rollout(model, batch, dynamics, params, generator)
+        loss, terms = self.standard_loss(out, batch, opt)
         last = (lengths - 1).view(-1, 1, 1).expand(-1, 1, 4)  # each move's own last sample
-        gap = (out.states[:, :k_max].gather(1, last) - states.gather(1, last))[:, 0]
+        gap = (out.states[:, : states.shape[1]].gather(1, last) - states.gather(1, last))[:, 0]
         end = (gap[:, :2] ** 2).sum(1) + ((opt.end_horizon * gap[:, 2:]) ** 2).sum(1)
-        loss = per_trajectory(opt.alpha_shape * nll + opt.alpha_constraint * violation, valid, lengths).mean()
         loss = loss + opt.alpha_end * end.mean()
-        feasible = (violation.detach().amax(1) <= 0.01).float().mean()
-        terms = {"L1": masked_mean(nll, valid), "L2": masked_mean(violation, valid), "L3": float(end.detach().mean())}
-        return loss, {**terms, "feasible": float(feasible)}
+        return loss, {"L1": terms["L1"], "L2": terms["L2"], "L3": float(end.detach().mean()),
+                      "feasible": terms["feasible"]}
 
     def dynamics(self, options: CupArmOptions, physics: CupArmPhysics) -> CupArmDynamics:
         return CupArmDynamics.at(physics, DT)

@@ -13,9 +13,10 @@ Everything seqmotion needs is in this one module, written against seqmotion's pu
 * **physics** — the double integrator (``seqmotion.physics.integrator``) and the violation
   ``max(0, atan(|a|/g) − limit)``;
 * **data** — random quadratic paths with S-curve timing (``seqmotion.data.trajectories``);
-* **loss** — the shape likelihood through the propagated covariance plus the weighted
-  violation, from ``seqmotion.training.losses``;
-* **curriculum** — teacher forcing fading out, as data, its parameter typed (``TrayParams``).
+* **presets** — the model's size, data volume and options per preset, as data (``preset_table``),
+  the network's scales beside the layouts;
+* **loss** and **curriculum** — seqmotion's standard ones (``Task.standard_loss``: the shape likelihood
+  through the propagated covariance plus the weighted violation; teacher forcing fading out).
 
 The package's ``pyproject.toml`` registers ``TASK`` under the entry-point group
 ``seqmotion.tasks``; nothing in seqmotion is edited.
@@ -30,21 +31,12 @@ import numpy as np
 import torch
 
 from seqmotion.core.options import check_length_range, check_positive
-from seqmotion.data.trajectories import TensorBatch, TrajectoryBatch, draw_lengths, path_states
-from seqmotion.models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
+from seqmotion.core.task import Preset, TeacherForcingParams
+from seqmotion.data.trajectories import TrajectoryBatch, draw_lengths, path_states
 from seqmotion.physics.integrator import DT, DoubleIntegratorDynamics
 from seqmotion.physics.layout import StateLayout
 from seqmotion.physics.parameters import Physics
 from seqmotion.tasks import Task, TaskOptions
-from seqmotion.training.config import TrainConfig
-from seqmotion.training.curriculum import Curriculum, CurriculumParams, Stage
-from seqmotion.training.losses import (
-    encode_and_rollout,
-    masked_mean,
-    per_trajectory,
-    sample_mask,
-    weighted_gaussian_nll,
-)
 
 GRAVITY = 9.8  # [m/s²]
 STATE = StateLayout(("x", "y", "v_x", "v_y"), ("m", "m", "m/s", "m/s"), "tray state")
@@ -94,66 +86,32 @@ class TrayOptions(TaskOptions):
         return math.radians(self.max_tilt_deg)
 
 
-@dataclass(frozen=True)
-class TrayParams(CurriculumParams):
-    """The curriculum's one parameter: the share of teacher-forced chunks."""
-
-    teacher_forcing_prob: float
-
-
-def model_config(layers: int, hidden: int, chunk: int) -> Seq2SeqConfig:
-    scale = [0.1, 0.1, 1.0, 1.0]  # m, m, m/s, m/s
-    return Seq2SeqConfig(
-        encoder_input_dim=4, decoder_input_dim=4, output_dim=2, chunk=chunk, layers=layers, hidden=hidden,
-        correlated_pairs=[[0, 1]], encoder_input_scale=scale, decoder_input_scale=scale, output_scale=[5.0, 5.0],
-    )
-
-
 class TrayTask(Task):
     """Deform planar tray motions so the cup never feels more than ``max_tilt_deg``."""
 
     name = "tray"
-    presets = ("tiny", "small")
     options_class = TrayOptions
-    params_class = TrayParams
+    params_class = TeacherForcingParams
     input_layout = STATE
     state_layout = STATE
     accel_layout = ACCEL
     end_pose = (("x", "y"), (1.0, 1.0))
+    preset_table = {
+        "tiny": Preset(layers=1, hidden=16, chunk=10, batches_per_epoch=2, batch_size=8, epochs=4,  # seconds: tests
+                       options={"length": (100, 200), "reach": 0.03}),
+        "small": Preset(layers=2, hidden=64, chunk=25, batches_per_epoch=32, batch_size=64),
+    }
+    input_scale = state_scale = (0.1, 0.1, 1.0, 1.0)  # m, m, m/s, m/s
+    output_scale = (5.0, 5.0)  # m/s²
+    correlated_pairs = ((0, 1),)
 
-    def train_config(self, preset: str) -> TrainConfig:
-        curriculum = Curriculum(epochs=40, initial={"teacher_forcing_prob": 1.0},
-                                stages=[Stage(5, 15, {"teacher_forcing_prob": [1.0, 0.0]})])
-        if preset == "small":
-            model, bpe, batch, options = model_config(2, 64, 25), 32, 64, TrayOptions()
-        elif preset == "tiny":  # seconds: for tests
-            model, bpe, batch = model_config(1, 16, 10), 2, 8
-            curriculum, options = curriculum.scaled(4), TrayOptions(length=(100, 200), reach=0.03)
-        else:
-            raise ValueError(f"unknown preset {preset!r} for task tray; choose from {self.presets}")
-        return TrainConfig(task=self.name, preset=preset, model=model.to_dict(), curriculum=curriculum.to_dict(),
-                           batches_per_epoch=bpe, batch_size=batch, options=options.to_dict())
-
-    def sample(self, n: int, rng: np.random.Generator, params: TrayParams, options: TrayOptions) -> TrajectoryBatch:
+    def sample(self, n: int, rng: np.random.Generator, params: TeacherForcingParams, options: TrayOptions
+               ) -> TrajectoryBatch:
         opt = options
         lengths = draw_lengths(rng, n, opt.length)
         waypoints = rng.uniform(-opt.reach, opt.reach, size=(n, 3, 2))
         waypoints[:, 0] = 0.0  # every path starts at the origin, at rest
         return TrajectoryBatch(path_states(waypoints, lengths, DT), lengths)
-
-    def loss(self, model: ChunkedSeq2Seq, batch: TensorBatch, dynamics: DoubleIntegratorDynamics, params: TrayParams,
-             options: TrayOptions, generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
-        opt, states, lengths = options, batch.states, batch.lengths  # on the model's device
-        k_max = states.shape[1]
-        out = encode_and_rollout(model, states, lengths, states[:, 0], dynamics, teacher=states,
-                                 teacher_forcing_prob=params.teacher_forcing_prob, generator=generator)
-        valid = sample_mask(lengths, k_max)
-        diff = (states - out.states[:, :k_max])[:, 1:, :2]
-        nll = weighted_gaussian_nll(diff, out.outputs["pos_cov"][:, : k_max - 1], floor=opt.variance_floor)
-        violation = self.violation(out.states[:, :k_max], out.accel[:, : k_max - 1], opt) * valid
-        loss = per_trajectory(opt.alpha_shape * nll + opt.alpha_constraint * violation, valid, lengths).mean()
-        feasible = (violation.detach().amax(1) <= 0.01).float().mean()
-        return loss, {"L1": masked_mean(nll, valid), "L2": masked_mean(violation, valid), "feasible": float(feasible)}
 
     def dynamics(self, options: TrayOptions, physics: Physics) -> DoubleIntegratorDynamics:
         return DoubleIntegratorDynamics(2, DT)
