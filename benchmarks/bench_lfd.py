@@ -55,7 +55,7 @@ def main() -> int:
 
     torch.set_num_threads(1)
     from seqmotion.lfd import dataset, evaluate, train
-    from seqmotion.lfd.models import PushingPolicy
+    from seqmotion.lfd.policy.policy import PushingPolicy
     from seqmotion.training.provenance import machine_record
 
     out = Path(args.out)

@@ -64,7 +64,7 @@ def _row(method: str, demos: int | None, seed: int | None, result, train_seconds
 
 def _episode_seconds() -> float:
     """The hard benchmark's episode length [s] (demonstrations and trials): 6 s since v2, 4 s before."""
-    from seqmotion.sim.pushing import EPISODE_SECONDS
+    from seqmotion.lfd.env.pushing import EPISODE_SECONDS
 
     return EPISODE_SECONDS["hard"]
 
@@ -83,7 +83,7 @@ def _steps(policy_dir: Path, part: str) -> int | None:
 
 def run(args: argparse.Namespace) -> int:
     from seqmotion.lfd.evaluation import evaluate
-    from seqmotion.lfd.models import PushingPolicy
+    from seqmotion.lfd.policy.policy import PushingPolicy
     from seqmotion.lfd.train import SeqAETraining, train
     from seqmotion.training.provenance import command_line
 

@@ -21,8 +21,7 @@ import time
 import numpy as np
 
 import seqmotion as sm
-from seqmotion.lfd.evaluation import evaluate, position_latents
-from seqmotion.lfd.robot import run_on_robot
+from seqmotion.lfd.evaluation import evaluate, position_latents, run_on_robot
 
 
 def main() -> None:
@@ -33,7 +32,7 @@ def main() -> None:
     parser.add_argument("--data", default=None, help="a 'seqmotion lfd collect' directory (for oracle latents)")
     parser.add_argument("--skip-touch", action="store_true", help="do not run the Touch arm's own evaluation")
     parser.add_argument("--mode", default="command", choices=("command", "twin"),
-                        help="how the decoder's commands reach the robot (seqmotion.lfd.robot.run_trial)")
+                        help="how the decoder's commands reach the robot (seqmotion.lfd.rollout.run_trial)")
     args = parser.parse_args()
     policy = sm.load_pretrained("pushing")
     out: dict = {"policy": "pushing (shipped)", "robot": args.robot, "mode": args.mode,

@@ -115,7 +115,7 @@ def test_snapshot_times_are_the_ones_the_arm_renders():
 @pytest.fixture
 def unseen_only(tmp_path):
     """A ch5 work folder holding only the unseen images (short episodes): no training data, no models."""
-    pytest.importorskip("seqmotion.sim.pushing")
+    pytest.importorskip("seqmotion.lfd.env.pushing")
     from seqmotion.lfd import dataset
     from seqmotion.reproduce import ch5
 

@@ -393,7 +393,7 @@ def test_episode_fields_are_not_coerced(base, tmp_path, capsys, column, values, 
 
 
 def test_position_range_is_the_simulators():
-    from seqmotion.sim.pushing import POSITIONS
+    from seqmotion.lfd.env.pushing import POSITIONS
 
     assert lerobot_import.BLOCK_POSITIONS == len(POSITIONS)
 

@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[1] / "src" / "seqmotion"
 RANK = {"errors": 0, "io": 0, "physics": 1, "models": 2, "training": 3, "data": 4, "core": 5, "tasks": 6, "api": 6,
         "latent": 7, "sim": 7, "lfd": 7, "deploy": 7, "cli": 8, "reproduce": 8, "view": 8}
 """physics → models → training → data → core (the task contract, results, trained model, stepper) → tasks
-(one module per task) → latent / sim / lfd / deploy → cli / reproduce / view (docs/architecture.md)."""
+(one module or folder per task) → latent / sim / lfd / deploy → cli / reproduce / view (docs/architecture.md)."""
 
 
 def module_name(path: Path) -> str:

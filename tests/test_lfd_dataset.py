@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-pushing = pytest.importorskip("seqmotion.sim.pushing")
+pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
 from seqmotion.lfd import cli, dataset, teleop  # noqa: E402
 from seqmotion.lfd.operator import OperatorParams, ScriptedOperator  # noqa: E402
 

@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
-pushing = pytest.importorskip("seqmotion.sim.pushing")
+pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
 from seqmotion.lfd import dataset, evaluation, teleop  # noqa: E402
 from seqmotion.lfd.operator import OperatorParams, ScriptedOperator  # noqa: E402
+from seqmotion.lfd.rollout import run_episode  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -228,30 +229,29 @@ def test_train_on_the_first_n_demonstrations_and_evaluate(hard_dir, tmp_path):
         evaluation.evaluate(policy, positions=[0], benchmark="hard")
 
 
-def test_any_policy_with_run_is_evaluated(scene):
-    """A peer's adapter (here: one that holds the arm still) goes through the same evaluation."""
+def test_any_controller_is_evaluated(scene):
+    """A peer's adapter (here: one that holds the arm still) goes through the same evaluation and rollout."""
 
     class Still:
         config = type("Config", (), {"kind": "still", "preset": "", "camera": "default"})()
+        camera, command_interval, images_every_step = "default", 0.02, False
 
-        def run(self, scene, position, variation=None, camera=None, duration=4.0, latent=None):
-            scene.reset(position, variation)
-            image = scene.render(camera)
-            run = teleop.run_autonomous(scene, lambda t, state: state, position, duration, variation, reset=False)
-            return run, image, np.zeros(0)
+        def reset(self):
+            self.calls = 0
+
+        def select_action(self, observation):
+            assert (observation.image is not None) == (observation.t == 0.0)  # the first image only
+            self.calls += 1
+            return observation.state
 
     result = evaluation.evaluate(Still(), trials=2, seed=0, benchmark="hard", duration=0.2, scene=scene)
     assert result.successes == 0 and result.policy_kind == "still"
 
-    class Timed(Still):
-        def run(self, scene, position, variation=None, camera=None, duration=4.0, latent=None):
-            self.duration = duration
-            return super().run(scene, position, variation, camera, 0.1, latent)
-
-    timed = Timed()
+    timed = Still()
     evaluation.evaluate(timed, trials=1, benchmark="hard", scene=scene)
-    assert timed.duration == pushing.EPISODE_SECONDS["hard"] == 6.0  # the benchmark's episode, not the chapter's 4 s
-    with pytest.raises(ValueError, match="run"):
+    # the benchmark's episode (6 s: 300 decisions of 20 ms), not the chapter's 4 s
+    assert timed.calls * 0.02 == pushing.EPISODE_SECONDS["hard"] == 6.0
+    with pytest.raises(ValueError, match="select_action"):
         evaluation.evaluate(object(), benchmark="hard")
     with pytest.raises(ValueError, match="'hard' benchmark"):
         evaluation.evaluate(Still(), scene=scene)
@@ -396,7 +396,7 @@ def test_feedback_policy_trains_round_trips_and_runs_closed_loop(hard_dir, tmp_p
     with pytest.raises(ValueError, match="feedback"):
         policy.source(np.zeros(5))
     with pytest.raises(ValueError, match="takes no latent"):
-        policy.run(scene, *pushing.sample_hard_placement(np.random.default_rng(0)), latent=np.zeros(5))
+        run_episode(scene, policy, *pushing.sample_hard_placement(np.random.default_rng(0)), latent=np.zeros(5))
     robot = pytest.importorskip("seqmotion.lfd.robot")
     with pytest.raises(ValueError, match="feedback"):  # the standard arms run one z from the first image
         robot.run_trial(policy, None, *pushing.sample_hard_placement(np.random.default_rng(0)))

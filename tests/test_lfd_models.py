@@ -214,7 +214,7 @@ def test_cnn_learns_a_tiny_image_to_latent_mapping():
 
 
 def test_decoder_drives_the_slave():
-    pushing = pytest.importorskip("seqmotion.sim.pushing")
+    pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
     from seqmotion.lfd.teleop import run_autonomous
 
     policy = _policy()
@@ -226,8 +226,15 @@ def test_decoder_drives_the_slave():
         assert np.all(np.isfinite(run.slave_theta)) and np.all(np.isfinite(run.command_theta))
         # the commands are the decoder's (not the initial hold), and the slave responds
         assert np.abs(run.command_theta[-1] - run.command_theta[0]).max() > 0 or np.any(run.command_tau != 0)
-        run2, image, z = policy.run(scene, pushing.POSITIONS[4], duration=0.1)
+        from seqmotion.lfd.rollout import run_episode
+
+        run2, image, z = run_episode(scene, policy, pushing.POSITIONS[4], duration=0.1)
         assert image.shape == (64, 64, 3) and z.shape == (8,) and len(run2.slave_theta) == 100
+        np.testing.assert_array_equal(z, policy.latent(image))  # the CNN's ẑ of the first image
+        # the same episode by select_action, one decision at a time, as any controller is driven
+        again, _, z_again = run_episode(scene, policy, pushing.POSITIONS[4], duration=0.1, latent=z)
+        np.testing.assert_array_equal(again.command_theta, run2.command_theta)
+        np.testing.assert_array_equal(z_again, z)
     finally:
         scene.close()
     with pytest.raises(ValueError, match="expected 0.0200 s"):

@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 
-pytest.importorskip("seqmotion.sim.pushing")
+pytest.importorskip("seqmotion.lfd.env.pushing")
 from seqmotion.lfd import dataset, evaluation, train  # noqa: E402
 from seqmotion.reproduce import ch5  # noqa: E402
 

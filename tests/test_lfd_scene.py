@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-pushing = pytest.importorskip("seqmotion.sim.pushing")
+pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-pushing = pytest.importorskip("seqmotion.sim.pushing")
+pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
 from seqmotion.lfd import teleop  # noqa: E402
 from seqmotion.lfd.operator import PHASES, OperatorParams, ScriptedOperator  # noqa: E402
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-pushing = pytest.importorskip("seqmotion.sim.pushing")
+pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
 import seqmotion as sm  # noqa: E402
-from seqmotion.lfd import cli, dataset, evaluate, train  # noqa: E402
+from seqmotion.lfd import cli, dataset, evaluate, fitting, train  # noqa: E402
 from seqmotion.lfd.models import PushingPolicy  # noqa: E402
 
 FAST = train.SeqAETraining(epochs=2, batch_size=4)
@@ -344,7 +344,7 @@ def test_interrupted_training_resumes_exactly(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real_loss(*args, **kwargs)
 
-    monkeypatch.setattr(train, "CHECKPOINT_EVERY", 1)
+    monkeypatch.setattr(fitting, "CHECKPOINT_EVERY", 1)
     monkeypatch.setattr(train, "_seqae_loss", dies_in_epoch_four)
     with pytest.raises(KeyboardInterrupt):
         train.train_seqae(motions, config, settings, checkpoint_dir=tmp_path / "ckpt")
@@ -364,7 +364,7 @@ def test_interrupted_training_resumes_exactly(tmp_path, monkeypatch):
 
 def test_resume_keeps_the_learning_rate_when_a_short_batch_is_skipped(tmp_path, monkeypatch):
     """5 examples in batches of 4 with min_batch=2 (end-to-end's BatchNorm rule): one batch a epoch is skipped."""
-    monkeypatch.setattr(train, "CHECKPOINT_EVERY", 2)
+    monkeypatch.setattr(fitting, "CHECKPOINT_EVERY", 2)
     settings = train.SeqAETraining(epochs=4, batch_size=4, seed=0)
     x = torch.linspace(-1, 1, 5).unsqueeze(1)
 
@@ -380,7 +380,7 @@ def test_resume_keeps_the_learning_rate_when_a_short_batch_is_skipped(tmp_path, 
                 raise KeyboardInterrupt
             return ((module(x[idx]) - 2 * x[idx]) ** 2).mean()
 
-        history = train._fit(module, list(module.parameters()), 5, settings, gen, batch_loss, "toy", False,
+        history = train.fit(module, list(module.parameters()), 5, settings, gen, batch_loss, "toy", False,
                              min_batch=2, checkpoint_dir=checkpoint_dir)
         return module, history
 

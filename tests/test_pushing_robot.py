@@ -10,7 +10,7 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is first imported: offscreen rendering
 
-from seqmotion.sim import pushing  # noqa: E402
+from seqmotion.lfd.env import pushing  # noqa: E402
 from seqmotion.sim import robot_models as rb  # noqa: E402
 
 ROBOSUITE = rb.robosuite_root()

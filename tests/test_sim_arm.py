@@ -87,7 +87,7 @@ def test_scene_cache_and_gravity_are_shared():
     assert backend.GRAVITY == pancake_physics.GRAVITY == 9.8
     np.testing.assert_array_equal(arm.weight(2.0), [0.0, 0.0, -2.0 * 9.8])
     assert arm.get_scene("sliding").model.opt.gravity[2] == -backend.GRAVITY
-    from seqmotion.sim import pushing
+    from seqmotion.lfd.env import pushing
 
     # The pushing scene keeps 9.81 on purpose (its shipped policy was evaluated there).
     assert backend.PUSHING_GRAVITY == 9.81
@@ -194,3 +194,83 @@ def test_cli_mu_and_atomic_json(tmp_path):
     args = parser.parse_args(["simulate", "sliding", "--trajectory", str(tmp_path / "pan.npz"), "--mu", "0.5"])
     with pytest.raises(ValueError, match="--mu"):
         cli.run(args)
+
+
+@pytest.mark.parametrize("kind", ["pancake", "sliding"])
+def test_the_built_in_arm_by_name_gets_the_built_in_arms_workspace_verdicts(kind):
+    """``robot="mh3f"`` (the built-in arm's name) is resolved to the built-in arm: its reach is checked, as with
+    ``robot=None`` (a name tested as "a robot was given" skipped it, leaving only the table)."""
+    from seqmotion.sim.kinematics import pan_reference, planar_reference
+    from seqmotion.sim.robot_models import BUILT_IN
+
+    if kind == "pancake":  # [y, z, θ] held: in reach, out to the side, out below, out to the other side tilted
+        poses = [(0.0, 0.0, 0.0), (0.45, 0.0, 0.0), (0.0, -0.45, 0.0), (-0.45, 0.1, 1.0), (0.0, 0.3, 0.0)]
+        refs = [planar_reference(np.tile(np.r_[p, 0.0, 0.0, 0.0], (3, 1))) for p in poses]
+    else:  # pan [x, y] held: at its origin, far forward, far to the side
+        poses = [(0.0, 0.0), (0.3, 0.0), (0.0, 0.5)]
+        refs = [pan_reference(np.tile(np.r_[p, 0.0, 0.0], (3, 1))) for p in poses]
+    verdicts = [arm.workspace_problem(r, kind) for r in refs]
+    assert [arm.workspace_problem(r, kind, BUILT_IN) for r in refs] == verdicts
+    assert verdicts[0] is None and sum("from the shoulder" in (v or "") for v in verdicts) >= 2
+    for ref, verdict in zip(refs, verdicts, strict=True):
+        for robot in (None, BUILT_IN):
+            if verdict is None:
+                arm.prepare_reference(ref, kind, accel_feedforward=True, check_workspace=True, robot=robot)
+            else:
+                with pytest.raises(ValueError, match="workspace"):
+                    arm.prepare_reference(ref, kind, accel_feedforward=True, check_workspace=True, robot=robot)
+
+
+def test_run_pancake_refuses_a_motion_out_of_the_built_in_arms_reach_by_name():
+    states = np.zeros((50, 6))
+    states[:, 0] = 0.45  # the tool 0.45 m to the side: past the built-in arm's reach, above the table
+    for robot in (None, "mh3f"):
+        with pytest.raises(ValueError, match="wrist centre"):
+            run_pancake(states, robot=robot)
+
+
+def test_joint_report_judges_the_joint_arrays_it_is_given():
+    scene = arm.get_scene("pancake")
+    n, dt = len(scene.arm_dof), 1e-3
+    empty = arm.joint_report(scene, dt, joint_pos=np.zeros((0, n)), joint_vel=np.zeros((0, n)),
+                             torque=np.zeros((0, n)), saturated=np.zeros(0, dtype=bool), ik_error=np.zeros((0, 2)))
+    assert empty.problem is None and empty.ik_error == (0.0, 0.0) and np.all(empty.speed_peak == 0)
+    qd = np.zeros((4, n))
+    qd[2, 1] = -3.0
+    tau = np.full((4, n), 0.5)
+    ik = np.zeros((4, 2))
+    ik[3] = (1e-4, 2e-3)
+    report = arm.joint_report(scene, dt, joint_pos=np.zeros((4, n)), joint_vel=qd, torque=tau,
+                              saturated=np.zeros(4, dtype=bool), ik_error=ik)
+    assert report.robot == arm.BUILT_IN_ARM and report.joints == scene.arm_joints
+    np.testing.assert_array_equal(report.speed_peak, np.abs(qd).max(axis=0))
+    np.testing.assert_array_equal(report.torque_peak, np.full(n, 0.5))
+    assert report.ik_error == (1e-4, 2e-3) and report.problem is None  # the built-in arm's limits are unknown
+
+
+def test_the_runners_hand_every_executed_period_to_observe():
+    """``observe=`` reaches the control step's recording hook: the caller reads the very run it gets the verdict
+    of (the viewer's replay), every period of the reference, with the kinematics of that period's state."""
+    from seqmotion.sim import run_sliding
+    from seqmotion.sim.kinematics import planar_reference
+
+    states = np.zeros((40, 6))
+    seen: list[int] = []
+    sites: list[np.ndarray] = []
+    site = arm.get_scene("pancake").site
+
+    def observe(k: int, data: object) -> None:
+        seen.append(k)
+        sites.append(data.site_xpos[site].copy())
+
+    result = run_pancake(states, hold_time=0.0, decel_time=0.0, settle_time=0.01, observe=observe)
+    ref = planar_reference(states, decel_time=0.0, hold_time=0.0)
+    assert seen == list(range(len(ref))) == list(range(len(result.time)))
+    np.testing.assert_allclose(np.array(sites), ref.pos, atol=1e-3)  # held at the start pose
+    plain = run_pancake(states, hold_time=0.0, decel_time=0.0, settle_time=0.01)
+    np.testing.assert_array_equal(plain.slip, result.slip)  # observing changes nothing
+    pan_seen: list[int] = []
+    run_sliding(np.zeros((30, 4)), hold_time=0.0, decel_time=0.0, settle_time=0.01,
+                observe=lambda k, data: pan_seen.append(k))
+    assert pan_seen == list(range(30))
+    assert not hasattr(arm, "observing")  # no process-wide hook besides the explicit one

@@ -18,6 +18,8 @@ from seqmotion.data.pancake import straight
 from seqmotion.sim.envs import PANCAKE_FIELDS, SLIDING_FIELDS, PancakeArmEnv, ResetNeeded, SlidingArmEnv
 from seqmotion.sim.registration import ENV_IDS, register_envs
 
+ARM_ENV_IDS = sorted(env_id for env_id, entry in ENV_IDS.items() if entry.startswith("seqmotion.sim.envs:"))
+"""The arm environments (their keywords: action, frame_skip, ...); seqmotion/Pushing-v0 has tests/test_lfd_gym.py."""
 VARIANTS = [{}, {"action": "accel", "frame_skip": 1}, {"action": "pose"}, {"normalize_actions": True},
             {"action": "accel", "normalize_actions": True, "frame_skip": 3}]
 
@@ -56,7 +58,7 @@ def test_gymnasium_plugin_entry_point_registers_under_its_namespace():
         registry.update(saved)
 
 
-@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+@pytest.mark.parametrize("env_id", ARM_ENV_IDS)
 @pytest.mark.parametrize("kwargs", VARIANTS, ids=lambda k: ",".join(f"{a}={b}" for a, b in k.items()) or "default")
 def test_every_env_passes_the_checker(env_id, kwargs):
     env = gym.make(env_id, **kwargs)
@@ -71,7 +73,7 @@ def test_every_env_passes_the_checker(env_id, kwargs):
     env.close()
 
 
-@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+@pytest.mark.parametrize("env_id", ARM_ENV_IDS)
 def test_an_unknown_keyword_is_refused_by_name_with_the_valid_ones(env_id):
     """Issue 32, item 12: ``action_mode="accel"`` (for ``action=``) got Python's bare TypeError."""
     with pytest.raises(ValueError, match=r"no keyword 'action_mode' \(did you mean action=\?\).*frame_skip, action,"):
@@ -207,3 +209,34 @@ def test_the_closed_loop_example_runs(capsys, one_thread):
     rows = main(["--episodes", "1", "--replan", "chunk"])
     assert len(rows) == 1 and rows[0]["kept_on"]
     assert "pancake kept on" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("env_class", [PancakeArmEnv, SlidingArmEnv])
+def test_the_built_in_arm_by_name_behaves_as_the_built_in_arm(env_class):
+    """``robot="mh3f"`` resolves to the built-in arm (``env.robot`` is ``None``): the same scene, the same refused
+    start, the same steps to the same observations, leaving the workspace at the same step for the same reason."""
+    from seqmotion.sim.robot_models import BUILT_IN
+
+    envs = [env_class(action="accel", frame_skip=10, robot=robot) for robot in (None, BUILT_IN)]
+    assert [env.robot for env in envs] == [None, None] and envs[0].scene is envs[1].scene
+    if env_class is PancakeArmEnv:  # a start out of the built-in arm's reach, above the table
+        for env in envs:
+            with pytest.raises(ValueError, match="wrist centre"):
+                env.reset(options={"start": (0.45, 0.0, 0.0)})
+    push = np.array([0.0, -5.0, 0.0]) if env_class is PancakeArmEnv else np.array([15.0, 0.0])
+    runs = []
+    for env in envs:
+        obs, _ = env.reset(seed=3)
+        steps = [(obs, 0.0, False, {})]
+        for _ in range(80):  # accelerate out of reach: down (pancake) or forward (pan)
+            obs, reward, terminated, _, info = env.step(push)
+            steps.append((obs, reward, terminated, info))
+            if terminated:
+                break
+        runs.append(steps)
+    assert len(runs[0]) == len(runs[1]) and runs[0][-1][2], "the episode should leave the workspace"
+    assert "shoulder" in runs[0][-1][3]["out_of_workspace"]
+    for (obs_a, rew_a, term_a, info_a), (obs_b, rew_b, term_b, info_b) in zip(*runs, strict=True):
+        np.testing.assert_array_equal(obs_a, obs_b)
+        assert (rew_a, term_a) == (rew_b, term_b)
+        assert {k: str(v) for k, v in info_a.items()} == {k: str(v) for k, v in info_b.items()}

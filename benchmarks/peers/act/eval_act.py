@@ -59,8 +59,8 @@ class ActPolicy:
     def run(self, scene, position, variation=None, camera: str | None = None, duration: float = 4.0,
             latent=None):
         """One episode: reset the scene, take the first image, ACT drives the slave every 20 ms."""
+        from seqmotion.lfd.env.pushing import SceneVariation
         from seqmotion.lfd.teleop import run_autonomous
-        from seqmotion.sim.pushing import SceneVariation
 
         variation = variation or SceneVariation()
         camera = camera or self.camera
@@ -78,8 +78,8 @@ def _evaluate_here(policy: ActPolicy, trials: int, seed: int, benchmark: str, du
                    progress: bool) -> dict:
     """``evaluate``'s trials, run here (for an ``evaluate`` that does not take this policy yet)."""
     from seqmotion.lfd import evaluation
+    from seqmotion.lfd.env import pushing
     from seqmotion.lfd.evaluation import EVAL_STREAM, trial_rng
-    from seqmotion.sim import pushing
 
     HARD_KEY = getattr(evaluation, "HARD_KEY", 100)  # noqa: N806 (the hard benchmark's seed key)
 
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
 
     policy = ActPolicy(args.model_dir, args.image)
     params = inspect.signature(evaluation.evaluate).parameters
-    from seqmotion.sim.pushing import EPISODE_SECONDS
+    from seqmotion.lfd.env.pushing import EPISODE_SECONDS
 
     duration = args.duration or EPISODE_SECONDS[args.benchmark]
     if "benchmark" in params:  # the generalised evaluate: any object with run()

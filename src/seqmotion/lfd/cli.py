@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
-    from .models import PushingPolicy
+    from .policy.policy import PushingPolicy
 
 _SET_NAMES = ("motions", "pairs_default", "pairs_position1", "pairs_position2", "hard", "hard_motions")
 
@@ -191,11 +191,11 @@ def run(args: argparse.Namespace) -> int:
     from ..io import check_writable, check_writable_dir
 
     if args.lfd_command == "collect":
-        from .dataset import collect
+        from .data.dataset import collect
 
         check_writable_dir(args.out, "--out")
 
-        from .dataset import CHAPTER_SETS
+        from .data.dataset import CHAPTER_SETS
 
         sets = args.sets or (list(CHAPTER_SETS) if args.benchmark == "chapter" else ["hard"])  # hard_motions: by name
         per_position = {name: args.per_position for name in sets} if args.per_position is not None else None
@@ -218,8 +218,8 @@ def run(args: argparse.Namespace) -> int:
             )
         return 0
     if args.lfd_command == "info":
-        from ..sim.pushing import POSITIONS
-        from .dataset import load_dataset
+        from .data.dataset import load_dataset
+        from .env.pushing import POSITIONS
 
         data = load_dataset(args.path)
         a = data.attrs
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         return _train(args)
     if args.lfd_command == "evaluate":
         if args.json is not None:
-            from ..training.files import check_not_an_input
+            from ..io import check_not_an_input
 
             check_writable(args.json, None, "--json")
             check_not_an_input(args.json, "--json", {"--oracle-latents": args.oracle_latents})
@@ -253,14 +253,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"shipped {args.policy} as {args.name!r} in {target} (with MODEL_CARD.md)")
         return 0
     if args.lfd_command == "export-lerobot":
-        from .lerobot import to_lerobot
+        from .data.lerobot import to_lerobot
 
         written = to_lerobot(args.data_dir, args.out, args.repo_id, args.videos, args.fps, args.codec)
         for name, path in written.items():
             print(f"{name}: LeRobot v3.0 dataset -> {path}")
         return 0
     if args.lfd_command == "import-lerobot":
-        from .lerobot_import import check_set_name, import_lerobot, parse_map
+        from .data.lerobot_import import check_set_name, import_lerobot, parse_map
 
         if args.set_name is not None:  # before the folder is made: a path here would write elsewhere
             check_set_name(args.set_name, "--set")
@@ -275,42 +275,32 @@ def run(args: argparse.Namespace) -> int:
 def _set_threads(threads: int) -> None:
     import torch
 
-    if threads < 1:
-        raise ValueError(f"--threads must be at least 1, got {threads}")
+    from ..errors import check_number
+
+    check_number("--threads", threads, minimum=1, integer=True)
     torch.set_num_threads(threads)
 
 
 def _train(args: argparse.Namespace) -> int:
     from . import train as training
-    from .lerobot_import import parse_map
+    from .data.lerobot_import import parse_map
 
     _set_threads(args.threads)
     preset_name = args.preset
     if preset_name is None and args.seqae_from is not None:  # the reused SeqAE fixes the size
-        from .models import PushingPolicy
+        from .policy.policy import PushingPolicy
 
         preset_name = PushingPolicy.from_pretrained(args.seqae_from).config.preset
     preset_name = preset_name or training.DEFAULT_PRESET
     seqae, e2e, cnn = training.default_settings(preset_name, args.benchmark)
-    for settings in (seqae, e2e):
-        if args.state_noise is not None:
-            settings.state_noise = args.state_noise
-        if args.latent_noise is not None:
-            settings.latent_noise = args.latent_noise
-        if args.latent_penalty is not None:
-            settings.latent_penalty = args.latent_penalty
-    if args.seqae_epochs is not None:
-        seqae.epochs = args.seqae_epochs
-    if args.e2e_epochs is not None:
-        e2e.epochs = args.e2e_epochs
-    if args.cnn_epochs is not None:
-        cnn.epochs = args.cnn_epochs
-    if args.cnn_targets is not None:
-        cnn.targets = args.cnn_targets
     pose = training.pose_training()
-    if args.pose_epochs is not None:
-        pose.epochs = args.pose_epochs
-    for settings in (seqae, e2e, cnn, pose):
+    noise = {"state_noise": args.state_noise, "latent_noise": args.latent_noise, "latent_penalty": args.latent_penalty}
+    given = ((seqae, {**noise, "epochs": args.seqae_epochs}), (e2e, {**noise, "epochs": args.e2e_epochs}),
+             (cnn, {"epochs": args.cnn_epochs, "targets": args.cnn_targets}), (pose, {"epochs": args.pose_epochs}))
+    for settings, values in given:
+        for name, value in values.items():  # what the command line gives replaces the preset's
+            if value is not None:
+                setattr(settings, name, value)
         settings.__post_init__()  # re-validate the overridden values
     from ..training.provenance import command_line
 

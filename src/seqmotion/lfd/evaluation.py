@@ -3,18 +3,20 @@
 Every trial is a fresh episode: the block is placed at one of the six positions with a new
 random placement error (±4 mm, ±3°) and lighting/colour jitter, the webcam takes one image,
 the policy's CNN turns it into ẑ and the decoder drives the slave under the bilateral
-controller for 4 s (:func:`seqmotion.lfd.teleop.run_autonomous`). Success = the block's
+controller for 4 s (:func:`seqmotion.lfd.rollout.run_episode`). Success = the block's
 centre ends on the other side of the robot's centre line.
 
 ``benchmark="hard"`` draws every trial's scene from
-:func:`seqmotion.sim.pushing.sample_hard_placement` instead (object anywhere in a wide region,
+:func:`seqmotion.lfd.env.pushing.sample_hard_placement` instead (object anywhere in a wide region,
 turned, box or cylinder, distractors, camera and lighting jitter) and judges success by
-:meth:`~seqmotion.sim.pushing.PushingScene.success` (the object put down at its goal line, on the
+:meth:`~seqmotion.lfd.env.pushing.PushingScene.success` (the object put down at its goal line, on the
 table).
 
-Any policy with :class:`PushingPolicy`'s ``run`` method can be evaluated (:class:`Evaluable`):
-seqmotion's own policies and, through an adapter, a peer such as LeRobot's ACT
-(``benchmarks/peers/act/``).
+Any controller with ``reset()`` and ``select_action(observation)`` can be evaluated
+(:class:`~seqmotion.lfd.policy.interface.Controller`): seqmotion's own policies and, through an adapter,
+a peer such as LeRobot's ACT (``benchmarks/peers/act/``); every trial runs through the one rollout loop.
+
+:func:`run_on_robot` is the same protocol with a standard arm holding the pen (:func:`seqmotion.lfd.rollout.run_trial`).
 
 Trial seeds come from ``SeedSequence(seed, spawn_key=(EVAL_STREAM, position, trial))`` (hard:
 ``position`` = :data:`HARD_KEY`); the datasets use stream ids 1–5 (``seqmotion.lfd.dataset.SETS``),
@@ -28,24 +30,19 @@ import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
+
+from ..errors import check_finite_array, check_number
+from ..sim.arm import IK_TOLERANCE, JointReport
+from .env import pushing
+from .rollout import run_episode
 
 EVAL_STREAM = 1000
 """Seed-stream id of evaluation trials (the datasets use 1–5)."""
 HARD_KEY = 100
 """Second key of a hard-benchmark trial's seed (the chapter's trials use the position index 0..5)."""
-
-
-class Evaluable(Protocol):
-    """What :func:`evaluate` needs from a policy: ``run`` one closed-loop episode, and a ``config``
-    with ``kind``, ``preset`` and ``camera`` (the webcam it was trained on)."""
-
-    config: Any
-
-    def run(self, scene: Any, position: Any, variation: Any = None, camera: str | None = None,
-            duration: float = 4.0, latent: Any = None) -> tuple[Any, np.ndarray, np.ndarray]: ...
 
 
 @dataclass
@@ -184,20 +181,24 @@ def check_trial_plan(
     Raises:
         ValueError: naming the bad argument.
     """
-    from ..sim import pushing
-
-    camera = policy.config.camera if camera is None else camera
+    camera = policy.camera if camera is None else camera
     if camera not in pushing.CAMERAS:
         raise ValueError(f"unknown camera {camera!r}; choose one of {sorted(pushing.CAMERAS)}")
     positions = list(range(len(pushing.POSITIONS))) if positions is None else list(positions)
     if not positions:
         raise ValueError("positions is empty; give block position indices 0..5")
     chosen = [pushing.block_position(i) for i in positions]  # ValueError names a bad index
-    if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or trials < 1:
-        raise ValueError(f"{trials_name} must be a positive integer, got {trials!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    check_number(trials_name, trials, minimum=1, integer=True)
+    check_number("seed", seed, minimum=0, integer=True)
     return camera, chosen
+
+
+def check_latents(latents: Any) -> np.ndarray:
+    """One latent z per block position, ``(6, latent)`` finite numbers, as float64; ``ValueError`` otherwise."""
+    arr = check_finite_array("latents", latents)
+    if arr.ndim != 2 or arr.shape[0] != len(pushing.POSITIONS):
+        raise ValueError(f"latents must be a finite ({len(pushing.POSITIONS)}, latent) array, got {arr.shape}")
+    return arr
 
 
 def evaluate(
@@ -217,18 +218,18 @@ def evaluate(
 
     Args:
         policy: a :class:`~seqmotion.lfd.models.PushingPolicy` (e.g. ``sm.load_pretrained("pushing")``)
-            or any :class:`Evaluable` (a peer's adapter).
+            or any :class:`~seqmotion.lfd.policy.interface.Controller` (a peer's adapter).
         camera: webcam pose for the images (default: the one the policy's CNN was trained on).
-        positions: block position indices 0..5 (default all six, see ``seqmotion.sim.pushing.POSITIONS``);
+        positions: block position indices 0..5 (default all six, see ``seqmotion.lfd.env.pushing.POSITIONS``);
             chapter benchmark only.
         trials: trials **per position** (default 5: 30 in all, as in the dissertation); on the hard
             benchmark the number of trials in all.
         seed: evaluation seed; trial seeds never coincide with the datasets' (see module doc).
         duration: episode length [s] (default: the benchmark's, 4 s chapter, 6 s hard: see
-            :data:`seqmotion.sim.pushing.EPISODE_SECONDS`).
+            :data:`seqmotion.lfd.env.pushing.EPISODE_SECONDS`).
         progress: print a progress line to stderr.
         keep_runs: keep each trial's run and image in its outcome (memory: ~0.5 MB per trial).
-        scene: a :class:`~seqmotion.sim.pushing.PushingScene` of this benchmark to reuse (one is made
+        scene: a :class:`~seqmotion.lfd.env.pushing.PushingScene` of this benchmark to reuse (one is made
             and closed otherwise).
         latents: ``(6, latent)``: decode ``latents[position]`` instead of the CNN's ẑ — a
             diagnostic that takes the CNN out of the loop (see :func:`position_latents`); chapter only.
@@ -243,13 +244,13 @@ def evaluate(
             the simulated slave is the arm), or one without a CNN (kind ``seqae``) and no ``latents``;
             positions or latents on the hard benchmark; a scene of the other benchmark.
     """
-    from ..sim import pushing
-    from .models import PushingPolicy, require_arm
+    from .policy.policy import PushingPolicy, require_arm
 
-    if not callable(getattr(policy, "run", None)) or not hasattr(policy, "config"):
+    if not all(callable(getattr(policy, name, None)) for name in ("select_action", "reset")) or not hasattr(
+            policy, "command_interval"):
         raise ValueError(
-            "policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')) or have its run(...) and config, "
-            f"got {type(policy).__name__}"
+            "policy must be a PushingPolicy (e.g. sm.load_pretrained('pushing')) or a controller with reset(), "
+            f"select_action(observation), command_interval, camera and images_every_step, got {type(policy).__name__}"
         )
     if isinstance(policy, PushingPolicy):
         require_arm(policy.seqae_config, "the closed-loop evaluation in MuJoCo")
@@ -265,15 +266,12 @@ def evaluate(
     camera, chosen = check_trial_plan(policy, camera, positions, trials, seed)
     if duration is None:
         duration = pushing.EPISODE_SECONDS[benchmark]
-    if not (isinstance(duration, int | float) and math.isfinite(duration) and duration > 0):
-        raise ValueError(f"duration must be a positive number of seconds, got {duration!r}")
+    check_number("duration [s]", duration, minimum=0.0, strict_minimum=True)
     if scene is not None and getattr(scene, "benchmark", "chapter") != benchmark:
         raise ValueError(f"scene is the {scene.benchmark!r} benchmark's, not the {benchmark!r} one's")
 
     if latents is not None:
-        latents = np.asarray(latents, dtype=np.float64)
-        if latents.ndim != 2 or latents.shape[0] != len(pushing.POSITIONS) or not np.isfinite(latents).all():
-            raise ValueError(f"latents must be a finite ({len(pushing.POSITIONS)}, latent) array, got {latents.shape}")
+        latents = check_latents(latents)
 
     # (position index for the seed, trial): the chapter interleaves positions so a partial run is balanced
     episodes = (
@@ -293,7 +291,7 @@ def evaluate(
             else:
                 position, variation = pushing.POSITIONS[key], pushing.SceneVariation.sample(rng)
             z_given = None if latents is None else latents[position.index]
-            run, image, z = policy.run(scene, position, variation, camera, duration, z_given)
+            run, image, z = run_episode(scene, policy, position, variation, duration, camera=camera, latent=z_given)
             placement = {}
             if hard:
                 placement = {
@@ -350,8 +348,8 @@ def evaluate(
         camera,
         int(seed),
         time.perf_counter() - start,
-        str(getattr(policy.config, "kind", "")),
-        str(getattr(policy.config, "preset", "")),
+        str(getattr(getattr(policy, "config", None), "kind", "")),
+        str(getattr(getattr(policy, "config", None), "preset", "")),
         benchmark,
     )
 
@@ -369,11 +367,177 @@ def position_latents(policy: Any, dataset: Any, successful_only: bool = True, me
         medoid: per position the z of the demonstration nearest the mean instead of the mean
             (the CNN's default targets, see :class:`~seqmotion.lfd.train.CNNTraining`).
     """
-    from .dataset import PushingDataset, load_dataset
-    from .train import mean_latent_per_position
+    from .data.dataset import PushingDataset, load_dataset
+    from .data.slicing import mean_latent_per_position
 
     data = dataset if isinstance(dataset, PushingDataset) else load_dataset(dataset)
     ok = data.episodes["success"].astype(bool) if successful_only else np.ones(len(data), bool)
     return mean_latent_per_position(
         policy.encode(data.motion()[ok]), data.episodes["position_index"][ok], medoid=medoid
+    )
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The evaluation protocol
+# ----------------------------------------------------------------------------------------------------------------
+@dataclass
+class RobotEvaluation(Evaluation):
+    """Result of :func:`run_on_robot`: an :class:`seqmotion.lfd.evaluation.Evaluation` plus the robot's fields.
+
+    Attributes:
+        success_rate, successes, n_trials, per_position, outcomes, camera, seed, seconds: as ``Evaluation``
+            (``outcomes`` are :class:`~seqmotion.lfd.evaluation.TrialOutcome`; ``run`` holds the
+            :class:`RobotRun` with ``keep_runs``).
+        robot: ``"name (source)"``; ``mode``: how the commands reached it (:func:`run_trial`).
+        latents: ``"cnn"`` (the policy's CNN on this world's images), ``"touch"`` (on the Touch scene's images of
+            the same trials) or ``"given"``.
+        limits_ok: every trial kept the arm's joint ranges and torque limits (speed limits reported apart).
+        velocity_limits_ok: every trial kept the published joint speed limits (``None``: unknown).
+        torque_share: ``(n,)`` peak |torque| / limit per joint over all trials.
+        ik_error: largest IK residual over all trials ``(m, rad)``.
+        problems: the trials' first limit problems, ``{"left_8cm#2": "..."}``.
+        tracking_rmse: RMS tip-to-target distance over all trials [m]; ``tracking_max`` the largest [m].
+        ik_ms_per_period: wall time of the differential IK per 1 ms period [ms].
+        twin_clamped: periods (all trials) whose tip was beyond the Touch's reach.
+    """
+
+    robot: str = ""
+    latents: str = "cnn"
+    mode: str = "command"
+    limits_ok: bool = True
+    velocity_limits_ok: bool | None = None
+    torque_share: np.ndarray | None = None
+    ik_error: tuple[float, float] = (0.0, 0.0)
+    problems: dict[str, str] = field(default_factory=dict)
+    tracking_rmse: float = 0.0
+    tracking_max: float = 0.0
+    ik_ms_per_period: float = 0.0
+    twin_clamped: int = 0
+
+    def as_dict(self) -> dict:
+        return {
+            "robot": self.robot, "latents": self.latents, "mode": self.mode, "success_rate": self.success_rate,
+            "successes": self.successes, "n_trials": self.n_trials,
+            "per_position": {k: list(v) for k, v in self.per_position.items()}, "camera": self.camera,
+            "seed": self.seed, "seconds": self.seconds, "limits_ok": self.limits_ok,
+            "velocity_limits_ok": self.velocity_limits_ok,
+            "torque_share": None if self.torque_share is None else [round(float(x), 4) for x in self.torque_share],
+            "ik_error_m": self.ik_error[0], "ik_error_rad": self.ik_error[1], "problems": self.problems,
+            "tracking_rmse_m": self.tracking_rmse, "tracking_max_m": self.tracking_max,
+            "ik_ms_per_period": self.ik_ms_per_period, "twin_clamped_periods": self.twin_clamped,
+            "outcomes": [o.as_dict() for o in self.outcomes],
+        }
+
+
+def run_on_robot(
+    policy: Any,
+    robot: Any = "panda",
+    positions: Sequence[int] | None = None,
+    trials: int = 5,
+    seed: int = 0,
+    latents: Any = None,
+    camera: str | None = None,
+    duration: float = 4.0,
+    progress: bool = False,
+    keep_runs: bool = False,
+    scene: Any = None,
+    mode: str = "command",
+) -> RobotEvaluation:
+    """The evaluation protocol of :func:`seqmotion.lfd.evaluation.evaluate` with ``robot`` holding the pen.
+
+    The same trials (``trials`` per position, interleaved; each trial's block placement and lighting from
+    ``trial_rng(seed, position, trial)``), the same success test (the block's centre across the centre line).
+
+    Args:
+        policy: the Touch arm's :class:`~seqmotion.lfd.models.PushingPolicy`.
+        robot: a standard arm's name or :class:`~seqmotion.sim.robot_models.Robot` (placed at :data:`BASE`).
+        positions: block position indices 0..5 (default all six).
+        trials: trials per position (default 5: 30 in all).
+        seed: evaluation seed.
+        latents: ``(6, latent)``: decode ``latents[position]`` instead of the CNN's ẑ
+            (e.g. :func:`seqmotion.lfd.evaluation.position_latents`); or ``"touch"``: the CNN's ẑ of the image
+            the Touch's own scene gives of the same trial (separates the new images from the execution).
+        camera: webcam pose (default the policy's).
+        duration: episode length [s].
+        progress: a progress line on stderr.
+        keep_runs: keep each trial's :class:`RobotRun` and image in its outcome.
+        scene: a :class:`RobotPushingScene` to reuse (one is made and closed otherwise; ``robot`` is then ignored).
+        mode: ``"command"`` or ``"twin"`` (see :func:`run_trial`).
+
+    Raises:
+        ValueError: as ``evaluate`` (bad policy, camera, positions, trials, seed, latents), or an unknown robot.
+    """
+    from .env.robot import MODES, RobotPushingScene
+    from .rollout import check_robot_policy, run_trial
+
+    check_robot_policy(policy)
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if policy.cnn is None and latents is None:
+        raise ValueError("a 'seqae' model has no CNN to turn the webcam image into z: pass latents")
+    camera, chosen = check_trial_plan(policy, camera, positions, trials, seed, "trials (per position)")
+    touch_view = isinstance(latents, str)
+    if touch_view and latents != "touch":
+        raise ValueError(f"latents must be a (6, latent) array or 'touch', got {latents!r}")
+    if touch_view and policy.cnn is None:
+        raise ValueError("latents='touch' needs the policy's CNN (a 'seqae' model has none)")
+    if latents is not None and not touch_view:
+        latents = check_latents(latents)
+    own = scene is None
+    scene = RobotPushingScene(robot) if own else scene
+    touch_scene = pushing.PushingScene() if touch_view else None
+    outcomes: list[Any] = []
+    reports: list[tuple[str, JointReport]] = []
+    square_error, samples, worst, ik_seconds, clamped = 0.0, 0, 0.0, 0.0, 0
+    start = time.perf_counter()
+    total = len(chosen) * trials
+    try:
+        for trial in range(trials):
+            for position in chosen:
+                variation = pushing.SceneVariation.sample(trial_rng(int(seed), position.index, trial))
+                if touch_view:  # the CNN on the image the Touch's own scene gives of this very trial
+                    touch_scene.reset(position, variation)
+                    z_given = policy.latent(touch_scene.render(camera))
+                else:
+                    z_given = None if latents is None else latents[position.index]
+                run, image, z = run_trial(policy, scene, position, variation, camera, duration, z_given, mode=mode)
+                outcomes.append(TrialOutcome(
+                    position.index, position.name, trial, (int(seed), EVAL_STREAM, position.index, trial),
+                    bool(run.success), float(run.crossed_time), float(run.block_pose[-1, 1]), z,
+                    run if keep_runs else None, image if keep_runs else None))
+                reports.append((f"{position.name}#{trial}", run.joints))
+                errors = np.linalg.norm(run.tip - run.tip_target, axis=1)
+                square_error, samples = square_error + float(np.sum(errors**2)), samples + errors.size
+                worst, clamped = max(worst, float(errors.max())), clamped + run.twin_clamped
+                ik_seconds += run.ik_seconds_per_period
+                if progress:
+                    ok = sum(o.success for o in outcomes)
+                    print(f"\r[{scene.robot.name} {camera}] {len(outcomes)}/{total} trials, {ok} successful, "
+                          f"{time.perf_counter() - start:.0f} s", end="" if len(outcomes) < total else "\n",
+                          file=sys.stderr, flush=True)
+    finally:
+        if own:
+            scene.close()
+        if touch_scene is not None:
+            touch_scene.close()
+    outcomes.sort(key=lambda o: (o.position_index, o.trial))
+    per_position = {}
+    for position in chosen:
+        mine = [o for o in outcomes if o.position_index == position.index]
+        per_position[position.name] = (sum(o.success for o in mine), len(mine))
+    successes = sum(o.success for o in outcomes)
+    speed = [rep.velocity_limits_ok for _, rep in reports]
+    return RobotEvaluation(
+        success_rate=successes / len(outcomes), successes=successes, n_trials=len(outcomes),
+        per_position=per_position, outcomes=outcomes, camera=camera, seed=int(seed),
+        seconds=time.perf_counter() - start, robot=scene.robot.label,
+        latents="cnn" if latents is None else ("touch" if touch_view else "given"), mode=mode,
+        limits_ok=all(bool(rep.joint_limits_ok) and bool(rep.torque_limits_ok) and rep.ik_error[0] <= IK_TOLERANCE[0]
+                      for _, rep in reports),
+        velocity_limits_ok=None if any(s is None for s in speed) else all(speed),
+        torque_share=np.max([rep.torque_share for _, rep in reports], axis=0),
+        ik_error=(max(rep.ik_error[0] for _, rep in reports), max(rep.ik_error[1] for _, rep in reports)),
+        problems={name: rep.problem for name, rep in reports if rep.problem},
+        tracking_rmse=math.sqrt(square_error / samples), tracking_max=worst,
+        ik_ms_per_period=1e3 * ik_seconds / len(reports), twin_clamped=clamped,
     )

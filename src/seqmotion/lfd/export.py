@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from ..core.registry import home_package
-from ..io import atomic_write_bytes
+from ..io import atomic_write_bytes, read_json
 from ..training.pretrained import check_pretrained_name, export_pretrained
-from .models import PushingPolicy
+from .policy.policy import PushingPolicy
 from .task import TASK
 
 PRETRAINED_ROOT = home_package(TASK) / "pretrained"
@@ -34,7 +34,7 @@ def evaluation_summary(path: str | Path) -> tuple[str, str, dict[str, Any]]:
     The label names the policy and camera (``"proposed (smaller), default camera"``), the line
     gives the success rate with its trials and per-position cells, the brief the numbers.
     """
-    result = json.loads(Path(path).read_text())
+    result = read_json(path, "evaluation result")
     cells = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in result["per_position"].items())
     who = (
         f"{result['policy_kind'].replace('_', '-')} ({result['policy_preset']})"

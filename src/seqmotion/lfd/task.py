@@ -19,7 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import ClassVar
 
-from .models import PushingPolicy
+from .policy.policy import PushingPolicy
 
 
 class PushingTask:

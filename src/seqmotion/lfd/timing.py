@@ -1,7 +1,7 @@
 """The chapter-5 decoder's clock: Δt_NN, defined once.
 
 The policy's decoder is called every :data:`COMMAND_INTERVAL` (20 ms) in closed loop
-(:func:`seqmotion.lfd.teleop.run_autonomous`), is trained on demonstrations sampled at that
+(:func:`seqmotion.lfd.rollout.run_autonomous`), is trained on demonstrations sampled at that
 period (:meth:`seqmotion.lfd.dataset.PushingDataset.motion` with
 :func:`samples_per_command` of the recording's 1 ms period) and predicts the master's state
 one period ahead (:class:`seqmotion.lfd.teleop.ReplayMaster` replays that same target).

@@ -47,10 +47,7 @@ policy's; see its docstring for why it is not the dissertation's 7-layer model.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import math
-import sys
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -58,169 +55,50 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
-from ..errors import check_number
+from ..errors import check_finite_array, check_number
 from ..io import atomic_write_bytes
-from ..training.config import Optimization
-from ..training.loop import TrainingLoop
 from ..training.provenance import machine_record
-from .models import (
+from .data.frames import POSE_FRAMES as POSE_FRAMES
+from .data.frames import render_pose_frames as render_pose_frames
+from .data.slicing import concatenate, mean_latent_per_position, subset, usable_episodes
+from .fitting import CHECKPOINT_EVERY as CHECKPOINT_EVERY  # the settings and the loop, re-exported where users
+from .fitting import CNN_TARGETS as CNN_TARGETS  # have always found them (seqmotion.lfd.train.X)
+from .fitting import DEFAULT_PRESET as DEFAULT_PRESET
+from .fitting import E2E_EPOCHS as E2E_EPOCHS
+from .fitting import SEQAE_EPOCHS as SEQAE_EPOCHS
+from .fitting import CNNTraining as CNNTraining
+from .fitting import SeqAETraining as SeqAETraining
+from .fitting import augment_images as augment_images
+from .fitting import default_settings as default_settings
+from .fitting import fit as fit
+from .fitting import seeded_generator
+from .fitting import state_noise as state_noise
+from .policy.networks import (
     FEATURES,
     CNNConfig,
     ImageEncoder,
-    PolicyConfig,
     PoseNet,
     PoseNetConfig,
-    PushingPolicy,
     SeqAE,
     SeqAEConfig,
     check_images,
     check_motions,
     motion_loss,
     object_features,
-    object_yaw,
     preset,
 )
-from .task import PushingTask
-
-CHECKPOINT_EVERY = 50
-"""Epochs between training checkpoints of the SeqAE and the end-to-end baseline."""
+from .policy.policy import PolicyConfig, PushingPolicy
 
 
-@dataclass(kw_only=True)
-class SeqAETraining(Optimization):
-    """Optimisation settings of the SeqAE (and of the end-to-end baseline's motion loss).
-
-    Attributes:
-        epochs: passes over the motions (dissertation: 2000).
-        batch_size: motions per mini-batch (dissertation: 16).
-        lr, lr_final_fraction, grad_clip: the optimiser's settings shared with ``seqmotion train``
-            (:class:`~seqmotion.training.config.Optimization`); here a cosine decay to 10 % and clipping at 1.
-        state_noise: stationary std of the noise on the decoder's slave-state inputs [normalised units].
-        noise_correlation: correlation time of that noise [decoder steps of 20 ms]; 0 = white,
-            otherwise a first-order autoregressive (Ornstein–Uhlenbeck) process, which looks like
-            the slow drifts of a closed loop and cannot be averaged away by the LSTM.
-        latent_noise: std of the Gaussian noise added to z before decoding.
-        latent_penalty: weight β of ``β · ½ mean |z|²`` added to the loss. With the latent noise
-            this is a variational bottleneck (a VAE with a fixed posterior spread): the encoder
-            cannot outgrow the noise, so z keeps what explains most of the motions (where the
-            block is) before the operator's idiosyncrasies, which an image cannot predict.
-        seed: seeds the weights, the batch order and the noise.
-    """
-
-    epochs: int = 2000
-    batch_size: int = 16
-    lr_final_fraction: float = 0.1
-    state_noise: float = 0.3
-    noise_correlation: float = 0.0
-    latent_noise: float = 0.1
-    latent_penalty: float = 0.0
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        _check_counts(self)
-        for name in ("state_noise", "noise_correlation", "latent_noise", "latent_penalty"):
-            check_number(name, getattr(self, name), minimum=0)
+def finite_shaped(name: str, values: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``values`` as a float64 array of finite numbers of ``shape``; ``ValueError`` naming ``name`` otherwise."""
+    arr = check_finite_array(name, values)
+    if arr.shape != shape:
+        raise ValueError(f"{name} must be finite and shaped {shape}, got {arr.shape}")
+    return arr
 
 
-def _check_counts(settings: SeqAETraining | CNNTraining) -> None:
-    """The checks every chapter-5 training's settings share: the optimiser's, epochs, batch size and seed."""
-    settings.check_optimization()
-    check_number("epochs", settings.epochs, minimum=1, integer=True)
-    check_number("batch_size", settings.batch_size, minimum=1, integer=True)
-    check_number("seed", settings.seed, minimum=0, integer=True)
-
-
-@dataclass(kw_only=True)
-class CNNTraining(Optimization):
-    """Optimisation settings of the CNN (dissertation: 100 epochs, mini-batches of 8, Adam).
-
-    Attributes:
-        lr, lr_final_fraction, grad_clip: the optimiser's settings
-            (:class:`~seqmotion.training.config.Optimization`); here the dissertation's plain Adam:
-            a constant rate, no clipping.
-        augment: photometric augmentation of the training images (see :func:`augment_images`):
-            the nuisance the webcam sees between episodes is lighting and colour, and 18 images
-            show too little of it. Geometry is never altered (it carries the block's position).
-        targets: what the CNN regresses for each image (one of :data:`CNN_TARGETS`).
-            ``"pair"`` is the dissertation's eq. 5.2: the encoder's z of the image's own
-            demonstration. An image shows where the block is, not how this operator's pass
-            went, and with 2–3 pairs per position the pair's own z is a noisy stand-in for "the
-            z of this position" (for the 7-layer SeqAE 9 of 17 pairs' z lie nearer another
-            position's mean z than their own). The other two take that z from all the
-            (successful) demonstrations *without* images at the image's block position:
-            ``"position_mean"`` their mean encoder z (what |z − ẑ|² converges to with
-            unlimited pairs), ``"position_medoid"`` (default) the z of the one demonstration
-            nearest that mean — the most typical demonstration, a z the decoder was trained
-            on. The mean can lie where no demonstration is: for the 7-layer SeqAE every
-            far-right z is 2.6–5.2 latent units from its position's mean, and decoding the
-            mean there pushes the block across in 21 of 30 trials, the medoid in 29.
-    """
-
-    epochs: int = 100
-    batch_size: int = 8
-    grad_clip: float | None = None
-    augment: bool = True
-    targets: str = "position_medoid"
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        _check_counts(self)
-        if self.targets not in CNN_TARGETS:
-            raise ValueError(f"CNN targets must be one of {CNN_TARGETS}, got {self.targets!r}")
-
-
-CNN_TARGETS = ("position_medoid", "position_mean", "pair")
-"""What the CNN learns to output per image (see :class:`CNNTraining`)."""
-
-DEFAULT_PRESET = "smaller"
-"""Model size ``seqmotion lfd train`` (and the shipped ``"pushing"`` policy) uses by default.
-
-Not the dissertation's 7-layer model: the 3 × 32 ``smaller`` model succeeds as often in closed loop
-and its SeqAE training fits the 45-minute collect-and-train budget of a 2-core CPU, which the larger
-ones' do not (``benchmarks/RESULTS_lfd.md``).
-"""
-
-SEQAE_EPOCHS = {"tiny": 200, "smaller": 2000, "original": 2000, "larger": 1200, "wide64": 2000}
-"""Default SeqAE epochs per preset: the dissertation's 2000, except ``larger``, whose 2000 epochs would take
-hours on a 2-core CPU (``tiny`` is for tests)."""
-
-E2E_EPOCHS = 2000
-"""Default epochs of the end-to-end baseline (the dissertation's), every preset."""
-
-
-def default_settings(
-    preset_name: str = DEFAULT_PRESET, benchmark: str = "chapter"
-) -> tuple[SeqAETraining, SeqAETraining, CNNTraining]:
-    """``(SeqAE, end-to-end, CNN)`` training settings ``seqmotion lfd train`` uses for ``preset_name``.
-
-    On the hard benchmark the CNN regresses each pair's own z (``"pair"``, eq. 5.2): its placements
-    are continuous, so there are no block positions to pool demonstrations over.
-    """
-    preset(preset_name)  # ValueError for an unknown name
-    cnn = CNNTraining(targets="pair") if benchmark == "hard" else CNNTraining()
-    return SeqAETraining(epochs=SEQAE_EPOCHS[preset_name]), SeqAETraining(epochs=E2E_EPOCHS), cnn
-
-
-def augment_images(images: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
-    """Random photometric changes of uint8 images ``(B, 64, 64, 3)`` → float images in [0, 255].
-
-    Per image: overall brightness ×U(0.8, 1.2), per-channel gain ×U(0.93, 1.07), offset
-    U(−8, 8) grey levels; per pixel: Gaussian noise with σ = 2 grey levels.
-    """
-    b = images.shape[0]
-    x = images.to(torch.float32)
-    brightness = 0.8 + 0.4 * torch.rand((b, 1, 1, 1), generator=gen)
-    gain = 0.93 + 0.14 * torch.rand((b, 1, 1, 3), generator=gen)
-    offset = -8.0 + 16.0 * torch.rand((b, 1, 1, 1), generator=gen)
-    x = x * brightness * gain + offset + 2.0 * torch.randn(x.shape, generator=gen)
-    return x.clamp(0.0, 255.0)
-
-
-# ----------------------------------------------------------------------------------------------
-# The three procedures
-# ----------------------------------------------------------------------------------------------
 def train_seqae(
     motions: np.ndarray,
     config: SeqAEConfig,
@@ -242,105 +120,16 @@ def train_seqae(
     motions = check_motions(motions, joints=config.joints)
     if len(motions) < 2:
         raise ValueError(f"need at least 2 motions to train a SeqAE, got {len(motions)}")
-    torch.manual_seed(settings.seed)
-    gen = torch.Generator().manual_seed(settings.seed)
+    gen = seeded_generator(settings.seed)
     model = SeqAE(config)
     model.scaler.fit(motions)
     data = torch.as_tensor(motions, dtype=torch.float32)
     params = [p for p in model.parameters() if p.requires_grad]
-    history = _fit(model, params, len(data), settings, gen,
+    history = fit(model, params, len(data), settings, gen,
                    lambda idx: _seqae_loss(model, data[idx], settings, gen),
                    f"SeqAE {config.layers}x{config.hidden}", progress,
                    checkpoint_dir=checkpoint_dir, data=(motions,), resume=resume, part="seqae")
     return model.eval(), history
-
-
-def _fit(
-    module: torch.nn.Module, params: list, n: int, settings: SeqAETraining | CNNTraining, gen: torch.Generator,
-    batch_loss: Any, desc: str, progress: bool, min_batch: int = 1,
-    checkpoint_dir: str | Path | None = None, data: tuple = (), resume: bool = True, part: str | None = None,
-) -> dict[str, Any]:
-    """Adam over ``settings.epochs`` shuffled passes of ``n`` examples, on the shared :class:`TrainingLoop`.
-
-    ``batch_loss(indices) -> loss`` is the mean loss of one mini-batch; mini-batches smaller
-    than ``min_batch`` are skipped. The loop takes its optimiser settings from ``settings``
-    (:meth:`~seqmotion.training.config.Optimization.loop_settings`). ``desc`` names the training on the
-    progress bar, ``part`` (``"seqae"``, ``"cnn"``, ``"end_to_end"``; default ``desc``) in its checkpoints.
-    Returns ``{"loss": per-epoch mean, "seconds": wall time}``.
-
-    With ``checkpoint_dir``, everything the loop depends on (weights, Adam's moments, the random
-    generator, the epoch, the loss history) is written there every :data:`CHECKPOINT_EVERY`
-    epochs and at the end, with a ``metrics.csv`` of the per-epoch loss, and a run finding a
-    checkpoint of the same settings and ``data`` (arrays whose hash identifies the training
-    set) there continues from it (unless ``resume`` is False: the loop then removes them first):
-    an interrupted run resumed ends with exactly the weights of an uninterrupted one.
-    """
-    steps_per_epoch = math.ceil(n / settings.batch_size)
-    digest = hashlib.sha256()
-    for array in data:
-        digest.update(np.ascontiguousarray(array).tobytes())
-    shapes = {name: list(t.shape) for name, t in module.state_dict().items()}
-    # what makes a checkpoint this training's: the task and part, the data, the settings and the layers
-    identity = {"task": PushingTask.name, "part": part or desc, "data_sha256": digest.hexdigest(),
-                "settings": asdict(settings), "shapes": shapes}
-    loop = TrainingLoop(
-        module, params, **settings.loop_settings(), total_steps=settings.epochs * steps_per_epoch,
-        run_dir=checkpoint_dir, identity=identity, generators={"rng": gen},
-    )
-    try:
-        history = _epochs(loop, module, n, settings, gen, batch_loss, desc, progress, min_batch, checkpoint_dir,
-                          steps_per_epoch, resume)
-    finally:
-        loop.close()  # also unlocks the checkpoint directory when the training fails
-    history["seconds"] = loop.elapsed
-    return history
-
-
-def _epochs(
-    loop: TrainingLoop, module: torch.nn.Module, n: int, settings: SeqAETraining | CNNTraining, gen: torch.Generator,
-    batch_loss: Any, desc: str, progress: bool, min_batch: int, checkpoint_dir: str | Path | None,
-    steps_per_epoch: int, resume: bool,
-) -> dict[str, Any]:
-    """The epochs of :func:`_fit` on its loop."""
-    saved = loop.start(resume=resume)
-    history: dict[str, Any] = {"loss": list(saved.get("loss", []))}
-    first_epoch = int(saved.get("epoch", 0))
-    module.train()
-    bar = tqdm(range(first_epoch, settings.epochs), desc=desc, unit="epoch", disable=not progress, file=sys.stderr,
-               initial=first_epoch, total=settings.epochs)
-    for epoch in bar:
-        order = torch.randperm(n, generator=gen)
-        total = 0.0
-        for b in range(steps_per_epoch):
-            idx = order[b * settings.batch_size : (b + 1) * settings.batch_size]
-            if len(idx) < min_batch:
-                continue
-            loss = batch_loss(idx)
-            loop.step(loss, about=f" ({desc}, epoch {epoch + 1})")
-            total += loss.item() * len(idx)
-        history["loss"].append(total / n)
-        bar.set_postfix(loss=f"{history['loss'][-1]:.4f}")
-        done = epoch + 1
-        loop.log({"loss": history["loss"][-1]}, epoch=done)
-        if checkpoint_dir is not None and (done % CHECKPOINT_EVERY == 0 or done == settings.epochs):
-            loop.checkpoint(extra={"epoch": done, "loss": history["loss"]})
-    return history
-
-
-def state_noise(shape: tuple[int, ...], settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor | None:
-    """Noise ``(B, K, 3J)`` for the decoder's inputs: white, or AR(1) with the configured correlation time."""
-    if settings.state_noise <= 0:
-        return None
-    white = torch.randn(shape, generator=gen)
-    if settings.noise_correlation <= 0:
-        return settings.state_noise * white
-    a = math.exp(-1.0 / settings.noise_correlation)
-    scale = math.sqrt(1.0 - a * a)
-    out = torch.empty(shape)
-    out[:, 0] = white[:, 0]  # start in the stationary distribution
-    for k in range(1, shape[1]):
-        out[:, k] = a * out[:, k - 1] + scale * white[:, k]
-    return settings.state_noise * out
 
 
 def _seqae_loss(model: SeqAE, batch: torch.Tensor, settings: SeqAETraining, gen: torch.Generator) -> torch.Tensor:
@@ -362,27 +151,6 @@ def encode_motions(model: SeqAE, motions: np.ndarray) -> np.ndarray:
     return model.encode(torch.as_tensor(arr, dtype=torch.float32)).double().numpy()
 
 
-def mean_latent_per_position(z: np.ndarray, position_index: np.ndarray, medoid: bool = False) -> np.ndarray:
-    """Mean of latents ``z (N, latent)`` over the demonstrations at each block position → ``(6, latent)``.
-
-    ``position_index (N,)``: each demonstration's block position index 0..5. ``medoid``: instead
-    of the mean, the z of the demonstration nearest it (see :class:`CNNTraining`). ``ValueError``
-    when a position has no demonstration (its mean would be NaN).
-    """
-    from ..sim.pushing import POSITIONS
-
-    z, where = np.asarray(z), np.asarray(position_index)
-    missing = [i for i in range(len(POSITIONS)) if not np.any(where == i)]
-    if missing:
-        raise ValueError(f"no (successful) demonstration at block positions {missing}: their mean z is undefined")
-    rows = []
-    for i in range(len(POSITIONS)):
-        here = z[where == i]
-        mean = here.mean(0)
-        rows.append(here[np.linalg.norm(here - mean, axis=1).argmin()] if medoid else mean)
-    return np.stack(rows)
-
-
 def train_cnn(
     images: np.ndarray,
     targets: np.ndarray,
@@ -402,13 +170,10 @@ def train_cnn(
     config = config or CNNConfig()
     settings = settings or CNNTraining()
     images = check_images(images)
-    targets = np.asarray(targets, dtype=np.float64)
-    if targets.shape != (len(images), config.latent) or not np.all(np.isfinite(targets)):
-        raise ValueError(f"targets must be finite and shaped ({len(images)}, {config.latent}), got {targets.shape}")
+    targets = finite_shaped("targets", targets, (len(images), config.latent))
     if len(images) < 2:
         raise ValueError(f"need at least 2 images to train the CNN (BatchNorm), got {len(images)}")
-    torch.manual_seed(settings.seed)
-    gen = torch.Generator().manual_seed(settings.seed)
+    gen = seeded_generator(settings.seed)
     cnn = ImageEncoder(config)
     x, y = torch.as_tensor(images), torch.as_tensor(targets, dtype=torch.float32)
 
@@ -417,7 +182,7 @@ def train_cnn(
         return ((cnn(batch) - y[idx]) ** 2).sum(-1).mean()
 
     # BatchNorm cannot normalise a batch of one: a last mini-batch of one image is skipped
-    history = _fit(cnn, list(cnn.parameters()), len(x), settings, gen, batch_loss, "CNN", progress, min_batch=2,
+    history = fit(cnn, list(cnn.parameters()), len(x), settings, gen, batch_loss, "CNN", progress, min_batch=2,
                    part="cnn")
     return cnn.eval(), history
 
@@ -447,8 +212,7 @@ def train_end_to_end(
         raise ValueError(f"{len(images)} images but {len(motions)} motions: pairs must match")
     if len(images) < 2:
         raise ValueError(f"need at least 2 pairs for end-to-end training, got {len(images)}")
-    torch.manual_seed(settings.seed)
-    gen = torch.Generator().manual_seed(settings.seed)
+    gen = seeded_generator(settings.seed)
     seqae = SeqAE(config)
     seqae.scaler.fit(motions)
     policy = PushingPolicy(
@@ -474,7 +238,7 @@ def train_end_to_end(
         return loss + penalty
 
     # BatchNorm in the CNN needs two images per batch
-    history = _fit(policy, list(policy.parameters()), len(data), settings, gen, batch_loss,
+    history = fit(policy, list(policy.parameters()), len(data), settings, gen, batch_loss,
                    f"end-to-end {config.layers}x{config.hidden}", progress, min_batch=2,
                    checkpoint_dir=checkpoint_dir, data=(images, motions), resume=resume, part="end_to_end")
     return policy.eval(), history
@@ -483,13 +247,6 @@ def train_end_to_end(
 # ----------------------------------------------------------------------------------------------
 # Object feedback (kind "feedback", hard benchmark; beyond the dissertation)
 # ----------------------------------------------------------------------------------------------
-POSE_STREAM = 2000
-"""Seed stream of a feedback policy's rendered training frames: never the evaluation's
-(:data:`seqmotion.lfd.evaluation.EVAL_STREAM`, 1000) or the demonstrations' own."""
-POSE_SHARD = 2500
-"""Frames per rendering job: the frames depend on the seed and the count, not on the number of workers."""
-POSE_FRAMES = 60000
-"""Default number of frames the pose network trains on (9 min of rendering on two cores)."""
 
 
 def pose_training(seed: int = 0) -> CNNTraining:
@@ -498,78 +255,6 @@ def pose_training(seed: int = 0) -> CNNTraining:
     (``targets`` is the CNN's notion and means nothing here; each frame's target is its own pose.)
     """
     return CNNTraining(epochs=12, batch_size=64, lr=2e-3, lr_final_fraction=0.02, targets="pair", seed=seed)
-
-
-def _render_shard(job: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One rendering job of :func:`render_pose_frames`: ``(states, seed, shard, n)`` → frames, tips, targets."""
-    from ..sim.pushing import BlockPosition, PushingScene, sample_hard_placement
-
-    states, seed, shard, n = job
-    theta, poses, tips, side, shape = (states[k] for k in ("theta", "pose", "tip", "side", "shape"))
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(POSE_STREAM, shard)))
-    scene = PushingScene(benchmark="hard")
-    images, tip_xy, pose = np.zeros((n, 64, 64, 3), np.uint8), np.zeros((n, 2)), np.zeros((n, 7))
-    is_box = np.zeros(n)
-    try:
-        for i in range(n):
-            e, k = int(rng.integers(len(side))), int(rng.integers(theta.shape[1]))
-            pose[i] = poses[e, k]
-            if rng.random() < 0.5:  # a state a closed loop reaches and the demonstrations did not
-                pose[i, :2] += rng.uniform(-0.015, 0.015, 2)
-                yaw = float(object_yaw(pose[i])) + rng.uniform(-0.17, 0.17)
-                pose[i, 3:] = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-            _, variation = sample_hard_placement(rng)  # a fresh camera jitter, lighting, colours, distractors
-            scene.reset(BlockPosition(-1, str(side[e]), 0.08, 0.16, str(shape[e])), variation)
-            scene.set_state(theta[e, k], pose[i])
-            images[i], tip_xy[i], is_box[i] = scene.render("default"), tips[e, k, :2], float(shape[e] == "box")
-    finally:
-        scene.close()
-    return images, tip_xy, PoseNet.targets(pose, is_box)
-
-
-def render_pose_frames(
-    data: Any, frames: int = POSE_FRAMES, seed: int = 0, workers: int = 1,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Training frames for the pose network: the demonstrations' own states, re-rendered under fresh variation.
-
-    Each frame is a random demonstration's arm and object at a random 20 ms step; in half of them
-    the object is moved ±1.5 cm and turned ±10° off where it was; every frame has a new webcam
-    jitter, lighting, colours and distractors (:func:`~seqmotion.sim.pushing.sample_hard_placement`),
-    drawn from the seed stream :data:`POSE_STREAM`. No film is needed: the hard set's recorded
-    states (``hard.h5``, with or without video) are enough.
-
-    Args:
-        data: a hard-benchmark ``PushingDataset`` (the demonstrations to train on).
-        frames: how many frames.
-        seed: the training seed.
-        workers: rendering processes (the frames do not depend on it); more than one are spawned, so a
-            script calling this needs the ``if __name__ == "__main__":`` guard.
-
-    Returns:
-        ``(images (frames, 64, 64, 3) uint8, pen tips (frames, 2) [m], targets (frames, 4))``: the targets
-        as :meth:`PoseNet.targets`.
-    """
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    from .timing import samples_per_command
-
-    frames = check_number("frames", frames, minimum=1, integer=True)
-    workers = check_number("workers", workers, minimum=1, integer=True)
-    every = samples_per_command(data.dt)
-    states = {"theta": data.motions["slave_theta"][:, ::every], "pose": data.motions["block_pose"][:, ::every],
-              "tip": data.motions["slave_tip"][:, ::every], "side": np.asarray(data.episodes["side"]).astype(str),
-              "shape": np.asarray(data.episodes["shape"]).astype(str)}
-    jobs = [(states, seed, shard, min(POSE_SHARD, frames - start))
-            for shard, start in enumerate(range(0, frames, POSE_SHARD))]
-    if workers == 1:
-        parts = [_render_shard(job) for job in jobs]
-    else:
-        # spawned, not forked: a fork after torch has run can hang in OpenMP
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            parts = list(pool.map(_render_shard, jobs))
-    images, tips, targets = (np.concatenate(x) for x in zip(*parts, strict=True))
-    return images, tips, targets
 
 
 def train_pose_net(
@@ -585,14 +270,9 @@ def train_pose_net(
     """
     settings = settings or pose_training()
     images = check_images(images)
-    tips, targets = np.asarray(tips, dtype=np.float32), np.asarray(targets, dtype=np.float32)
-    if tips.shape != (len(images), 2) or targets.shape != (len(images), 4):
-        raise ValueError(f"tips must be ({len(images)}, 2) and targets ({len(images)}, 4), got {tips.shape} and "
-                         f"{targets.shape}")
-    if not (np.all(np.isfinite(tips)) and np.all(np.isfinite(targets))):
-        raise ValueError("tips and targets must be finite")
-    torch.manual_seed(settings.seed)
-    gen = torch.Generator().manual_seed(settings.seed)
+    tips = finite_shaped("tips", tips, (len(images), 2)).astype(np.float32)
+    targets = finite_shaped("targets", targets, (len(images), 4)).astype(np.float32)
+    gen = seeded_generator(settings.seed)
     net = PoseNet(config)
     x, tip, y = torch.as_tensor(images), torch.as_tensor(tips), torch.as_tensor(targets)
 
@@ -604,7 +284,7 @@ def train_pose_net(
         yaw = t[:, 2] * ((out[:, 3] - t[:, 3]) / 0.2) ** 2  # a box's yaw: 0.2 rad weighs as 1 cm
         return (position + shape + yaw).mean()
 
-    history = _fit(net, list(net.parameters()), len(x), settings, gen, batch_loss, "pose network", progress,
+    history = fit(net, list(net.parameters()), len(x), settings, gen, batch_loss, "pose network", progress,
                    checkpoint_dir=checkpoint_dir, data=(images, tips, targets), resume=resume, part="pose")
     return net.eval(), history
 
@@ -629,20 +309,16 @@ def train_feedback_decoder(
     """
     settings = settings or SeqAETraining()
     motions = check_motions(motions, joints=config.joints)
-    features = np.asarray(features, dtype=np.float64)
     if config.latent != len(FEATURES):
         raise ValueError(f"the feedback decoder's z slot holds the {len(FEATURES)} features {FEATURES}; "
                          f"config.latent is {config.latent}")
-    if features.shape != (*motions.shape[:2], len(FEATURES)) or not np.all(np.isfinite(features)):
-        raise ValueError(f"features must be finite and shaped {(*motions.shape[:2], len(FEATURES))}, got "
-                         f"{features.shape}")
+    features = finite_shaped("features", features, (*motions.shape[:2], len(FEATURES)))
     if len(motions) < 2:
         raise ValueError(f"need at least 2 demonstrations to train the decoder, got {len(motions)}")
     mean = features.reshape(-1, len(FEATURES)).mean(0)
     std = features.reshape(-1, len(FEATURES)).std(0)
     std = np.where(std < 1e-3, 1.0, std)  # a feature constant in training (one side, one shape) is left unscaled
-    torch.manual_seed(settings.seed)
-    gen = torch.Generator().manual_seed(settings.seed)
+    gen = seeded_generator(settings.seed)
     model = SeqAE(config)
     model.scaler.fit(motions)
     data = torch.as_tensor(motions, dtype=torch.float32)
@@ -656,7 +332,7 @@ def train_feedback_decoder(
         command, _ = model.decode(c, slave, slave_noise=state_noise(tuple(slave.shape), settings, gen))
         return motion_loss(command, batch[:, 1:, config.master], model.scaler.variance)
 
-    history = _fit(model, list(model.decoder.parameters()), len(data), settings, gen, batch_loss,
+    history = fit(model, list(model.decoder.parameters()), len(data), settings, gen, batch_loss,
                    f"feedback decoder {config.layers}x{config.hidden}", progress, checkpoint_dir=checkpoint_dir,
                    data=(motions, features), resume=resume, part="feedback_decoder")
     return model.eval(), mean, std, history
@@ -716,17 +392,6 @@ class TrainReport:
     policies: dict[str, Path] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)
     final_loss: dict[str, float] = field(default_factory=dict)
-
-
-def _episodes(data: Any, successful_only: bool) -> np.ndarray:
-    """Indices of the demonstrations to train on (by default the successful ones); ``ValueError`` if < 2."""
-    keep = np.flatnonzero(data.episodes["success"]) if successful_only else np.arange(len(data))
-    if len(keep) < 2:
-        raise ValueError(
-            f"{data.path} has {len(keep)} usable demonstration(s) of {len(data)}; need at least 2 "
-            "(successful_only=False keeps failed ones)"
-        )
-    return keep
 
 
 def train(
@@ -801,7 +466,7 @@ def train(
         raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {methods!r}")
     if "seqae" in methods and seqae_from is not None:
         raise ValueError("methods 'seqae' trains a SeqAE and seqae_from (--seqae-from) reuses one: pass one of them")
-    from ..sim.pushing import CAMERAS
+    from .env.pushing import CAMERAS
 
     if not cameras or any(c not in CAMERAS for c in cameras):
         raise ValueError(f"cameras must be a non-empty subset of {sorted(CAMERAS)}, got {cameras!r}")
@@ -827,18 +492,18 @@ def train(
     needs_motions = "proposed" in methods or "seqae" in methods
     if hard:  # one set of demonstrations, with images, for every method
         hard_data = _open_set(data_dir, "hard", mapping)
-        usable = _episodes(hard_data, successful_only)
+        usable = usable_episodes(hard_data, successful_only)
         if demos is not None:
             demos = check_number("demos", demos, minimum=2, integer=True)
             if demos > len(usable):
                 raise ValueError(f"{hard_data.path} has {len(usable)} usable demonstrations, fewer than demos={demos}")
             usable = usable[:demos]
-        hard_data = _subset(hard_data, usable)
+        hard_data = subset(hard_data, usable)
         pairs = {"default": hard_data} if needs_pairs else {}
         motions_data = hard_data if needs_motions else None
         if extra_motions and needs_motions:
             more = _open_set(data_dir, "hard_motions", mapping)
-            motions_data = _concatenate(hard_data, _subset(more, _episodes(more, successful_only)))
+            motions_data = concatenate(hard_data, subset(more, usable_episodes(more, successful_only)))
     elif extra_motions:
         raise ValueError("extra_motions adds the hard benchmark's motions: pass benchmark='hard'")
     else:
@@ -853,7 +518,7 @@ def train(
               "benchmark": benchmark, **({"demos": len(hard_data), "extra_motions": extra_motions} if hard else {})}
 
     if needs_motions:
-        keep_motions = _episodes(motions_data, successful_only)
+        keep_motions = usable_episodes(motions_data, successful_only)
         motions = motions_data.motion(episodes=keep_motions)  # trains the SeqAE and/or sets the CNN's targets
         unplaced = motions_data.episodes["position_index"][keep_motions] < 0
         if "proposed" in methods and cnn_settings.targets != "pair" and np.any(unplaced):
@@ -894,7 +559,7 @@ def train(
                 medoid=cnn_settings.targets == "position_medoid",
             )
         for camera, data in pairs.items():
-            keep = _episodes(data, successful_only)
+            keep = usable_episodes(data, successful_only)
             if cnn_settings.targets == "pair":
                 targets = encode_motions(seqae, data.motion(episodes=keep))
             else:
@@ -938,7 +603,7 @@ def train(
 
     if "end_to_end" in methods:
         for camera, data in pairs.items():
-            keep = _episodes(data, successful_only)
+            keep = usable_episodes(data, successful_only)
             policy, history = train_end_to_end(
                 data.images[keep],
                 data.motion(episodes=keep),
@@ -984,8 +649,8 @@ def _open_set(data_dir: Path, name: str, mapping: Mapping[str, str] | None = Non
     (``--map``). ``ValueError`` when none is there, when a pairs set has no images, or when
     ``mapping`` is given for a seqmotion ``.h5`` set (it has no feature keys to map).
     """
-    from .dataset import load_dataset
-    from .lerobot_import import from_lerobot, is_lerobot_dataset
+    from .data.dataset import load_dataset
+    from .data.lerobot_import import from_lerobot, is_lerobot_dataset
     from .timing import COMMAND_INTERVAL
 
     if (data_dir / f"{name}.h5").is_file():
@@ -1011,7 +676,7 @@ def _open_set(data_dir: Path, name: str, mapping: Mapping[str, str] | None = Non
 def _joint_count(sets: dict[str, Any]) -> int:
     """J of the datasets ``{name: PushingDataset or None}``: every motion field of every set has J joints,
     else ``ValueError`` naming them."""
-    from .dataset import MOTION_KEYS
+    from .data.dataset import MOTION_KEYS
 
     counts = {f"{name}.{key}": int(data.motions[key].shape[-1])
               for name, data in sets.items() if data is not None for key in MOTION_KEYS}
@@ -1027,32 +692,6 @@ def _record(report: TrainReport, part: str, settings: Any, history: dict, **coun
     report.seconds[part] = history["seconds"]
     report.final_loss[part] = history["loss"][-1]
     return {"settings": asdict(settings), **counts, "seconds": history["seconds"], "final_loss": history["loss"][-1]}
-
-
-def _subset(data: Any, episodes: np.ndarray) -> Any:
-    """The ``PushingDataset`` of these episodes only (every per-episode array indexed by them)."""
-    def pick(tree: Any) -> Any:
-        return {k: pick(v) for k, v in tree.items()} if isinstance(tree, dict) else np.asarray(tree)[episodes]
-
-    return replace(
-        data,
-        motions=pick(data.motions),
-        episodes=pick(data.episodes),
-        operator=pick(data.operator),
-        images=None if data.images is None else data.images[episodes],
-        video=None if data.video is None else data.video[episodes],
-    )
-
-
-def _concatenate(first: Any, second: Any) -> Any:
-    """One ``PushingDataset`` of both sets' motions and episode records (no images: it trains a SeqAE)."""
-    def join(a: Any, b: Any) -> Any:
-        if isinstance(a, dict):
-            return {k: join(a[k], b[k]) for k in a if k in b}
-        return np.concatenate([np.asarray(a), np.asarray(b)])
-
-    return replace(first, motions=join(first.motions, second.motions), episodes=join(first.episodes, second.episodes),
-                   operator=join(first.operator, second.operator), images=None, video=None)
 
 
 def _with_seed(settings: Any, seed: int) -> Any:

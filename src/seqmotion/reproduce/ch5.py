@@ -101,7 +101,7 @@ def _needed() -> list[tuple[str, str, str]]:
 def ensure_data(out: Path, seed: int, quick: bool, training: bool = True) -> tuple[Path, Path]:
     """Collect the training sets into ``out/data`` (only for ``training``) and the unseen images into
     ``out/data_unseen`` if missing."""
-    from ..lfd.dataset import CHAPTER_SETS, collect
+    from ..lfd.data.dataset import CHAPTER_SETS, collect
 
     data, unseen = out / "data", out / "data_unseen"
     per = {name: 1 for name in CHAPTER_SETS} if quick else None
@@ -210,10 +210,10 @@ def run(out: Path, model: str | None = None, quick: bool = False, seed: int = 0,
     """
     import torch
 
-    from ..lfd.dataset import load_dataset
+    from ..lfd.data.dataset import load_dataset
+    from ..lfd.env import pushing
     from ..lfd.evaluation import evaluate
-    from ..lfd.models import PushingPolicy
-    from ..sim import pushing
+    from ..lfd.policy.policy import PushingPolicy
 
     torch.set_num_threads(1)  # the LSTMs are small: one thread is fastest and reproducible
     out = Path(out)
@@ -346,7 +346,7 @@ def _write_tables(out: Path, table52: dict, table53: dict, trials: int, quick: b
 
 
 def _shape(preset_name: str) -> str:
-    from ..lfd.models import preset
+    from ..lfd.policy.networks import preset
 
     config = preset(preset_name)
     return f"{config.layers}x{config.hidden}"
@@ -383,8 +383,8 @@ def _plot_fig5_9(out: Path, table52: dict, quick: bool = False) -> None:
 def _fig5_11(out: Path, paths: dict, unseen: Any, quick: bool = False) -> dict:
     """PCA (2 components) of ẑ of the unseen images, both methods of the main (default) size (those evaluated)."""
     plt = pyplot()
-    from ..lfd.models import PushingPolicy
-    from ..sim.pushing import POSITIONS
+    from ..lfd.env.pushing import POSITIONS
+    from ..lfd.policy.policy import PushingPolicy
 
     fig, axes = plt.subplots(1, 2, figsize=(8.4, 3.8))
     explained = {}
@@ -424,7 +424,7 @@ def render_frames(
 
     The recorded arm angles and block pose are written back into the scene (same variation,
     so the lighting matches) and rendered from the scene's overview camera in front of the
-    robot (:meth:`seqmotion.sim.pushing.PushingScene.render_states`).
+    robot (:meth:`seqmotion.lfd.env.pushing.PushingScene.render_states`).
     """
     scene.reset(run.position, variation)
     steps = [min(round(t / run.dt), len(run.slave_theta) - 1) for t in times]
@@ -433,9 +433,10 @@ def render_frames(
 
 def _snapshots(out: Path, paths: dict, results: dict, scene: Any, seed: int) -> dict:
     """Fig. 5.10: one trial per method at the same placement (a failed end-to-end one if there is any)."""
+    from ..lfd.env import pushing
     from ..lfd.evaluation import trial_rng
-    from ..lfd.models import PushingPolicy
-    from ..sim import pushing
+    from ..lfd.policy.policy import PushingPolicy
+    from ..lfd.rollout import run_episode
     from ..sim.render import write_strip
 
     e2e = results.get(f"{main_preset()}/end_to_end_default") or results[f"{main_preset()}/proposed_default"]
@@ -449,7 +450,7 @@ def _snapshots(out: Path, paths: dict, results: dict, scene: Any, seed: int) -> 
         if (main_preset(), method, "default") not in paths:
             continue
         policy = PushingPolicy.from_pretrained(paths[(main_preset(), method, "default")])
-        run, _, _ = policy.run(scene, position, variation)
+        run, _, _ = run_episode(scene, policy, position, variation)
         frames = render_frames(scene, run, variation, SNAPSHOT_TIMES)
         labels = [f"{method.replace('_', '-')} t={t:.1f} s" for t in SNAPSHOT_TIMES]
         write_strip(frames, out / f"fig5_10_snapshots_{method}.png", labels)

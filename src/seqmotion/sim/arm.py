@@ -30,13 +30,12 @@ from .backend import CONTROL_DT, GRAVITY, control_period, import_mujoco
 from .control import Gains, JointSpaceController, TaskSpaceController, make_controller, solve_ik
 from .kinematics import Reference, quat_to_matrix
 from .limits import JointLimits
-from .robot_models import built_in_limits
+from .robot_models import Robot, built_in_limits, resolve_robot
 from .scene import (
     FOREARM,
     SHOULDER_HEIGHT,
     SHOULDER_OFFSET,
     SITE_IN_TOOL,
-    SUBSTEPS,
     TABLE_CLEARANCE,
     TABLE_TOP,
     UPPER_ARM,
@@ -96,14 +95,17 @@ class Arm:
             :class:`~seqmotion.sim.control.TaskSpaceController`).
 
     Attributes:
-        data: the ``mujoco.MjData`` (read it between steps; :meth:`step` advances it).
+        data: the ``mujoco.MjData`` (read it between steps; :meth:`step` advances it); pass ``data`` to drive
+            one that a world already holds (the pushing world's standard arm).
         controller: the controller started by the latest :meth:`reset` (``None`` before).
     """
 
-    def __init__(self, scene: Scene, gains: Gains, *, model_bias: bool = False) -> None:
+    def __init__(self, scene: Scene, gains: Gains, *, model_bias: bool = False, data: Any = None) -> None:
         self._mj = import_mujoco()
         self.scene, self.gains, self.model_bias = scene, gains, model_bias
-        self.data = self._mj.MjData(scene.model)
+        self.data = self._mj.MjData(scene.model) if data is None else data
+        # Physics steps per 1 ms control period: the arm scenes' SUBSTEPS; 1 where the model steps at 1 ms.
+        self.substeps = max(1, round(CONTROL_DT / scene.model.opt.timestep))
         self.controller: TaskSpaceController | JointSpaceController | None = None
 
     def reset(self, pos: np.ndarray, quat: np.ndarray, place: Place, load: np.ndarray) -> None:
@@ -119,8 +121,13 @@ class Arm:
         mj.mj_forward(m, d)
         place(d)
         mj.mj_forward(m, d)
+        self.start(load)
+
+    def start(self, load: np.ndarray | None = None) -> None:
+        """A fresh controller at rest at ``data``'s current state (kinematics current: ``mj_forward``), its
+        observer at the static disturbance of ``load`` ``(3,)`` [N] (none: the arm's own weight only)."""
         self.controller = make_controller(self.scene, self.gains, model_bias=self.model_bias)
-        self.controller.reset(d, load)
+        self.controller.reset(self.data, load)
 
     def step(
         self,
@@ -131,11 +138,12 @@ class Arm:
         inspect: Callable[[np.ndarray], bool] | None = None,
     ) -> np.ndarray | None:
         """One control period toward the commanded tool state (arguments of
-        :meth:`~seqmotion.sim.control.TaskSpaceController.torque`).
+        :meth:`~seqmotion.sim.control.TaskSpaceController.torque`), by the one control step
+        :func:`~seqmotion.sim.backend.control_period`.
 
-        ``inspect(tau)``, if given, is called with the torque ``(n,)`` [N m] while ``data`` still
-        holds the kinematics of the state it was computed from (a logger reads the tool and the
-        object there); returning ``False`` stops before the state is advanced.
+        ``inspect(tau)``, if given, is its recording hook: called with the torque ``(n,)`` [N m] while
+        ``data`` still holds the kinematics of the state it was computed from (a logger reads the tool
+        and the object there); returning ``False`` stops before the state is advanced.
 
         Returns:
             The torque applied, or ``None`` if ``inspect`` stopped the period.
@@ -143,28 +151,30 @@ class Arm:
         ctl, d = self.controller, self.data
         if ctl is None:
             raise RuntimeError("call Arm.reset() before Arm.step()")
-
-        def torque() -> np.ndarray | None:
-            tau = ctl.torque(d, pos, quat, twist, accel)
-            return tau if inspect is None or inspect(tau) else None
-
-        return control_period(self.scene.model, d, torque, SUBSTEPS)
+        return control_period(self.scene.model, d, lambda: ctl.torque(d, pos, quat, twist, accel), self.substeps,
+                              inspect)
 
     def diverged(self) -> bool:
         """Whether MuJoCo has flagged a bad acceleration (the simulation became unstable)."""
         return bool(self.data.warning[self._mj.mjtWarning.mjWARN_BADQACC].number)
 
 
-def workspace_problem(reference: Reference, kind: str, robot: str | None = None) -> str | None:
+def workspace_problem(reference: Reference, kind: str, robot: str | Robot | None = None) -> str | None:
     """Why the commanded tool path cannot be executed by the arm, or ``None`` if it can.
 
     Checks, per sample, that the wrist centre stays within the built-in arm's reach (minus
     :data:`REACH_MARGIN`), away from the base axis (shoulder singularity) and that the tool
     stays above the table. The arm's own wrist singularity is not predicted here; the run
-    reports it as lost tracking if it happens. On a standard ``robot`` only the table is checked
+    reports it as lost tracking if it happens. ``robot`` is resolved by
+    :func:`~seqmotion.sim.robot_models.resolve_robot`: ``None`` and ``"mh3f"`` are the built-in arm; on a
+    standard robot (a name or a :class:`~seqmotion.sim.robot_models.Robot`) only the table is checked
     here: its reach and joint limits are judged during the run, by the IK that tracks the path
     (:class:`JointReport` names the worst pose out of reach and the worst crossing of each limit).
+
+    Raises:
+        ValueError: an unknown or unavailable robot.
     """
+    standard = resolve_robot(robot)
     rot = quat_to_matrix(reference.quat)
     flange = reference.pos - rot @ SITE_IN_TOOL[kind]
     wrist = flange - WRIST_TO_FLANGE * rot[:, :, 2]
@@ -177,7 +187,7 @@ def workspace_problem(reference: Reference, kind: str, robot: str | None = None)
     reach = UPPER_ARM + FOREARM - REACH_MARGIN
     table = (reference.pos[:, 2] < TABLE_TOP + TABLE_CLEARANCE,
              lambda k: f"the tool is down at the table (z = {reference.pos[k, 2]:.3f} m)")
-    checks = [table] if robot is not None else [
+    checks = [table] if standard is not None else [
         (dist > reach, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder (reach {reach:.3f} m)"),
         (dist < abs(UPPER_ARM - FOREARM) + 0.05, lambda k: f"the wrist centre is {dist[k]:.3f} m from the shoulder"),
         (np.hypot(wrist[:, 0], wrist[:, 1]) < 0.05, lambda k: "the wrist centre is over the base axis"),
@@ -195,12 +205,13 @@ def workspace_problem(reference: Reference, kind: str, robot: str | None = None)
 
 
 def prepare_reference(
-    ref: Reference, kind: str, *, accel_feedforward: bool, check_workspace: bool, robot: str | None = None
+    ref: Reference, kind: str, *, accel_feedforward: bool, check_workspace: bool, robot: str | Robot | None = None
 ) -> Reference:
     """Drop the reference's acceleration feedforward unless asked for; refuse paths out of reach.
 
     Modifies ``ref`` in place (and returns it). Raises ``ValueError`` naming the first sample
-    out of reach if ``check_workspace``.
+    out of reach (:func:`workspace_problem` on ``robot``: ``None`` or ``"mh3f"`` the built-in arm) if
+    ``check_workspace``.
     """
     if not accel_feedforward:
         ref.acc[:], ref.alpha[:] = 0.0, 0.0
@@ -408,26 +419,36 @@ def _crossing(kind: str, names: tuple[str, ...], share: np.ndarray, over: np.nda
                          int(np.argmax(over[:, j])) * dt, float(counts[j]) * dt, others)
 
 
-def joint_report(scene: Scene, log: ExecutionLog, dt: float) -> JointReport:
-    """Judge a run's joints against the scene robot's limits (:class:`JointReport`); ``dt``: the logged period [s].
+def joint_report(scene: Scene, dt: float, *, joint_pos: np.ndarray, joint_vel: np.ndarray, torque: np.ndarray,
+                 saturated: np.ndarray, ik_error: np.ndarray) -> JointReport:
+    """Judge a run's joints against the scene robot's limits (:class:`JointReport`).
 
-    Reads ``log.joint_pos``, ``joint_vel``, ``torque`` ``(N, n)``, ``saturated`` ``(N,)``, ``ik_error`` ``(N, 2)``
-    and ``steps``. Every kind of limit broken is named by its worst crossing (largest share, with its time), not
-    only its first.
+    Args:
+        scene: the scene the run was on (its arm joints and :attr:`Scene.robot`'s limits; the built-in arm's
+            when ``None``).
+        dt: the period between the recorded rows [s].
+        joint_pos, joint_vel, torque: ``(N, n)`` the arm's joint positions [rad], velocities [rad/s] and
+            applied torques [N m], one row per executed period (N = 0: nothing executed).
+        saturated: ``(N,)`` whether the torque command hit a limit.
+        ik_error: ``(N, 2)`` the IK reference's residual [m, rad] (zeros without IK in the loop).
+
+    Every kind of limit broken is named by its worst crossing (largest share, with its time), not only its first.
     """
     m = scene.model
     names = tuple(m.joint(int(m.dof_jntid[i])).name for i in scene.arm_dof)
-    robot = getattr(scene, "robot", None)
+    robot = scene.robot
     limits = built_in_limits(names) if robot is None else robot.limits
-    q, qd, tau = (np.asarray(a, dtype=float) for a in (log.joint_pos, log.joint_vel, log.torque))
+    q, qd, tau = (np.asarray(a, dtype=float) for a in (joint_pos, joint_vel, torque))
+    ik_error = np.asarray(ik_error, dtype=float)
     n = len(names)
-    if not log.steps:  # nothing executed: no peak, nothing crossed
+    steps = len(q)
+    if not steps:  # nothing executed: no peak, nothing crossed
         q, qd, tau = np.zeros((1, n)), np.zeros((1, n)), np.zeros((1, n))
     speed_peak, torque_peak = np.abs(qd).max(axis=0), np.abs(tau).max(axis=0)
     crossings: list[LimitCrossing] = []
 
     def judge(kind: str, share: np.ndarray, over: np.ndarray, value: np.ndarray, limit: np.ndarray) -> bool:
-        crossing = _crossing(kind, names, share, over, value, limit, dt) if log.steps else None
+        crossing = _crossing(kind, names, share, over, value, limit, dt) if steps else None
         if crossing is not None:
             crossings.append(crossing)
         return crossing is None
@@ -453,18 +474,18 @@ def joint_report(scene: Scene, log: ExecutionLog, dt: float) -> JointReport:
         share = np.abs(tau) / limits.torque
         torque_share = share.max(axis=0)
         # The controller clips its command at the limit, so a joint that needed more sits exactly at it.
-        clipped = np.asarray(log.saturated, dtype=bool).reshape(-1, 1) & (share >= 1 - 1e-9)
+        clipped = np.asarray(saturated, dtype=bool).reshape(-1, 1) & (share >= 1 - 1e-9)
         torque_ok = judge("torque", share, clipped, np.abs(tau), np.broadcast_to(limits.torque, tau.shape))
-    ik = log.ik_error.max(axis=0) if log.steps else np.zeros(2)
-    if log.steps:
-        ik_share = (np.asarray(log.ik_error, dtype=float) / np.array(IK_TOLERANCE)).max(axis=1)
+    ik = ik_error.max(axis=0) if steps else np.zeros(2)
+    if steps:
+        ik_share = (ik_error / np.array(IK_TOLERANCE)).max(axis=1)
         if (ik_share > 1).any():
             k = int(np.argmax(ik_share))
             over = ik_share > 1
             crossings.append(LimitCrossing(
-                "reach", None, float(log.ik_error[k, 0]), IK_TOLERANCE[0], float(ik_share[k]), k * dt,
+                "reach", None, float(ik_error[k, 0]), IK_TOLERANCE[0], float(ik_share[k]), k * dt,
                 int(np.argmax(over)) * dt, float(over.sum()) * dt,
-                detail=f"{log.ik_error[k, 0] * 1e3:.1f} mm, {np.degrees(log.ik_error[k, 1]):.1f}°"))
+                detail=f"{ik_error[k, 0] * 1e3:.1f} mm, {np.degrees(ik_error[k, 1]):.1f}°"))
     crossings.sort(key=lambda c: -c.share)
     problem = "; ".join(c.describe() for c in crossings) or None
     return JointReport(limits.robot, names, joints_ok, speed_ok, torque_ok, torque_share,
@@ -598,6 +619,10 @@ class Media:
             write_strip([by_step[k] for k in picks], self.snapshots, labels=labels)
 
 
+Observer = Callable[[int, Any], None]
+"""``observe(k, data)``: reads period ``k``'s state (``mujoco.MjData``, kinematics current) during :func:`execute`."""
+
+
 def execute(
     kind: str,
     ref: Reference,
@@ -609,11 +634,13 @@ def execute(
     object_mass: float,
     settle_time: float,
     media: Media | None = None,
-    robot: str | None = None,
+    robot: str | Robot | None = None,
+    observe: Observer | None = None,
 ) -> ExecutionLog:
     """Run the reference on the arm of scene ``kind`` and log every control period.
 
-    ``robot`` names a standard arm (:func:`seqmotion.sim.robot_models.robots`); ``None`` is the built-in arm.
+    ``robot`` is a standard arm (its name, :func:`seqmotion.sim.robot_models.robots`, or a
+    :class:`~seqmotion.sim.robot_models.Robot`); ``None`` or ``"mh3f"`` is the built-in arm.
 
     The arm starts at the reference's first pose with the object placed at rest on the tool
     (:func:`place_on_tool` with ``object_height`` [m] and ``object_offset`` ``(2,)`` [m]; the
@@ -621,7 +648,10 @@ def execute(
     ``settle_time`` [s] while the object comes to rest, then follows the reference. A run is
     cut short (``diverged``) if the tool strays :data:`TRACKING_LIMIT` from the command, the
     torque is not finite, or MuJoCo flags the simulation unstable. ``media`` (if any) says which
-    periods to render; its files are written at the end.
+    periods to render; its files are written at the end. ``observe(k, data)``, if given, reads every
+    executed period ``k`` ≥ 0 of the reference through the control step's recording hook (``data``: the
+    ``mujoco.MjData`` with the kinematics of that period's state): how a caller records the bodies of the very
+    run it gets the verdict of (the viewer's replay), without simulating the motion a second time.
     """
     scene = get_scene(kind, robot)
     arm = Arm(scene, gains, model_bias=model_bias)
@@ -673,6 +703,8 @@ def execute(
             if recorder is not None and k in frame_steps:
                 recorder.capture(d, k * ref.dt)
                 frame_steps_done.append(k)
+            if observe is not None:
+                observe(k, d)
             steps = k + 1
         # Cheap per-period checks (NaN fails every comparison): torque finite, tool within reach of the command.
         err = ctl.last_error
@@ -710,7 +742,8 @@ def execute(
         frames=[] if recorder is None else recorder.frames,
         frame_steps=frame_steps_done,
     )
-    result.joints = joint_report(scene, result, ref.dt)
+    result.joints = joint_report(scene, ref.dt, joint_pos=result.joint_pos, joint_vel=result.joint_vel,
+                                 torque=result.torque, saturated=result.saturated, ik_error=result.ik_error)
     if media is not None:
         media.write(result)
     return result

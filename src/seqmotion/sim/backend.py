@@ -7,7 +7,8 @@
   the state at the start of the period (``mj_step1`` → torque → ``mj_step2`` → substeps).
 
 The MH3F arm scenes (:mod:`seqmotion.sim.arm`, pancake and sliding) and the chapter-5 pushing
-scene (:mod:`seqmotion.sim.pushing`) all step through :func:`control_period`.
+scene (:mod:`seqmotion.lfd.env.pushing`) and the viewer's replay all step through :func:`control_period`,
+the one control step (its ``record`` hook is how a logger or a renderer reads each period).
 """
 
 from __future__ import annotations
@@ -38,7 +39,9 @@ Why it differs: the pushing demonstrations, the shipped ``pushing`` policy train
 its evaluations (``pretrained/pushing/evaluations.json``) were all made at 9.81. Evaluated at
 9.8 (seed 1, 30 trials from each of the three webcams) the policy keeps its success counts, but
 the block crosses the centre line up to 23 ms earlier or later and ends up to 3 mm elsewhere:
-the shipped numbers would no longer be reproduced exactly. The pushing task has no 2-D model to agree with.
+the shipped numbers would no longer be reproduced exactly. The seeded demonstrations change too: the same
+0.6 s episode collected at 9.8 differs from the one at 9.81 by up to 1.6e-5 in its recorded motion (float32
+columns), so every dataset's bytes would change. The pushing task has no 2-D model to agree with.
 """
 
 
@@ -56,13 +59,22 @@ def import_mujoco() -> Any:
 
 
 def control_period(
-    model: Any, data: Any, torque: Callable[[], np.ndarray | None], substeps: int = 1
+    model: Any,
+    data: Any,
+    torque: Callable[[], np.ndarray | None],
+    substeps: int = 1,
+    record: Callable[[np.ndarray], bool | None] | None = None,
 ) -> np.ndarray | None:
     """Advance ``data`` by one control period under a torque held constant over the period.
 
+    The one control step of every simulated arm: the MH3F arm and the standard arms
+    (:meth:`seqmotion.sim.arm.Arm.step`, under :func:`~seqmotion.sim.arm.execute` and the viewer's
+    replay), the chapter-5 Touch arms and the standard arm holding the pen in the pushing world.
+
     ``mj_step1`` computes the kinematics, mass matrix and velocities of the current state;
-    ``torque()`` is then called to read them (a controller, a logger, an observer) and returns
-    the actuator command ``(nu,)`` [N m]; ``mj_step2`` integrates one physics step with it and
+    ``torque()`` is then called to read them (a controller, an observer) and returns the actuator
+    command ``(nu,)`` [N m]; ``record(tau)`` (the recording hook) sees the same state with that
+    torque (a logger, a renderer); ``mj_step2`` integrates one physics step with it and
     ``substeps - 1`` more ``mj_step`` calls hold it for the rest of the period. (``mj_step1`` +
     ``mj_step2`` is bit-for-bit one ``mj_step``; the split only lets the torque see the state.)
 
@@ -71,14 +83,16 @@ def control_period(
         torque: called once per period after ``mj_step1``; returning ``None`` stops before the
             state is advanced (a caller that detects divergence keeps the state it judged).
         substeps: physics steps per control period (control period / ``model.opt.timestep``).
+        record: called with the torque ``(nu,)`` [N m] while ``data`` holds the state it was computed
+            from; returning ``False`` stops before the state is advanced (as ``torque`` returning ``None``).
 
     Returns:
-        The torque applied, or ``None`` if ``torque()`` stopped the period.
+        The torque applied, or ``None`` if ``torque()`` or ``record`` stopped the period.
     """
     mujoco = import_mujoco()
     mujoco.mj_step1(model, data)
     tau = torque()
-    if tau is None:
+    if tau is None or (record is not None and record(tau) is False):
         return None
     data.ctrl[:] = tau
     mujoco.mj_step2(model, data)

@@ -99,6 +99,7 @@ from .control import JointSpaceController, TaskSpaceController, resolve_gains
 from .kinematics import Reference, attitude_matrix, matrix_to_quat, planar_tilt, quat_to_matrix
 from .pancake import GAP_LIMIT, SLIP_LIMIT
 from .render import Renderer
+from .robot_models import Robot, resolve_robot
 from .scene import (
     BLADE_HALF,
     OBJECT_HALF_HEIGHT,
@@ -226,7 +227,7 @@ class _ArmEnv(gym.Env):
 
     def __init__(self, *, gains: str, frame_skip: int, action: str, normalize_actions: bool,
                  time_limit: float | None, render_mode: str | None, camera: str, width: int, height: int,
-                 robot: str | None = None) -> None:
+                 robot: str | Robot | None = None) -> None:
         if isinstance(frame_skip, bool) or not isinstance(frame_skip, int | np.integer) or frame_skip < 1:
             raise ValueError(f"frame_skip must be a positive integer, got {frame_skip!r}")
         if action not in ACTIONS:
@@ -236,8 +237,8 @@ class _ArmEnv(gym.Env):
         if time_limit is not None and not (np.isfinite(time_limit) and time_limit > 0):
             raise ValueError(f"time_limit must be a positive number of seconds or None, got {time_limit!r}")
         self._mj = import_mujoco()
-        self.scene = get_scene(self.kind, robot)
-        self.robot = robot
+        self.robot: Robot | None = resolve_robot(robot)  # None: the built-in arm ("mh3f" too)
+        self.scene = get_scene(self.kind, self.robot)
         self.gains = resolve_gains(gains)
         self.frame_skip = int(frame_skip)
         self.action_mode = action
@@ -509,7 +510,8 @@ class PancakeArmEnv(_ArmEnv):
         render_mode: ``None`` or ``"rgb_array"``; camera, width, height: of the rendered frames.
         robot: a standard arm (``"panda"``, ``"ur5e"``, ``"menagerie:<name>"``, …: :func:`seqmotion.sim.robots`)
             driven by differential IK + joint-space PD + DOB (``info`` then holds ``ik_error`` [m, rad] and
-            ``torque_saturated``); ``None`` (default): the built-in arm.
+            ``torque_saturated``), or a :class:`~seqmotion.sim.robot_models.Robot`; ``None`` (default) or
+            ``"mh3f"``: the built-in arm. :attr:`robot` holds it resolved (the ``Robot``, or ``None``).
     """
 
     kind = "pancake"
@@ -522,7 +524,7 @@ class PancakeArmEnv(_ArmEnv):
     def __init__(self, *, gains: str = "ch2", frame_skip: int = 10, action: str = "planar",
                  normalize_actions: bool = False, jitter: float = 0.005, time_limit: float | None = TIME_LIMIT,
                  render_mode: str | None = None, camera: str = "oblique", width: int = 480,
-                 height: int = 360, robot: str | None = None, **unknown: Any) -> None:
+                 height: int = 360, robot: str | Robot | None = None, **unknown: Any) -> None:
         _refuse_unknown(type(self), unknown)
         self.jitter = float(jitter)
         super().__init__(gains=gains, frame_skip=frame_skip, action=action, normalize_actions=normalize_actions,
@@ -594,7 +596,7 @@ class SlidingArmEnv(_ArmEnv):
     def __init__(self, *, gains: str = "ch3", frame_skip: int = 10, action: str = "planar",
                  normalize_actions: bool = False, goal_radius: float = 0.06, time_limit: float | None = TIME_LIMIT,
                  render_mode: str | None = None, camera: str = "front", width: int = 480,
-                 height: int = 360, robot: str | None = None, **unknown: Any) -> None:
+                 height: int = 360, robot: str | Robot | None = None, **unknown: Any) -> None:
         _refuse_unknown(type(self), unknown)
         self.goal_radius = float(goal_radius)
         self.goal = np.zeros(2)

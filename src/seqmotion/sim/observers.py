@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from ..errors import check_number
+from ..errors import check_finite_array, check_number
 
 
 def _check_cutoff(cutoff: float, dt: float) -> None:
@@ -78,9 +78,8 @@ class DisturbanceObserver:
     """
 
     def __init__(self, nominal_inertia: np.ndarray | float, cutoff: float, dt: float) -> None:
-        self.nominal_inertia = np.asarray(nominal_inertia, dtype=np.float64)
-        if np.any(self.nominal_inertia <= 0):
-            raise ValueError("nominal inertia must be positive")
+        self.nominal_inertia = check_finite_array("nominal inertia [kg m²]", nominal_inertia, minimum=0.0,
+                                                  strict_minimum=True)
         self.cutoff = float(cutoff)
         self._lowpass = LowPass(cutoff, dt, np.zeros_like(self.nominal_inertia))
         self.estimate = np.zeros_like(self.nominal_inertia)

@@ -37,6 +37,7 @@ from .arm import (
     ExecutionLog,
     JointReport,
     Media,
+    Observer,
     RobotFlags,
     check_times,
     execute,
@@ -48,6 +49,7 @@ from .backend import CONTROL_DT, GRAVITY
 from .control import Gains, resolve_gains
 from .executable import check_executable
 from .kinematics import Reference, planar_reference, planar_tilt, quat_to_matrix, rotation_angle
+from .robot_models import Robot, resolve_robot
 from .scene import BLADE_HALF, MU_PANCAKE, PANCAKE_MASS, PANCAKE_ORIGIN
 
 SLIP_LIMIT = 5e-3
@@ -239,7 +241,8 @@ def run_pancake(
     fps: float = 30.0,
     slow_motion: float = 4.0,
     mu: float = MU,
-    robot: str | None = None,
+    robot: str | Robot | None = None,
+    observe: Observer | None = None,
 ) -> PancakeResult:
     """Execute planar spatula states on the simulated MH3F-like arm with a pancake on the blade.
 
@@ -268,27 +271,32 @@ def run_pancake(
             the simulation: the simulated pancake–blade contact has μ = 1
             (:data:`~seqmotion.sim.scene.MU_PANCAKE`). Judge a motion planned for a lower μ with it.
         robot: a standard arm to run it on (``"panda"``, ``"ur5e"``, ``"menagerie:<name>"``, …; see
-            :func:`seqmotion.sim.robot_models.robots`), tracked by differential IK + joint-space PD + DOB;
-            ``None`` (default): the built-in MH3F-like arm.
+            :func:`seqmotion.sim.robot_models.robots`; or a :class:`~seqmotion.sim.robot_models.Robot`), tracked by
+            differential IK + joint-space PD + DOB; ``None`` (default) or ``"mh3f"``: the built-in MH3F-like arm.
+        observe: ``observe(k, data)``, called at every executed period ``k`` ≥ 0 of the reference with the
+            ``mujoco.MjData`` holding that period's state (:func:`~seqmotion.sim.arm.execute`): records the
+            bodies of this very run (the viewer's replay).
 
     Returns:
         A :class:`PancakeResult`.
 
     Raises:
-        ValueError: bad states or times, ``mu`` not a positive number, or (``check_workspace``)
-            a command out of the arm's reach.
+        ValueError: bad states or times, ``mu`` not a positive number, an unknown or unavailable robot, or
+            (``check_workspace``) a command out of the arm's reach.
     """
     arr = single_trajectory(states, 6, "states")
     check_times(decel_time=decel_time, hold_time=hold_time, settle_time=settle_time)
     check_mu(mu)
     gains = resolve_gains(gains)
+    arm = resolve_robot(robot)  # None: the built-in arm
     ref = planar_reference(arr, decel_time=decel_time, hold_time=hold_time)
     prepare_reference(ref, "pancake", accel_feedforward=accel_feedforward, check_workspace=check_workspace,
-                      robot=robot)
+                      robot=arm)
     media = Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion, camera)
     # The pancake is placed on the blade's centre, resting on the site (its resting centre).
     log = execute("pancake", ref, gains, model_bias=model_bias, object_height=0.0, object_offset=np.zeros(2),
-                  object_mass=PANCAKE_MASS, settle_time=settle_time, media=media, robot=robot)
+                  object_mass=PANCAKE_MASS, settle_time=settle_time, media=media, robot=arm,
+                  observe=observe)
     return _pancake_metrics(ref, log, arr, mu, decel_time)
 
 

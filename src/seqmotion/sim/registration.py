@@ -24,6 +24,7 @@ from ..core.execution import execution_checks, register_execution_check
 ENV_IDS = {
     "seqmotion/PancakeArm-v0": "seqmotion.sim.envs:PancakeArmEnv",
     "seqmotion/SlidingArm-v0": "seqmotion.sim.envs:SlidingArmEnv",
+    "seqmotion/Pushing-v0": "seqmotion.lfd.env.gym_env:PushingEnv",
 }
 """Environment id → the string entry point ``gymnasium.make`` imports."""
 

@@ -506,11 +506,13 @@ _SIZE_FIELDS = ("memory", "nstack", "njmax", "nconmax", "nemax", "nuserdata")
 
 
 def _adopt_settings(child: object, parent: object) -> None:
-    """Give ``child`` (a robot's MjSpec) ``parent``'s physics options and sizes before it is attached.
+    """Give ``child`` (a robot's MjSpec) ``parent``'s physics options and ``<size>`` allocations before it is
+    attached.
 
-    The scene keeps its own options either way (the world is the root), but MuJoCo reports every
-    difference as an attach conflict (a Python warning and a line in ``MUJOCO_LOG.TXT``); a robot file's
-    own options (e.g. Menagerie's ``integrator="implicit"``) are meant for its own scenes, not ours.
+    The scene keeps its own options and sizes either way (the world is the root: MuJoCo keeps the parent's
+    values), but MuJoCo reports every difference as an attach conflict (a Python warning and a line in
+    ``MUJOCO_LOG.TXT``); a robot file's own options (e.g. Menagerie's ``integrator="implicit"``) and sizes are
+    meant for its own scenes, not ours.
     """
     for name in dir(parent.option):
         if not name.startswith("_") and not callable(getattr(parent.option, name)):
@@ -519,18 +521,35 @@ def _adopt_settings(child: object, parent: object) -> None:
         setattr(child, name, getattr(parent, name))
 
 
-def _robot_model(kind: str, robot: Robot) -> object:
-    """Compile scene ``kind`` on ``robot``: our world (options, table, cameras, object, pairs) as the root, the
-    robot's arm attached at its base, the tool built on its flange."""
+def attach_robot(world: object, robot: Robot) -> object:
+    """Attach ``robot``'s arm to the world spec ``world`` (a ``mujoco.MjSpec``, modified in place); return its
+    flange body (an ``MjsBody``; a tool goes at :func:`~seqmotion.sim.robot_models.tool_mount` in it).
+
+    The arm (:meth:`Robot.spec <seqmotion.sim.robot_models.Robot.spec>`: its file's bodies, joints and torque
+    motors) is attached under the prefix :func:`robot_prefix` at a frame at ``robot.base_pos`` ``(3,)`` [m],
+    turned by ``robot.base_yaw`` [rad] about the world's z axis. The world's physics options and ``<size>``
+    allocations stay in force (the robot's are set to the world's first, so the attach reports no conflict).
+    The arm scenes (:func:`build_scene`) and the standard-arm pushing world
+    (:class:`seqmotion.lfd.env.robot.RobotPushingScene`) both attach their robot here.
+    """
     mujoco = import_mujoco()
-    world = mujoco.MjSpec.from_string(scene_xml(kind, robot))
+    if not isinstance(world, mujoco.MjSpec):
+        raise ValueError(f"world must be a mujoco.MjSpec, got {type(world).__name__}")
     yaw = float(robot.base_yaw)
     frame = world.worldbody.add_frame(pos=np.asarray(robot.base_pos, dtype=np.float64).tolist(),
                                       quat=[math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
     arm = robot.spec()
     _adopt_settings(arm, world)
     world.attach(arm, prefix=robot_prefix(robot), frame=frame)
-    flange = world.body(robot_prefix(robot) + robot.flange)
+    return world.body(robot_prefix(robot) + robot.flange)
+
+
+def _robot_model(kind: str, robot: Robot) -> object:
+    """Compile scene ``kind`` on ``robot``: our world (options, table, cameras, object, pairs) as the root, the
+    robot's arm attached at its base (:func:`attach_robot`), the tool built on its flange."""
+    mujoco = import_mujoco()
+    world = mujoco.MjSpec.from_string(scene_xml(kind, robot))
+    flange = attach_robot(world, robot)
     pos, quat = tool_mount(robot)
     _add_tool(flange.add_body(name="tool", pos=pos.tolist(), quat=quat.tolist()), kind)
     try:

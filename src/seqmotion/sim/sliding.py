@@ -36,6 +36,7 @@ from .arm import (
     ExecutionLog,
     JointReport,
     Media,
+    Observer,
     RobotFlags,
     check_times,
     execute,
@@ -45,6 +46,7 @@ from .arm import (
 )
 from .control import Gains, resolve_gains
 from .kinematics import Reference, pan_reference
+from .robot_models import Robot, resolve_robot
 from .scene import MU_OBJECT, OBJECT_HALF_HEIGHT, OBJECT_MASS, OBJECT_RADIUS, PAN_ORIGIN, PAN_RADIUS
 
 TIP_ANGLE = np.pi / 4
@@ -175,7 +177,8 @@ def run_sliding(
     check_workspace: bool = True,
     fps: float = 30.0,
     slow_motion: float = 2.0,
-    robot: str | None = None,
+    robot: str | Robot | None = None,
+    observe: Observer | None = None,
 ) -> SlidingResult:
     """Shake the frying pan along planned pan states and watch the object (§3.5).
 
@@ -195,7 +198,7 @@ def run_sliding(
             pan, ``(2,)`` [m] from its centre; ``"auto"`` (default): :func:`object_origin` of the
             command (or of the plan's path), i.e. the centre unless the path would reach the wall.
         video, snapshots, n_snapshots, camera (``"front"`` or ``"top"``), decel_time, hold_time,
-        settle_time, model_bias, accel_feedforward, check_workspace, fps, slow_motion, robot: as in
+        settle_time, model_bias, accel_feedforward, check_workspace, fps, slow_motion, robot, observe: as in
         :func:`~seqmotion.sim.pancake.run_pancake`.
 
     Returns:
@@ -241,9 +244,10 @@ def run_sliding(
         plan_rel = plan_rel.copy()
         plan_rel[:, :2] += shift
     gains = resolve_gains(gains)
+    arm = resolve_robot(robot)  # None: the built-in arm
     ref = pan_reference(pan, decel_time=decel_time, hold_time=hold_time)
     prepare_reference(ref, "sliding", accel_feedforward=accel_feedforward, check_workspace=check_workspace,
-                      robot=robot)
+                      robot=arm)
     if np.hypot(*(start + shift)) > PAN_RADIUS - 0.04:
         raise ValueError(f"the object's start {start.tolist()} m, with the command's origin at {shift.tolist()} m, "
                          f"is not on the pan (radius {PAN_RADIUS} m)")
@@ -251,7 +255,8 @@ def run_sliding(
     media = Media.plan(ref, video, snapshots, n_snapshots, fps, slow_motion, camera)
     # Planar (x, y) on the pan = the tool's (z, y) axes; the object stands on the pan's surface.
     log = execute("sliding", ref, gains, model_bias=model_bias, object_height=OBJECT_HALF_HEIGHT, object_offset=start,
-                  object_mass=OBJECT_MASS, settle_time=settle_time, media=media, robot=robot)
+                  object_mass=OBJECT_MASS, settle_time=settle_time, media=media, robot=arm,
+                  observe=observe)
     return _sliding_metrics(ref, log, cmd if cmd is not None else plan_rel, plan_rel, shift)
 
 

@@ -302,51 +302,27 @@ def replay(kind: str, motion: np.ndarray, command: np.ndarray | None = None, str
             runners; ``None``: the built-in arm. The summary then names a joint, speed or torque limit the
             run broke, or a pose out of the robot's reach.
     """
-    import time as _time
-
     from ..sim import run_pancake, run_sliding
-    from ..sim.arm import TRACKING_LIMIT, Arm, get_scene, place_on_tool, prepare_reference, weight
-    from ..sim.control import resolve_gains
-    from ..sim.kinematics import pan_reference, planar_reference
-    from ..sim.scene import OBJECT_HALF_HEIGHT, OBJECT_MASS, PANCAKE_MASS
+    from ..sim.backend import CONTROL_DT
 
-    scene = get_scene(kind, robot)
+    times: list[float] = []
+    poses: list[np.ndarray] = []
+    quats: list[np.ndarray] = []
+
+    def observe(k: int, data: object) -> None:
+        """The runner's own run, through the control step's recording hook: every ``stride``-th period."""
+        if k % stride == 0:
+            times.append(k * CONTROL_DT)
+            poses.append(data.xpos.copy())
+            quats.append(data.xquat.copy())
+
     hold = max(tail - 0.1, 0.0)
     if kind == "pancake":
-        ref = planar_reference(motion, decel_time=0.1, hold_time=hold)
-        gains, height, offset, mass = resolve_gains("ch2"), 0.0, np.zeros(2), PANCAKE_MASS
+        result = run_pancake(motion, settle_time=settle_time, hold_time=hold, robot=robot, observe=observe)
     else:
-        ref = pan_reference(motion, decel_time=0.1, hold_time=hold)
-        start = np.zeros(2) if command is None else np.asarray(command)[0, :2]
-        gains, height, offset, mass = resolve_gains("ch3"), OBJECT_HALF_HEIGHT, start, OBJECT_MASS
-    prepare_reference(ref, kind, accel_feedforward=True, check_workspace=True, robot=robot)
-    arm = Arm(scene, gains)
-    arm.reset(ref.pos[0], ref.quat[0], place_on_tool(scene, height, offset), weight(mass))
-    still = np.zeros(6)
-    twist = np.concatenate([ref.vel, ref.omega], axis=1)
-    accel = np.concatenate([ref.acc, ref.alpha], axis=1)
-    times, poses, quats = [], [], []
-    began = _time.perf_counter()
-    for k in range(-round(settle_time / ref.dt), len(ref)):
-        if k < 0:
-            arm.step(ref.pos[0], ref.quat[0], still, still)
-            continue
-        if k % stride == 0:
-            times.append(k * ref.dt)
-            poses.append(arm.data.xpos.copy())
-            quats.append(arm.data.xquat.copy())
-        arm.step(ref.pos[k], ref.quat[k], twist[k], accel[k])
-        err = arm.controller.last_error
-        # where the runner cuts the run short (tool strayed, NaN, unstable), the replay ends too
-        if not float(err[0] ** 2 + err[1] ** 2 + err[2] ** 2) < TRACKING_LIMIT**2 or (k % 50 == 0 and arm.diverged()):
-            break
-    wall = _time.perf_counter() - began
-    if kind == "pancake":
-        result = run_pancake(motion, hold_time=hold, robot=robot)
-    else:
-        result = run_sliding(motion, command, hold_time=hold, robot=robot)
+        result = run_sliding(motion, command, settle_time=settle_time, hold_time=hold, robot=robot, observe=observe)
     return Replay(kind, np.array(times), np.array(poses), np.array(quats), result.describe(),
-                  (len(ref) + settle_time / ref.dt) * ref.dt / max(wall, 1e-9), len(motion), result.robot)
+                  result.realtime_factor, len(motion), result.robot)
 
 
 def planar_to_world(states: np.ndarray) -> np.ndarray:

@@ -56,8 +56,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .backend import CONTROL_DT, PUSHING_GRAVITY, control_period, import_mujoco
-from .render import Renderer, free_camera
+from ...errors import check_number
+from ...sim.backend import CONTROL_DT, PUSHING_GRAVITY, control_period, import_mujoco
+from ...sim.render import Renderer, free_camera
 
 mujoco = import_mujoco()  # this module's scenes are built at construction: import MuJoCo now
 
@@ -321,9 +322,8 @@ def sample_hard_placement(rng: np.random.Generator) -> tuple[BlockPosition, Scen
 
 def block_position(index: int) -> BlockPosition:
     """The nominal placement with this index (0..5); ``ValueError`` otherwise."""
-    if isinstance(index, bool) or not isinstance(index, int | np.integer) or not 0 <= index < len(POSITIONS):
-        raise ValueError(f"block position index must be an integer in 0..{len(POSITIONS) - 1}, got {index!r}")
-    return POSITIONS[int(index)]
+    return POSITIONS[check_number(f"block position index (0..{len(POSITIONS) - 1})", index, minimum=0,
+                                  maximum=len(POSITIONS) - 1, integer=True)]
 
 
 @dataclass(frozen=True)
