@@ -135,14 +135,9 @@ def cmd_deform(args: argparse.Namespace) -> int:
         check_not_an_input(args.plot, "--plot", {"--input": args.input, "--output": args.output})
     model = _trained_model(args.model)
     if args.robot is not None:  # refused before the work: a task without a check, a robot not here
-        from seqmotion.core.execution import execution_check_for
-        from seqmotion.sim.robot_models import resolve_robot
+        from seqmotion.sim.registration import check_robot_option
 
-        try:
-            execution_check_for(model.task_def.name)
-            resolve_robot(args.robot)
-        except ValueError as exc:
-            raise ValueError(f"--robot {args.robot}: {exc}") from None
+        check_robot_option(model.task_def.name, args.robot)
     inputs = read_trajectory(args.input, columns=model.input_layout.names)
     with warnings.catch_warnings(record=True) as caught:  # the polish's failures: one line below, not Python's text
         warnings.simplefilter("always")
@@ -348,13 +343,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 def _robot_limits(args: argparse.Namespace) -> tuple[str, ...]:
     """``--robot-limits a,b``: the limit kinds ``plan --robot`` keeps (default: all of them)."""
-    from seqmotion.sim.robot_models import resolve_robot
+    from seqmotion.sim.registration import check_robot_option
     from seqmotion.tasks.sliding import ROBOT_KINDS, check_limit_kinds
 
-    try:
-        resolve_robot(args.robot)  # refused before the work: a robot not here
-    except ValueError as exc:
-        raise ValueError(f"--robot {args.robot}: {exc}") from None
+    check_robot_option("sliding", args.robot)  # refused before the work: a robot not here
     if args.robot_limits is None:
         return ROBOT_KINDS
     kinds = tuple(k.strip() for k in args.robot_limits.split(",") if k.strip())

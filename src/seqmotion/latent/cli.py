@@ -102,13 +102,9 @@ def run(args: argparse.Namespace) -> int:
     if not isinstance(model, TrainedModel):
         raise ValueError(f"{args.model} is a {type(model).__name__}, not a sequence-to-sequence motion model")
     if args.robot is not None:  # refused before the work: a task without a check, a robot not here
-        from ..core.execution import execution_check_for
+        from ..sim.registration import check_robot_option
 
-        try:
-            execution_check_for(model.task_def.name)
-            _resolve_robot(args.robot)
-        except ValueError as exc:
-            raise ValueError(f"--robot {args.robot}: {exc}") from None
+        check_robot_option(model.task_def.name, args.robot)
     task = model.task_def
     if args.preset == "j2":
         objective = Ranges()
@@ -191,12 +187,6 @@ def run(args: argparse.Namespace) -> int:
         code = EXIT_INEXACT
     return code
 
-
-def _resolve_robot(name: str) -> object:
-    """The robot called ``name`` (``ValueError`` naming the robots there are), through the simulator's registry."""
-    from ..sim.robot_models import resolve_robot
-
-    return resolve_robot(name)
 
 
 def _plot(model: Any, res: Any, violation: np.ndarray | None, path: Path) -> None:

@@ -19,7 +19,7 @@ longer loads plug-ins, so there ``import seqmotion`` is what registers them.
 
 from __future__ import annotations
 
-from ..core.execution import execution_checks, register_execution_check
+from ..core.execution import execution_check_for, execution_checks, register_execution_check
 
 ENV_IDS = {
     "seqmotion/PancakeArm-v0": "seqmotion.sim.envs:PancakeArmEnv",
@@ -60,4 +60,16 @@ def register_execution_checks() -> None:
             register_execution_check(task, check, arm_form)
 
 
-__all__ = ["ENV_IDS", "EXECUTION_CHECKS", "register_envs", "register_execution_checks"]
+def check_robot_option(task: str, robot: object, option: str = "--robot") -> None:
+    """Refuse, before any work, a robot a command was asked to judge ``task``'s motion on but cannot: a task with no
+    execution check registered, or a robot not available here (``ValueError`` naming ``option`` and why)."""
+    from .robot_models import resolve_robot
+
+    try:
+        execution_check_for(task)
+        resolve_robot(robot)
+    except ValueError as exc:
+        raise ValueError(f"{option} {robot}: {exc}") from None
+
+
+__all__ = ["ENV_IDS", "EXECUTION_CHECKS", "check_robot_option", "register_envs", "register_execution_checks"]
