@@ -54,7 +54,8 @@ def main() -> int:
     import torch
 
     torch.set_num_threads(1)
-    from seqmotion.lfd import dataset, evaluate, train
+    from seqmotion.lfd import evaluate, train
+    from seqmotion.lfd.data import dataset
     from seqmotion.lfd.policy.policy import PushingPolicy
     from seqmotion.training.provenance import machine_record
 

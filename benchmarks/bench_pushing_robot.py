@@ -1,11 +1,11 @@
 """The chapter-5 pushing policy's closed loop on a Franka Panda (robosuite's model) in place of the Touch arm.
 
 Runs the evaluation protocol of ``seqmotion lfd evaluate`` (5 trials at each of the 6 block positions, seed 0,
-the same block placements and lighting) on the Touch arm and on the Panda (:mod:`seqmotion.lfd.robot`;
-``--mode command`` or ``twin``, see its ``run_trial``), the latter with the CNN on the Panda world's images,
-with the CNN on the Touch world's images of the same trials, and (given ``--data``, a ``seqmotion lfd collect``
-directory) with the demonstrations' medoid latents per position (no CNN). Prints one JSON object (rates, per
-position, limits, tracking, timing, machine).
+the same block placements and lighting) on the Touch arm and on the Panda (:mod:`seqmotion.lfd.env.robot`;
+``--mode command`` or ``twin``, see :func:`seqmotion.lfd.rollout.run_trial`), the latter with the CNN on the Panda
+world's images, with the CNN on the Touch world's images of the same trials, and (given ``--data``, a
+``seqmotion lfd collect`` directory) with the demonstrations' medoid latents per position (no CNN). Prints one
+JSON object (rates, per position, limits, tracking, timing, machine).
 
     MUJOCO_GL=egl python benchmarks/bench_pushing_robot.py [--trials 5] [--data DIR] [--mode twin] [--skip-touch]
 """

@@ -91,7 +91,7 @@ held(rc == 2 and "30000000" in err and not Path("o.npz").exists(), f"rc {rc}: {e
 """),
         ("HDF5 declaring (6, 4e8) f8", """
 import h5py
-from seqmotion.lfd.dataset import FORMAT, MOTION_KEYS, VERSION
+from seqmotion.lfd.data.dataset import FORMAT, MOTION_KEYS, VERSION
 with h5py.File("d.h5", "w") as f:  # a complete-looking pushing dataset; the big one is chunked, never written
     f.attrs.update(format=FORMAT, version=VERSION, complete=True)
     for group in ("motions", "episodes/variation", "operator"):

@@ -116,7 +116,7 @@ def test_snapshot_times_are_the_ones_the_arm_renders():
 def unseen_only(tmp_path):
     """A ch5 work folder holding only the unseen images (short episodes): no training data, no models."""
     pytest.importorskip("seqmotion.lfd.env.pushing")
-    from seqmotion.lfd import dataset
+    from seqmotion.lfd.data import dataset
     from seqmotion.reproduce import ch5
 
     dataset.collect(tmp_path / "data_unseen", ["pairs_default"], seed=ch5.UNSEEN_SEED_OFFSET, duration=0.6,

@@ -77,12 +77,11 @@ def test_every_writer_goes_through_the_atomic_helper():
             if pattern.search(line) and not line.lstrip().startswith("#"):
                 if rel in allowed and any(f'"{m}"' in line for m in allowed[rel]):
                     continue  # the helper itself; the metrics log appends rows (flushed one by one)
-                if rel in ("lfd/dataset.py", "lfd/data/dataset.py") and "h5py.File(tmp" in line:
+                if rel == "lfd/data/dataset.py" and "h5py.File(tmp" in line:
                     continue
                 if rel == "training/pretrained.py" and "(tmp / CARD).write_bytes" in line:
                     continue  # inside a temporary directory that is renamed whole
-                if rel in ("lfd/lerobot.py", "lfd/data/lerobot.py") and ("(tmp / " in line
-                                                                       or "path.write_text(json.dumps" in line):
+                if rel == "lfd/data/lerobot.py" and ("(tmp / " in line or "path.write_text(json.dumps" in line):
                     continue  # a LeRobot folder is written inside a temporary directory renamed whole
                 offenders.append(f"{rel}:{number}: {line.strip()}")
     assert not offenders, "\n".join(offenders)
@@ -445,7 +444,7 @@ def test_option_values_must_be_finite(capsys):
 def test_a_dataset_without_its_groups_is_a_value_error(tmp_path):
     """Item 12: an h5 file without the `motions` group raised KeyError."""
     h5py = pytest.importorskip("h5py")
-    from seqmotion.lfd.dataset import FORMAT, VERSION, load_dataset
+    from seqmotion.lfd.data.dataset import FORMAT, VERSION, load_dataset
 
     path = tmp_path / "motions.h5"
     with h5py.File(path, "w") as f:

@@ -156,7 +156,7 @@ def _h5_declaring(path: Path, huge: dict[str, tuple[tuple[int, ...], str]]) -> P
     """A complete-looking pushing dataset whose ``huge`` datasets declare their shapes (chunked, never written:
     HDF5 allocates nothing for them)."""
     h5py = pytest.importorskip("h5py")
-    from seqmotion.lfd.dataset import FORMAT, MOTION_KEYS, VERSION
+    from seqmotion.lfd.data.dataset import FORMAT, MOTION_KEYS, VERSION
 
     with h5py.File(path, "w") as f:
         f.attrs.update(format=FORMAT, version=VERSION, complete=True)
@@ -177,7 +177,7 @@ def _h5_declaring(path: Path, huge: dict[str, tuple[tuple[int, ...], str]]) -> P
 ])
 def test_an_hdf5_dataset_declaring_too_much_is_refused_from_its_shape(tmp_path, name, shape, capsys):
     """Defect 6: an HDF5 file declaring (6, 4e8) f8 tried to allocate 17.9 GiB on `lfd info` / `load_dataset`."""
-    from seqmotion.lfd.dataset import load_dataset
+    from seqmotion.lfd.data.dataset import load_dataset
 
     path = _h5_declaring(tmp_path / "big.h5", {name: (shape, "f8")})
     with pytest.raises(ValueError, match=re.escape(f"big.h5: dataset /{name} declares shape {shape}")):
@@ -191,7 +191,7 @@ def test_hdf5_datasets_are_bounded_together(tmp_path, monkeypatch):
     monkeypatch.setattr(files, "MAX_FILE_BYTES", 2**20)
     path = _h5_declaring(tmp_path / "sum.h5", {"images": ((50, 64, 64, 3), "u1"),  # 0.6 MiB
                                                "operator/stiffness": ((80_000,), "f4")})  # 0.6 MiB as float64
-    from seqmotion.lfd.dataset import load_dataset
+    from seqmotion.lfd.data.dataset import load_dataset
 
     with pytest.raises(ValueError, match="sum.h5: its datasets take"):
         load_dataset(path)
@@ -225,7 +225,7 @@ def test_there_is_one_length_cap():
 
 @pytest.mark.parametrize("argv, target", [
     (["deform", "--input", "{dir}/in.npz", "--output", "{dir}/o.npz"], "seqmotion.core.trained.TrainedModel.generate"),
-    (["lfd", "info", "{dir}/in.h5"], "seqmotion.lfd.dataset.load_dataset"),
+    (["lfd", "info", "{dir}/in.h5"], "seqmotion.lfd.data.dataset.load_dataset"),
 ])
 def test_an_allocation_failure_in_the_work_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch, argv, target):
     """Defect 7: a MemoryError ended in a traceback; `seqmotion lfd` goes through the same handler."""

@@ -1,4 +1,4 @@
-"""Hostile LeRobot v3.0 folders for ``seqmotion.lfd.lerobot_import``: each refused by name, nothing read
+"""Hostile LeRobot v3.0 folders for ``seqmotion.lfd.data.lerobot_import``: each refused by name, nothing read
 outside the folder, nothing hangs or blows up memory, nothing written.
 
 One tiny synthetic set (3 episodes of 10 frames at 50 fps, no simulation) is exported once as PNGs and as
@@ -27,8 +27,8 @@ av = pytest.importorskip("av")
 import pyarrow.parquet as pq  # noqa: E402
 
 from seqmotion.cli import main  # noqa: E402
-from seqmotion.lfd import lerobot, lerobot_import  # noqa: E402
-from seqmotion.lfd.dataset import MOTION_KEYS, PushingDataset  # noqa: E402
+from seqmotion.lfd.data import lerobot, lerobot_import  # noqa: E402
+from seqmotion.lfd.data.dataset import MOTION_KEYS, PushingDataset  # noqa: E402
 
 DATA = "data/chunk-000/file-000.parquet"
 EPISODES = "meta/episodes/chunk-000/file-000.parquet"

@@ -1,4 +1,4 @@
-"""LeRobotDataset v3.0 export and import (seqmotion.lfd.lerobot, .lerobot_import) on a tiny collected set.
+"""LeRobotDataset v3.0 export and import (seqmotion.lfd.data.lerobot, .lerobot_import) on a tiny collected set.
 
 Export -> the third-party validator lerobot-doctor (no FAIL) -> import round trip (states and actions
 exact in float32, images within codec loss) -> training; and every kind of bad input refused by name.
@@ -20,8 +20,9 @@ pytest.importorskip("seqmotion.lfd.env.pushing")
 pa = pytest.importorskip("pyarrow")
 import pyarrow.parquet as pq  # noqa: E402
 
-from seqmotion.lfd import cli, dataset, lerobot, lerobot_import, train  # noqa: E402
-from seqmotion.lfd.models import PushingPolicy  # noqa: E402
+from seqmotion.lfd import cli, train  # noqa: E402
+from seqmotion.lfd.data import dataset, lerobot, lerobot_import  # noqa: E402
+from seqmotion.lfd.policy.policy import PushingPolicy  # noqa: E402
 
 
 @pytest.fixture(scope="module")

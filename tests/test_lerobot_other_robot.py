@@ -1,6 +1,6 @@
 """Training the SeqAE on a LeRobot v3.0 dataset of another robot: its joint count J comes from the data.
 
-A 6-joint robot's dataset (written with seqmotion.lfd.lerobot's own writer, one feature renamed so that
+A 6-joint robot's dataset (written with seqmotion.lfd.data.lerobot's own writer, one feature renamed so that
 ``--map`` has to name it) -> ``seqmotion lfd train --data <it> --methods seqae`` -> a SeqAE with J = 6 that
 loads back and reconstructs its training motions better than at initialisation; the closed loop in
 MuJoCo (the 3-joint arm's) refuses it by name. And the shipped 3-joint ``pushing`` policy is unchanged.
@@ -20,9 +20,11 @@ pa = pytest.importorskip("pyarrow")
 import pyarrow.parquet as pq  # noqa: E402
 
 import seqmotion as sm  # noqa: E402
-from seqmotion.lfd import cli, lerobot, lerobot_import, train  # noqa: E402
-from seqmotion.lfd.dataset import MOTION_KEYS, PushingDataset  # noqa: E402
-from seqmotion.lfd.models import PushingPolicy, SeqAE, SeqAEConfig, motion_loss  # noqa: E402
+from seqmotion.lfd import cli, train  # noqa: E402
+from seqmotion.lfd.data import lerobot, lerobot_import  # noqa: E402
+from seqmotion.lfd.data.dataset import MOTION_KEYS, PushingDataset  # noqa: E402
+from seqmotion.lfd.policy.networks import SeqAE, SeqAEConfig, motion_loss  # noqa: E402
+from seqmotion.lfd.policy.policy import PushingPolicy  # noqa: E402
 
 JOINTS, EPISODES, FRAMES, FPS = 6, 8, 40, 50
 TORQUE_KEY = "observation.joint_torques"

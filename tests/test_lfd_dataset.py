@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
-from seqmotion.lfd import cli, dataset, teleop  # noqa: E402
-from seqmotion.lfd.operator import OperatorParams, ScriptedOperator  # noqa: E402
+from seqmotion.lfd import cli  # noqa: E402
+from seqmotion.lfd.data import dataset  # noqa: E402
+from seqmotion.lfd.env import teleop  # noqa: E402
+from seqmotion.lfd.env.operator import OperatorParams, ScriptedOperator  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
-from seqmotion.lfd import dataset, evaluation, teleop  # noqa: E402
-from seqmotion.lfd.operator import OperatorParams, ScriptedOperator  # noqa: E402
+from seqmotion.lfd import evaluation  # noqa: E402
+from seqmotion.lfd.data import dataset  # noqa: E402
+from seqmotion.lfd.env import teleop  # noqa: E402
+from seqmotion.lfd.env.operator import OperatorParams, ScriptedOperator  # noqa: E402
 from seqmotion.lfd.rollout import run_episode  # noqa: E402
 
 
@@ -180,7 +182,7 @@ def test_a_set_without_video_holds_the_same_episodes(hard_dir, tmp_path):
 
 def test_lerobot_export_holds_every_filmed_frame(hard_dir, tmp_path):
     pytest.importorskip("pyarrow")
-    from seqmotion.lfd import lerobot, lerobot_import
+    from seqmotion.lfd.data import lerobot, lerobot_import
 
     folder = lerobot.to_lerobot(hard_dir, tmp_path / "lr")["hard"]
     import pyarrow.parquet as pq
@@ -198,7 +200,7 @@ def test_lerobot_export_holds_every_filmed_frame(hard_dir, tmp_path):
 
 
 def test_train_on_the_first_n_demonstrations_and_evaluate(hard_dir, tmp_path):
-    from seqmotion.lfd.models import PushingPolicy
+    from seqmotion.lfd.policy.policy import PushingPolicy
     from seqmotion.lfd.train import CNNTraining, SeqAETraining, train
 
     quick = SeqAETraining(epochs=2)
@@ -338,7 +340,7 @@ def test_object_features_and_the_per_step_decoder():
     """The features a feedback decoder reads, and its z slot taking a value per step (a constant one as before)."""
     import torch
 
-    from seqmotion.lfd.models import CommandDecoder, PoseNet, SeqAEConfig, object_features
+    from seqmotion.lfd.policy.networks import CommandDecoder, PoseNet, SeqAEConfig, object_features
 
     yaw = 0.3
     pose = np.array([0.17, -0.06, 0.02, math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
@@ -361,7 +363,7 @@ def test_feedback_policy_trains_round_trips_and_runs_closed_loop(hard_dir, tmp_p
     import torch
 
     import seqmotion as sm
-    from seqmotion.lfd.models import PushingPolicy
+    from seqmotion.lfd.policy.policy import PushingPolicy
     from seqmotion.lfd.train import SeqAETraining, pose_training, render_pose_frames, train
 
     pose_settings = pose_training()
@@ -397,8 +399,10 @@ def test_feedback_policy_trains_round_trips_and_runs_closed_loop(hard_dir, tmp_p
         policy.source(np.zeros(5))
     with pytest.raises(ValueError, match="takes no latent"):
         run_episode(scene, policy, *pushing.sample_hard_placement(np.random.default_rng(0)), latent=np.zeros(5))
-    robot = pytest.importorskip("seqmotion.lfd.robot")
+    pytest.importorskip("seqmotion.lfd.env.robot")
+    from seqmotion.lfd.rollout import run_trial
+
     with pytest.raises(ValueError, match="feedback"):  # the standard arms run one z from the first image
-        robot.run_trial(policy, None, *pushing.sample_hard_placement(np.random.default_rng(0)))
+        run_trial(policy, None, *pushing.sample_hard_placement(np.random.default_rng(0)))
     with pytest.raises(ValueError, match="hard"):
         train(hard_dir, tmp_path / "n", "tiny", ("feedback",), progress=False)

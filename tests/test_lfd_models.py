@@ -10,16 +10,15 @@ import pytest
 import torch
 
 from seqmotion import CheckpointError
-from seqmotion.lfd import models
-from seqmotion.lfd.models import (
+from seqmotion.lfd.policy import networks
+from seqmotion.lfd.policy.networks import (
     CNNConfig,
     ImageEncoder,
-    PolicyConfig,
-    PushingPolicy,
     SeqAE,
     SeqAEConfig,
     motion_loss,
 )
+from seqmotion.lfd.policy.policy import PolicyConfig, PushingPolicy
 from seqmotion.training.checkpoint import config_digest
 
 TINY = SeqAEConfig(layers=2, hidden=8)
@@ -75,7 +74,7 @@ def test_step_by_step_decoding_equals_the_sequence():
 
 def test_scaler_and_variance_scaled_loss():
     motions = _motions(5, 20)
-    scaler = models.MotionScaler().fit(motions)
+    scaler = networks.MotionScaler().fit(motions)
     flat = motions.reshape(-1, 18)
     np.testing.assert_allclose(scaler.mean.numpy(), flat.mean(0), rtol=1e-5, atol=1e-6)
     # eq. 5.1: one σ² per variable (θ, θ̇, τ of the master), pooled over the three joints
@@ -174,7 +173,7 @@ def test_joint_count_comes_from_the_config(tmp_path):
         np.testing.assert_allclose(model.scaler.variance.numpy()[2 * v : 2 * v + 2],
                                    flat[:, 2 * v : 2 * v + 2].var(ddof=1), rtol=1e-5)
     with pytest.raises(ValueError, match=r"\(K, 12\) or \(B, K, 12\) \(2 joints\)"):
-        models.check_motions(_motions(1, 10), joints=2)
+        networks.check_motions(_motions(1, 10), joints=2)
 
     policy = PushingPolicy(PolicyConfig("seqae", "tiny", dataclasses.asdict(two)), model)
     assert policy.cnn is None and policy.encode(motions).shape == (4, 8)
@@ -215,7 +214,7 @@ def test_cnn_learns_a_tiny_image_to_latent_mapping():
 
 def test_decoder_drives_the_slave():
     pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
-    from seqmotion.lfd.teleop import run_autonomous
+    from seqmotion.lfd.rollout import run_autonomous
 
     policy = _policy()
     scene = pushing.PushingScene()
@@ -239,7 +238,7 @@ def test_decoder_drives_the_slave():
         scene.close()
     with pytest.raises(ValueError, match="expected 0.0200 s"):
         s = policy.source(np.zeros(8))
-        from seqmotion.lfd.teleop import ArmState
+        from seqmotion.lfd.env.teleop import ArmState
 
         state = ArmState(np.zeros(3), np.zeros(3), np.zeros(3))
         s(0.0, state)
@@ -250,7 +249,7 @@ def test_all_layers_readout_reaches_z_from_a_deep_stack():
     """At its initial weights a 10-layer encoder's top barely varies with the motion; reading every layer does."""
     motions = np.cumsum(_motions(n=32, k=50), axis=1)
     spread = {}
-    for readout in models.READOUTS:
+    for readout in networks.READOUTS:
         torch.manual_seed(0)
         seqae = SeqAE(SeqAEConfig(layers=10, hidden=16, readout=readout))
         seqae.scaler.fit(motions)
@@ -258,7 +257,7 @@ def test_all_layers_readout_reaches_z_from_a_deep_stack():
             spread[readout] = seqae.encode(torch.as_tensor(motions, dtype=torch.float32)).std(0).mean().item()
     assert spread["top"] < 1e-4  # below any latent noise of training: z would carry nothing
     assert spread["all_layers"] > 1e-2
-    assert models.preset("larger").readout == "all_layers"
+    assert networks.preset("larger").readout == "all_layers"
 
 
 def test_bad_arguments():
@@ -267,7 +266,7 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="readout"):
         SeqAEConfig(readout="middle")
     with pytest.raises(ValueError, match="unknown model preset 'huge'"):
-        models.preset("huge")
+        networks.preset("huge")
     with pytest.raises(ValueError, match="channels"):
         CNNConfig(channels=(8, 8))
     with pytest.raises(ValueError, match="unknown policy kind"):

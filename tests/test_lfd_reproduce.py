@@ -9,7 +9,8 @@ import shutil
 import pytest
 
 pytest.importorskip("seqmotion.lfd.env.pushing")
-from seqmotion.lfd import dataset, evaluation, train  # noqa: E402
+from seqmotion.lfd import evaluation, train  # noqa: E402
+from seqmotion.lfd.data import dataset  # noqa: E402
 from seqmotion.reproduce import ch5  # noqa: E402
 
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
-from seqmotion.lfd import teleop  # noqa: E402
-from seqmotion.lfd.operator import PHASES, OperatorParams, ScriptedOperator  # noqa: E402
+from seqmotion.lfd.env import teleop  # noqa: E402
+from seqmotion.lfd.env.operator import PHASES, OperatorParams, ScriptedOperator  # noqa: E402
+from seqmotion.lfd.rollout import run_autonomous  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -106,12 +107,12 @@ def test_policy_slot_replays_a_demonstration(arms):
         calls.append(t)
         return teleop.ReplayMaster(demo)(t, state)
 
-    run = teleop.run_autonomous(scene, source, position, 4.0, variation)
+    run = run_autonomous(scene, source, position, 4.0, variation)
     assert len(calls) == 200 and calls[1] == pytest.approx(0.02)
     assert run.success
     np.testing.assert_allclose(run.slave_theta, demo.slave_theta, atol=0.15)
     # Doing nothing (holding the start pose) leaves the block where it is.
-    still = teleop.run_autonomous(scene, lambda t, s: teleop.ArmState(demo.slave_theta[0], np.zeros(3),
+    still = run_autonomous(scene, lambda t, s: teleop.ArmState(demo.slave_theta[0], np.zeros(3),
                                                                        np.zeros(3)), position, 1.0, variation)
     assert not still.success and np.abs(still.block_pose[-1, :2] - still.block_pose[0, :2]).max() < 1e-3
 
@@ -132,10 +133,10 @@ def test_bad_arguments(arms):
         teleop.teleoperate(scene, master, operator, pushing.POSITIONS[0], duration=float("nan"))
     hold = teleop.ArmState(pushing.default_pose(), np.zeros(3), np.zeros(3))
     with pytest.raises(ValueError, match="command_interval"):
-        teleop.run_autonomous(scene, lambda t, s: hold, pushing.POSITIONS[0], 1.0, command_interval=0.0205)
+        run_autonomous(scene, lambda t, s: hold, pushing.POSITIONS[0], 1.0, command_interval=0.0205)
     with pytest.raises(ValueError, match="bad theta"):
-        teleop.run_autonomous(scene, lambda t, s: teleop.ArmState(np.zeros(2), np.zeros(3), np.zeros(3)),
+        run_autonomous(scene, lambda t, s: teleop.ArmState(np.zeros(2), np.zeros(3), np.zeros(3)),
                               pushing.POSITIONS[0], 1.0)
     with pytest.raises(ValueError, match="bad tau"):
-        teleop.run_autonomous(scene, lambda t, s: teleop.ArmState(np.zeros(3), np.zeros(3), np.full(3, np.nan)),
+        run_autonomous(scene, lambda t, s: teleop.ArmState(np.zeros(3), np.zeros(3), np.full(3, np.nan)),
                               pushing.POSITIONS[0], 1.0)

@@ -11,8 +11,9 @@ import torch
 
 pushing = pytest.importorskip("seqmotion.lfd.env.pushing")
 import seqmotion as sm  # noqa: E402
-from seqmotion.lfd import cli, dataset, evaluate, fitting, train  # noqa: E402
-from seqmotion.lfd.models import PushingPolicy  # noqa: E402
+from seqmotion.lfd import cli, evaluate, fitting, train  # noqa: E402
+from seqmotion.lfd.data import dataset  # noqa: E402
+from seqmotion.lfd.policy.policy import PushingPolicy  # noqa: E402
 
 FAST = train.SeqAETraining(epochs=2, batch_size=4)
 

@@ -24,7 +24,7 @@ pytestmark = [
 
 @pytest.fixture(scope="module")
 def scene():
-    from seqmotion.lfd.robot import RobotPushingScene
+    from seqmotion.lfd.env.robot import RobotPushingScene
 
     world = RobotPushingScene("panda")
     yield world
@@ -32,7 +32,7 @@ def scene():
 
 
 def test_scene_holds_the_pen_at_the_panda_flange_pointing_down(scene):
-    from seqmotion.lfd.robot import PEN_LENGTH
+    from seqmotion.lfd.env.robot import PEN_LENGTH
 
     m = scene.model
     holder = m.body("pen_holder")
@@ -54,7 +54,7 @@ def test_scene_holds_the_pen_at_the_panda_flange_pointing_down(scene):
 
 
 def test_tip_follows_a_commanded_path_within_a_millimetre(scene):
-    from seqmotion.lfd.robot import track_tip
+    from seqmotion.lfd.env.robot import track_tip
 
     t = np.linspace(0.0, 1.0, 1000)
     ease = 0.5 * (1 - np.cos(np.pi * t))  # starts and ends at rest; ≤ 0.3 m/s, within the joints' speed limits
@@ -66,7 +66,7 @@ def test_tip_follows_a_commanded_path_within_a_millimetre(scene):
 
 
 def test_pen_pressed_on_the_table_feels_an_upward_force(scene):
-    from seqmotion.lfd.robot import track_tip
+    from seqmotion.lfd.env.robot import track_tip
 
     t = np.linspace(0.0, 1.0, 400)
     down = pushing.DEFAULT_TIP + np.outer(0.5 * (1 - np.cos(np.pi * t)), [0.0, 0.0, -0.1])  # 5 mm into the table
@@ -77,7 +77,7 @@ def test_pen_pressed_on_the_table_feels_an_upward_force(scene):
 
 
 def test_touch_twin_reads_the_touch_joints_and_reaction_torque():
-    from seqmotion.lfd.robot import TouchTwin, touch_angles, touch_jacobian
+    from seqmotion.lfd.env.robot import TouchTwin, touch_angles, touch_jacobian
 
     q = pushing.default_pose()
     tip = pushing.forward_kinematics(q)
@@ -98,7 +98,7 @@ def test_touch_twin_reads_the_touch_joints_and_reaction_torque():
 @pytest.mark.parametrize("mode", ["command", "twin"])
 def test_one_short_closed_loop_trial_runs_end_to_end(scene, mode):
     import seqmotion as sm
-    from seqmotion.lfd.robot import run_trial
+    from seqmotion.lfd.rollout import run_trial
 
     policy = sm.load_pretrained("pushing")
     run, image, z = run_trial(policy, scene, pushing.POSITIONS[3], pushing.SceneVariation(), duration=0.3, mode=mode)
@@ -112,7 +112,8 @@ def test_one_short_closed_loop_trial_runs_end_to_end(scene, mode):
 
 def test_bad_inputs_are_refused_by_name(scene):
     import seqmotion as sm
-    from seqmotion.lfd.robot import RobotPushingScene, run_on_robot, track_tip
+    from seqmotion.lfd.env.robot import RobotPushingScene, track_tip
+    from seqmotion.lfd.evaluation import run_on_robot
 
     with pytest.raises(ValueError, match="standard arm"):
         RobotPushingScene("mh3f")

@@ -64,7 +64,7 @@ class ActSource:
             raise ValueError(f"image must be one of {IMAGE_MODES}, got {image!r}")
         from lerobot.utils.control_utils import predict_action
 
-        from seqmotion.lfd.teleop import ArmState
+        from seqmotion.lfd.env.teleop import ArmState
 
         self._predict, self._arm_state = predict_action, ArmState
         self.policy, self.preprocessor, self.postprocessor = policy, preprocessor, postprocessor

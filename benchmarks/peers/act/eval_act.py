@@ -5,7 +5,7 @@ Run with the python of the LeRobot venv (seqmotion installed there, see README.m
     python eval_act.py MODEL_DIR --trials N --seed S --json OUT [--benchmark chapter|hard] [--image auto|live|first]
 
 :class:`ActPolicy` has the ``run(scene, position, variation, camera, duration, latent) -> (AutonomousRun,
-image, z)`` of :class:`seqmotion.lfd.models.PushingPolicy`, so that ``seqmotion.lfd.evaluation.evaluate``
+image, z)`` of :class:`seqmotion.lfd.policy.policy.PushingPolicy`, so that ``seqmotion.lfd.evaluation.evaluate``
 can score it like seqmotion's own policies. Where ``evaluate`` does not take such a policy yet (it
 checks ``isinstance(policy, PushingPolicy)`` and has no ``benchmark`` argument), the same trials are run
 here the same way: chapter ``--trials`` per block position (``trial_rng(seed, position, trial)``,
@@ -60,7 +60,7 @@ class ActPolicy:
             latent=None):
         """One episode: reset the scene, take the first image, ACT drives the slave every 20 ms."""
         from seqmotion.lfd.env.pushing import SceneVariation
-        from seqmotion.lfd.teleop import run_autonomous
+        from seqmotion.lfd.rollout import run_autonomous
 
         variation = variation or SceneVariation()
         camera = camera or self.camera

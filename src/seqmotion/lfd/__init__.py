@@ -21,9 +21,7 @@ Kept apart as LeRobot keeps them (each room imports only the rooms above it in t
 * :mod:`seqmotion.lfd.task` — the ``pushing`` task's registry entry (entry point ``seqmotion.tasks``).
 * :mod:`seqmotion.lfd.timing` — the decoder's period Δt_NN (:data:`COMMAND_INTERVAL`, 20 ms).
 
-The former module names (``seqmotion.lfd.models``, ``.teleop``, ``.dataset``, ``.robot``, ``.operator``,
-``.lerobot``, ``.lerobot_import``) stay importable. Names are loaded lazily so that ``import seqmotion.lfd``
-does not import MuJoCo, h5py or torch.
+Names are loaded lazily so that ``import seqmotion.lfd`` does not import MuJoCo, h5py or torch.
 """
 
 from __future__ import annotations
@@ -90,8 +88,7 @@ _EXPORTS = {
     "fit": "fitting",
 }
 
-_SUBMODULES = ("cli", "data", "dataset", "env", "evaluation", "export", "fitting", "lerobot", "lerobot_import",
-               "models", "operator", "policy", "robot", "task", "teleop", "timing", "train")
+_SUBMODULES = ("cli", "data", "env", "evaluation", "export", "fitting", "policy", "rollout", "task", "timing", "train")
 # No exported name equals a submodule's name: importing ``seqmotion.lfd.X`` sets the package's
 # attribute X to the module, which would shadow a function of the same name.
 

@@ -4,7 +4,7 @@
 subcommands are ``collect`` (record the datasets), ``info`` (summarise a file), ``train``
 (SeqAE, CNNs and the end-to-end baseline), ``evaluate`` (closed-loop success rate),
 ``export`` (ship a policy with its model card) and ``export-lerobot`` / ``import-lerobot``
-(LeRobot v3.0 datasets, :mod:`seqmotion.lfd.lerobot`, :mod:`seqmotion.lfd.lerobot_import`). Heavy
+(LeRobot v3.0 datasets, :mod:`seqmotion.lfd.data.lerobot`, :mod:`seqmotion.lfd.data.lerobot_import`). Heavy
 modules (MuJoCo, h5py, torch) are imported only when a subcommand runs.
 """
 

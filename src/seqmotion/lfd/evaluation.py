@@ -19,7 +19,7 @@ a peer such as LeRobot's ACT (``benchmarks/peers/act/``); every trial runs throu
 :func:`run_on_robot` is the same protocol with a standard arm holding the pen (:func:`seqmotion.lfd.rollout.run_trial`).
 
 Trial seeds come from ``SeedSequence(seed, spawn_key=(EVAL_STREAM, position, trial))`` (hard:
-``position`` = :data:`HARD_KEY`); the datasets use stream ids 1–5 (``seqmotion.lfd.dataset.SETS``),
+``position`` = :data:`HARD_KEY`); the datasets use stream ids 1–5 (``seqmotion.lfd.data.dataset.SETS``),
 so no evaluation episode repeats a training episode, whatever the seeds.
 """
 
@@ -60,7 +60,7 @@ class TrialOutcome:
         placement: hard benchmark: the object's ``shape``, ``distance``, ``reach`` [m], ``yaw`` [rad],
             ``distractors`` and where it ended, ``past`` [m] beyond the centre line (else empty).
         decision_ms: the policy's wall time per command (median over the episode) [ms].
-        run: the :class:`~seqmotion.lfd.teleop.AutonomousRun` (only with ``keep_runs``).
+        run: the :class:`~seqmotion.lfd.rollout.AutonomousRun` (only with ``keep_runs``).
         image: the webcam image (only with ``keep_runs``).
     """
 
@@ -217,7 +217,7 @@ def evaluate(
     """Run closed-loop episodes and count the successes.
 
     Args:
-        policy: a :class:`~seqmotion.lfd.models.PushingPolicy` (e.g. ``sm.load_pretrained("pushing")``)
+        policy: a :class:`~seqmotion.lfd.policy.policy.PushingPolicy` (e.g. ``sm.load_pretrained("pushing")``)
             or any :class:`~seqmotion.lfd.policy.interface.Controller` (a peer's adapter).
         camera: webcam pose for the images (default: the one the policy's CNN was trained on).
         positions: block position indices 0..5 (default all six, see ``seqmotion.lfd.env.pushing.POSITIONS``);
@@ -361,8 +361,8 @@ def position_latents(policy: Any, dataset: Any, successful_only: bool = True, me
     image-to-z map could give (no image can tell one operator's pass from another's).
 
     Args:
-        policy: a proposed-method :class:`~seqmotion.lfd.models.PushingPolicy` (it has an encoder).
-        dataset: a :class:`~seqmotion.lfd.dataset.PushingDataset` or the path of one.
+        policy: a proposed-method :class:`~seqmotion.lfd.policy.policy.PushingPolicy` (it has an encoder).
+        dataset: a :class:`~seqmotion.lfd.data.dataset.PushingDataset` or the path of one.
         successful_only: leave failed demonstrations out (as training does).
         medoid: per position the z of the demonstration nearest the mean instead of the mean
             (the CNN's default targets, see :class:`~seqmotion.lfd.train.CNNTraining`).
@@ -449,7 +449,7 @@ def run_on_robot(
     ``trial_rng(seed, position, trial)``), the same success test (the block's centre across the centre line).
 
     Args:
-        policy: the Touch arm's :class:`~seqmotion.lfd.models.PushingPolicy`.
+        policy: the Touch arm's :class:`~seqmotion.lfd.policy.policy.PushingPolicy`.
         robot: a standard arm's name or :class:`~seqmotion.sim.robot_models.Robot` (placed at :data:`BASE`).
         positions: block position indices 0..5 (default all six).
         trials: trials per position (default 5: 30 in all).

@@ -6,7 +6,7 @@ The copying and the model card are the library's one exporter,
 (or ``--name``) and ``MODEL_CARD.md`` is written from what the training recorded in the
 config (command, seed, settings, wall times, the machine as
 :func:`seqmotion.training.provenance.machine_record` saw it; see
-:meth:`~seqmotion.lfd.models.PushingPolicy.card_training`). What is chapter-5's own is here:
+:meth:`~seqmotion.lfd.policy.policy.PushingPolicy.card_training`). What is chapter-5's own is here:
 the evaluations given (JSON files written by ``seqmotion lfd evaluate --json``) become the
 card's measured success rates and ``evaluations.json`` beside the model.
 """

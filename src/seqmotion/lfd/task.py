@@ -4,7 +4,7 @@ Its models are not trained by the seq2seq trainer but from demonstrations by
 ``seqmotion lfd collect`` and ``seqmotion lfd train`` (:mod:`seqmotion.lfd.train`), so the
 registry entry is a plain object with a ``name``, the ``model_class`` its models load as and
 ``load(directory)``; ``sm.load(path)`` and ``sm.load_pretrained("pushing")`` call it and get a
-:class:`~seqmotion.lfd.models.PushingPolicy`.
+:class:`~seqmotion.lfd.policy.policy.PushingPolicy`.
 
 It is registered through seqmotion's own entry point (``pyproject.toml``)::
 

@@ -2,9 +2,9 @@
 
 The policy's decoder is called every :data:`COMMAND_INTERVAL` (20 ms) in closed loop
 (:func:`seqmotion.lfd.rollout.run_autonomous`), is trained on demonstrations sampled at that
-period (:meth:`seqmotion.lfd.dataset.PushingDataset.motion` with
+period (:meth:`seqmotion.lfd.data.dataset.PushingDataset.motion` with
 :func:`samples_per_command` of the recording's 1 ms period) and predicts the master's state
-one period ahead (:class:`seqmotion.lfd.teleop.ReplayMaster` replays that same target).
+one period ahead (:class:`seqmotion.lfd.env.teleop.ReplayMaster` replays that same target).
 This module imports nothing, so the networks can use it without pulling in MuJoCo.
 """
 

@@ -4,7 +4,7 @@ Three procedures, each seeded and deterministic on a given machine and thread co
 
 1. :func:`train_seqae` — the SeqAE on motions without images (the 90 demonstrations, or the
    motions of another robot: the SeqAE's joint count J is the data's),
-   teacher-forced, loss eq. 5.1 (:func:`~seqmotion.lfd.models.motion_loss`), Adam, mini-batches of 16.
+   teacher-forced, loss eq. 5.1 (:func:`~seqmotion.lfd.policy.networks.motion_loss`), Adam, mini-batches of 16.
 2. :func:`train_cnn` — the CNN on image–motion pairs (18 per camera): target = the trained
    encoder's z of the paired motion, loss ``|z − ẑ|²`` (eq. 5.2), Adam, mini-batches of 8, 100 epochs.
 3. :func:`train_end_to_end` — the baseline: the same CNN and decoder trained together on the
@@ -297,7 +297,7 @@ def train_feedback_decoder(
 
     Args:
         motions: ``(N, K, 18)`` at 20 ms (raw units).
-        features: ``(N, K, 5)`` the recorded object's :func:`~seqmotion.lfd.models.object_features` at the
+        features: ``(N, K, 5)`` the recorded object's :func:`~seqmotion.lfd.policy.networks.object_features` at the
             same samples.
         config: the decoder's shape (``latent`` must be 5).
         settings: as the SeqAE's; ``latent_noise`` is added to the (normalised) features, ``state_noise``
@@ -419,7 +419,7 @@ def train(
 ) -> TrainReport:
     """Train policies from ``data_dir`` (``motions.h5``, ``pairs_<camera>.h5``) into ``out/<method>_<camera>/``.
 
-    The SeqAE's joint count J (:attr:`~seqmotion.lfd.models.SeqAEConfig.joints`) is the data's:
+    The SeqAE's joint count J (:attr:`~seqmotion.lfd.policy.networks.SeqAEConfig.joints`) is the data's:
     3 for seqmotion's arm, another robot's count for its LeRobot dataset (whose models cannot run
     the closed loop in MuJoCo, which is the 3-joint arm's).
 
@@ -444,7 +444,7 @@ def train(
             ``out/checkpoints/`` (written every :data:`CHECKPOINT_EVERY` epochs) when there are
             some; False has each training this run does remove its own and start over.
         mapping: ``{field: feature key}`` for LeRobot folders (``--map``, see
-            :func:`seqmotion.lfd.lerobot_import.from_lerobot`): another robot's feature names.
+            :func:`seqmotion.lfd.data.lerobot_import.from_lerobot`): another robot's feature names.
         benchmark: ``"hard"`` trains every method on the same demonstrations, the ``hard`` set's
             (``hard.h5``), with their images (default camera): the SeqAE on their motions, the CNN
             on their image–motion pairs.

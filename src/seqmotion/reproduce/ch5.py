@@ -420,7 +420,7 @@ def _fig5_11(out: Path, paths: dict, unseen: Any, quick: bool = False) -> dict:
 def render_frames(
     scene: Any, run: Any, variation: Any, times: tuple[float, ...], width: int = 320, height: int = 240
 ) -> list[np.ndarray]:
-    """Frames ``(height, width, 3)`` of a recorded :class:`~seqmotion.lfd.teleop.AutonomousRun` at ``times`` [s].
+    """Frames ``(height, width, 3)`` of a recorded :class:`~seqmotion.lfd.rollout.AutonomousRun` at ``times`` [s].
 
     The recorded arm angles and block pose are written back into the scene (same variation,
     so the lighting matches) and rendered from the scene's overview camera in front of the

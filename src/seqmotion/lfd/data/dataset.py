@@ -47,7 +47,7 @@ File layout (format ``seqmotion.lfd.pushing``, version 1). N episodes of K sampl
     /episodes/n_pushes      (N,)  int8 pushes the operator made
     /episodes/block_initial_pose (N, 7)
     /episodes/variation/<name>   scene variation (block offset/yaw, light, tints)
-    /operator/<name>        (N,)  operator parameters (seqmotion.lfd.operator.OperatorParams)
+    /operator/<name>        (N,)  operator parameters (seqmotion.lfd.env.operator.OperatorParams)
     /images                 (N, 64, 64, 3) uint8, only in image sets: the webcam image
                                    taken just before the motion
     /video                  (N, F, 64, 64, 3) uint8, hard sets: the webcam every 20 ms from t = 0
@@ -542,7 +542,7 @@ def _check_sizes(path: Path, f: object) -> None:  # f: an open h5py.File
 
 def save_dataset(data: PushingDataset, path: str | Path, overwrite: bool = False) -> Path:
     """Write a :class:`PushingDataset` held in memory (e.g. one read from a LeRobot dataset by
-    :func:`seqmotion.lfd.lerobot_import.from_lerobot`) in this module's format, atomically.
+    :func:`seqmotion.lfd.data.lerobot_import.from_lerobot`) in this module's format, atomically.
 
     Writes the attributes, every ``/motions`` array it has (float32), the per-episode values (a
     missing ``side`` as ``""``), ``/operator`` and the images; :func:`load_dataset` reads it back.

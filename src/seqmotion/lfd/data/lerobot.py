@@ -2,10 +2,11 @@
 
 No ``lerobot`` import needed. :func:`to_lerobot` turns every set of a dataset directory written by
 ``seqmotion lfd collect`` (``<set>.h5``) into one LeRobot v3.0 dataset folder ``OUT/<set>/``;
-:func:`~seqmotion.lfd.lerobot_import.from_lerobot` reads a LeRobot v3.0 folder back into a
-:class:`~seqmotion.lfd.dataset.PushingDataset` (in memory; :func:`~seqmotion.lfd.lerobot_import.import_lerobot`
-writes it as ``<set>.h5``), so that ``seqmotion lfd train --data`` takes either. Writers and readers are pyarrow
-(parquet) and PyAV (mp4), the ``lerobot`` extra.
+:func:`~seqmotion.lfd.data.lerobot_import.from_lerobot` reads a LeRobot v3.0 folder back into a
+:class:`~seqmotion.lfd.data.dataset.PushingDataset` (in memory;
+:func:`~seqmotion.lfd.data.lerobot_import.import_lerobot` writes it as ``<set>.h5``), so that
+``seqmotion lfd train --data`` takes either. Writers and readers are pyarrow (parquet) and PyAV (mp4), the
+``lerobot`` extra.
 
 On disk (LeRobot's v3.0 layout, one file of each kind: the sets are small)::
 
@@ -53,7 +54,7 @@ period Δt_NN (what the policy trains on and what LeRobot users record at, 10-50
 may be any divisor of the recording's rate (1000 for the full recording). Export then import is
 exact (float32) at the exported rate.
 
-The import, which reads such a folder as untrusted input, is :mod:`seqmotion.lfd.lerobot_import`; this module
+The import, which reads such a folder as untrusted input, is :mod:`seqmotion.lfd.data.lerobot_import`; this module
 holds what both sides share (file paths, feature keys, :data:`IMAGE_SHAPE`, the pyarrow and PyAV imports).
 """
 

@@ -1,8 +1,8 @@
 """Import of LeRobotDataset v3.0 folders as pushing demonstrations, hardened (no ``lerobot`` import needed).
 
-:func:`from_lerobot` reads a LeRobot v3.0 folder (the layout and features :mod:`seqmotion.lfd.lerobot` describes
-and :func:`~seqmotion.lfd.lerobot.to_lerobot` writes, or another robot's dataset through ``mapping``) into a
-:class:`~seqmotion.lfd.dataset.PushingDataset` (in memory; :func:`import_lerobot` writes it as ``<set>.h5``), so
+:func:`from_lerobot` reads a LeRobot v3.0 folder (the layout and features :mod:`seqmotion.lfd.data.lerobot` describes
+and :func:`~seqmotion.lfd.data.lerobot.to_lerobot` writes, or another robot's dataset through ``mapping``) into a
+:class:`~seqmotion.lfd.data.dataset.PushingDataset` (in memory; :func:`import_lerobot` writes it as ``<set>.h5``), so
 that ``seqmotion lfd train --data`` takes either. Readers are pyarrow (parquet) and PyAV (mp4), the ``lerobot``
 extra.
 

@@ -23,7 +23,7 @@ The shipped pushing policy (``sm.load_pretrained("pushing")``) decodes the **Tou
     here nothing does, and the decoder's θ_m stays only a small lead over the slave state it reads back, so the
     pen creeps where the Touch's moves.
   - ``"twin"``: a simulated Touch slave (:class:`~seqmotion.lfd.env.pushing.PushingScene` with
-    :class:`~seqmotion.lfd.teleop.ArmServo` and the slave's half of the law) is driven by the decoder exactly as
+    :class:`~seqmotion.lfd.env.teleop.ArmServo` and the slave's half of the law) is driven by the decoder exactly as
     in :func:`~seqmotion.lfd.rollout.run_autonomous`, except that its block is put, every period, where the
     robot's block is; the decoder reads the Touch servo's (θ, θ̇, τ) and the robot's pen tip follows the
     Touch's tip. The robot does the physical pushing of its own block; the Touch twin feels that block.
@@ -38,7 +38,7 @@ The shipped pushing policy (``sm.load_pretrained("pushing")``) decodes the **Tou
   from the same 10 Hz pseudo-derivative as the Touch's servo, and its reaction torques ``τ = −J_touchᵀ F``
   from the force ``F`` the block and table exert on the pen (a wrist force sensor's reading: the pen's
   contact forces of the previous period), low-passed at the Touch's 10 Hz observer cutoff. ``τ``'s sign is
-  the Touch's (:mod:`seqmotion.lfd.teleop`): positive when the pen presses in the joint's positive direction.
+  the Touch's (:mod:`seqmotion.lfd.env.teleop`): positive when the pen presses in the joint's positive direction.
 * **Webcam**: rendered from this world (the Panda in view instead of the Touch), with the episode's
   lighting and colour variation, as :class:`~seqmotion.lfd.env.pushing.PushingScene` does.
 
@@ -365,7 +365,7 @@ class TouchTwin:
 
     def sense(self, tip: np.ndarray, pen_force: np.ndarray) -> Any:
         """Update with the tip ``(3,)`` [m] and the force on the pen ``(3,)`` [N]; return the state (an
-        :class:`seqmotion.lfd.teleop.ArmState`: θ, θ̇, τ)."""
+        :class:`seqmotion.lfd.env.teleop.ArmState`: θ, θ̇, τ)."""
         theta, clamped = touch_angles(tip, self.state.theta)
         self.clamped += clamped
         dtheta = self.velocity.update(theta)

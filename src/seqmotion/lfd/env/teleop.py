@@ -156,7 +156,7 @@ class Demonstration:
     [rad, rad/s, N m]; ``block_pose`` ``(K, 7)`` (centre [m], quaternion w x y z);
     ``hand_force`` ``(K, 3)`` [N], the operator's force on the master tip; ``master_tip`` and
     ``slave_tip`` ``(K, 3)`` [m]; ``phase`` ``(K,)`` int, the operator's phase code
-    (see :data:`seqmotion.lfd.operator.PHASES`).
+    (see :data:`seqmotion.lfd.env.operator.PHASES`).
     """
 
     position: BlockPosition
@@ -230,7 +230,7 @@ def _check_timestep(gains: BilateralGains, *sims: ArmSim) -> None:
 # Loops
 # ----------------------------------------------------------------------------------------------
 class Operator:
-    """What the teleoperation loop needs from an operator (see :class:`~seqmotion.lfd.operator.ScriptedOperator`).
+    """What the teleoperation loop needs from an operator (see :class:`~seqmotion.lfd.env.operator.ScriptedOperator`).
 
     ``hand_force`` is called once per period with the master's tip position and velocity
     (what the hand feels), the slave's tip and the block pose (what the operator sees), and

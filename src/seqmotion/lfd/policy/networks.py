@@ -1,7 +1,7 @@
 """Chapter-5 networks and their typed configs: the sequence autoencoder (SeqAE), the image CNN, the keypoint PoseNet.
 
 Data conventions (dissertation 5.2.1 and 5.3.4). A motion is sampled every Δt_NN = 20 ms;
-sample k holds 6J columns (:data:`seqmotion.lfd.teleop.MOTION_COLUMNS` for the arm): master θ,
+sample k holds 6J columns (:data:`seqmotion.lfd.env.teleop.MOTION_COLUMNS` for the arm): master θ,
 θ̇, τ, then slave θ, θ̇, τ, each over the J joints [rad, rad/s, N m]. J is
 :attr:`SeqAEConfig.joints`: 3 for the dissertation's arm (the default, and every shipped
 model), another robot's joint count when the SeqAE is trained on its LeRobot dataset; the

@@ -235,8 +235,8 @@ class PushingPolicy(nn.Module, PretrainedModel):
                 "```",
                 "",
                 f"Webcam pose: `{cfg.camera}`. It has no single z: `latent(image)` and `source(z)` refuse it, and so "
-                "do the standard arms of `seqmotion.lfd.robot` (robosuite's, Menagerie's), which run one z from the "
-                "first image.",
+                "do the standard arms of `seqmotion.lfd.env.robot` (robosuite's, Menagerie's), which run one z from "
+                "the first image.",
             ]
         encoder = (
             "the SeqAE's motion encoder is kept"
