@@ -186,21 +186,12 @@ def cmd_deform(args: argparse.Namespace) -> int:
     check = getattr(result, "robot_check", None)
     if check is not None:
         print(check.describe())
-    from seqmotion.errors import EXIT_INEXACT
+    from seqmotion.errors import report_made
 
-    code = 0
-    if args.keep_end and not bool(np.all(result.exact)):
-        why = "; ".join(polish_failures) or "the polish did not converge"
-        mark = "marked inexact (exact False)" if args.output.lower().endswith(".npz") else "a .csv: no exact flag"
-        print(f"seqmotion deform: warning: --keep-end could not make the exact motion: {why}; {args.output} holds "
-              f"what was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        code = EXIT_INEXACT
-    if not_executable:  # made, but not what was asked: a motion the robot would stop on
-        mark = "feasible False" if args.output.lower().endswith(".npz") else "a .csv: no feasible flag"
-        print(f"seqmotion deform: warning: not executable on {not_executable[0]}; {args.output} holds what was made "
-              f"({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        code = EXIT_INEXACT
-    return code
+    inexact = args.keep_end and not bool(np.all(result.exact))
+    return report_made("deform", args.output,
+                       ("--keep-end", "; ".join(polish_failures) or "the polish did not converge") if inexact else None,
+                       not_executable[0] if not_executable else None)
 
 
 def violation_unit(model, before: str = "") -> str:  # noqa: ANN001 - a task's TrainedModel
@@ -309,7 +300,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             plan = refine_plan(planner, command, mu=args.mu, mu_dyn=args.mu_dyn, **robot)
         else:
             plan = planner.plan(command, mu=args.mu, mu_dyn=args.mu_dyn, **robot)
-    from seqmotion.errors import EXIT_INEXACT, said_by
+    from seqmotion.errors import report_made, said_by
 
     not_executable = said_by(caught, "not executable on ")  # re-issues the rest (e.g. what the limits cost)
     columns, names = result_columns(plan, planner)
@@ -333,12 +324,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     check = getattr(plan, "robot_check", None)
     if check is not None:
         print(check.describe())
-    if not_executable:  # made, but not what was asked: a plan the robot would stop on
-        mark = "feasible False" if args.output.lower().endswith(".npz") else "a .csv: no feasible flag"
-        print(f"seqmotion plan: warning: not executable on {not_executable[0]}; {args.output} holds what was made "
-              f"({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        return EXIT_INEXACT
-    return 0
+    return report_made("plan", args.output, robot=not_executable[0] if not_executable else None)
 
 
 def _robot_limits(args: argparse.Namespace) -> tuple[str, ...]:

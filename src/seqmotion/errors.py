@@ -8,6 +8,7 @@ returns NaN.
 from __future__ import annotations
 
 import math
+import sys
 import warnings
 
 import numpy as np
@@ -21,6 +22,27 @@ EXIT_INEXACT = 3
 --keep-end``, ``optimize --exact``) and the polish could not make it, or a motion a robot can execute (``deform
 --robot``) and that robot's limits are broken; the result is written all the same, marked (its ``exact`` or
 ``feasible`` False), and one ``seqmotion <command>: warning:`` line says why."""
+
+
+def report_made(command: str, output: object, inexact: tuple[str, str] | None = None,
+                robot: str | None = None) -> int:
+    """A command line's warning lines (stderr) for a result it wrote that is not what was asked, and its exit code:
+    ``inexact`` ``(option, why)`` where the option's exact motion could not be made; ``robot`` ``"<robot>: <why>"``
+    where the robot cannot execute it. :data:`EXIT_INEXACT` where either, else 0."""
+    npz = str(output).lower().endswith(".npz")
+    code = 0
+    if inexact is not None:
+        option, why = inexact
+        mark = "marked inexact (exact False)" if npz else "a .csv: no exact flag"
+        print(f"seqmotion {command}: warning: {option} could not make the exact motion: {why}; {output} holds what "
+              f"was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
+        code = EXIT_INEXACT
+    if robot is not None:  # made, but not what was asked: a motion the robot would stop on
+        mark = "feasible False" if npz else "a .csv: no feasible flag"
+        print(f"seqmotion {command}: warning: not executable on {robot}; {output} holds what was made ({mark}); exit "
+              f"code {EXIT_INEXACT}", file=sys.stderr)
+        code = EXIT_INEXACT
+    return code
 
 
 def said_by(caught: list[warnings.WarningMessage], prefix: str) -> list[str]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -76,7 +75,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..api import resolve_model
-    from ..errors import EXIT_INEXACT, MAX_LENGTH, check_number, said_by
+    from ..errors import MAX_LENGTH, check_number, report_made, said_by
     from ..io import check_not_an_input, check_output, check_writable, read_trajectory, write_arrays
     from ..tasks import TrainedModel
     from . import optimize_latent, optimize_trajectory
@@ -173,19 +172,9 @@ def run(args: argparse.Namespace) -> int:
         _plot(model, res, columns.get("violation"), Path(args.plot))
     if res.robot_check is not None:
         print(f"  {res.robot_check.describe()}")
-    code = 0
-    if res.exact is False:
-        why = "; ".join(polish_failures) or "the polish did not converge"
-        mark = "marked inexact (exact False)" if args.output.lower().endswith(".npz") else "a .csv: no exact flag"
-        print(f"seqmotion optimize: warning: --exact could not make the exact motion: {why}; {args.output} holds "
-              f"what was made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        code = EXIT_INEXACT
-    if not_executable:  # made, but not what was asked: a motion the robot would stop on
-        mark = "feasible False" if args.output.lower().endswith(".npz") else "a .csv: no feasible flag"
-        print(f"seqmotion optimize: warning: not executable on {not_executable[0]}; {args.output} holds what was "
-              f"made ({mark}); exit code {EXIT_INEXACT}", file=sys.stderr)
-        code = EXIT_INEXACT
-    return code
+    return report_made("optimize", args.output,
+                       ("--exact", "; ".join(polish_failures) or "the polish did not converge") if res.exact is False
+                       else None, not_executable[0] if not_executable else None)
 
 
 
