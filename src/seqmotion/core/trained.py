@@ -12,7 +12,7 @@ import copy
 import json
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -346,20 +346,34 @@ class TrainedModel(PretrainedModel):
         ``exact=True``): the motion at least :data:`ARM_MIN_DURATION` long (``accel`` ``(K-1, d)`` from ``x0``
         retimed to it), IPOPT started from that motion, then from standing still :data:`EXTEND_GROWTH` × longer.
         The first solution that holds, else the last try's."""
-        steps = self._arm_steps(len(accel), extend=True)
-        for attempt in range(ARM_ATTEMPTS):
+        def attempt(steps: int, i: int) -> Solution:
             ref = retimed(accel, steps)
-            solution = self.polish(x0, ref, constraints, params, start=ref if attempt == 0 else np.zeros_like(ref),
-                                   warm=False, symbolic="MX", arm=arm)
-            if self._holds(solution):
-                break
-            steps = math.ceil(steps * EXTEND_GROWTH)
+            return self.polish(x0, ref, constraints, params, start=ref if i == 0 else np.zeros_like(ref), warm=False,
+                               symbolic="MX", arm=arm)
+
+        solution, _, _, _ = self._lengthen(self._arm_steps(len(accel), extend=True), ARM_ATTEMPTS, attempt)
         return solution
 
     def _arm_steps(self, steps: int, extend: bool) -> int:
         """The inputs a polish on a robot's joints plans: ``steps``, at least :data:`ARM_MIN_DURATION` with
         ``extend``."""
         return max(steps, math.ceil(ARM_MIN_DURATION / self._dt() - 1e-9)) if extend else steps
+
+    def _lengthen(self, steps: int, attempts: int, attempt: Callable[[int, int], Solution]) -> tuple[
+            Solution, int, int, bool]:
+        """The one retiming loop of the polishes that may take longer than their input: ``attempt(steps, i)`` at
+        ``steps`` inputs, then :data:`EXTEND_GROWTH` × longer, at most ``attempts`` tries, until a solution holds
+        (:meth:`_holds`). Returns the last try's solution and its number of inputs, IPOPT's iterations over every
+        try, and whether it holds."""
+        spent = 0
+        for i in range(attempts):
+            solution = attempt(steps, i)
+            spent += solution.iterations
+            if self._holds(solution):
+                return solution, steps, spent, True
+            if i < attempts - 1:
+                steps = math.ceil(steps * EXTEND_GROWTH)
+        return solution, steps, spent, False
 
     # --- differentiable maps (latent optimisation works on these) -------------------------------
 
@@ -507,24 +521,27 @@ class TrainedModel(PretrainedModel):
                     continue
             steps = steps_to_stop(x0[b], columns, values[b], steps, form) if extend else steps
             attempts = EXTEND_ATTEMPTS if extend else 1
-            for attempt in range(attempts):
+
+            def padded(steps: int, b: int = b) -> np.ndarray:
                 # after the input's end the polish stays near rest (zero input) while it brings it to a stop
-                ref = np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
+                return np.concatenate([reference[b], np.zeros((steps - len(reference[b]), reference.shape[2]))])
+
+            def attempt(steps: int, i: int, b: int = b, attempts: int = attempts) -> Solution:
+                ref = padded(steps)
                 # the end conditions are linear in the inputs: meet them first in closed form, so IPOPT
                 # starts from a motion that only the task's constraint still separates from exact
                 start = reach_end(x0[b], ref, columns, values[b], np.array(form.accel_weights), form.dt)
-                last = attempt == attempts - 1  # a failing try is cut short: a longer one will likely succeed
+                last = i == attempts - 1  # a failing try is cut short: a longer one will likely succeed
                 # MX: a motion's length (its input's, or an extended one) seldom recurs soon, and "auto" would
                 # build the slow-to-build SX graph on its second request
-                solution = self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
-                                       cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS,
-                                       symbolic="MX")
-                iterations[b] += solution.iterations
-                if self._holds(solution):
-                    motions[b], exact[b] = (solution.states, solution.accel), True
-                    break
-                steps = math.ceil(steps * EXTEND_GROWTH)
-            if not exact[b]:  # at the longest time tried (``ref``)
+                return self.polish(x0[b], ref, [constraint], [values[b]], start=start, warm=False,
+                                   cold_iterations=COLD_ITERATIONS if last else EXTEND_COLD_ITERATIONS, symbolic="MX")
+
+            solution, steps, iterations[b], exact[b] = self._lengthen(steps, attempts, attempt)
+            if exact[b]:
+                motions[b] = (solution.states, solution.accel)
+            else:  # at the longest time tried
+                ref = padded(steps)
                 # from standing still — feasible for the constraint, limits and reach from a start at rest — toward
                 # the learned motion: from the learned motion itself (beyond reach, where the exact polish failed)
                 # IPOPT converges less often
@@ -554,18 +571,20 @@ class TrainedModel(PretrainedModel):
         out than the spatula starts — is not searched for at length: the near motion is kept, flagged. Returns
         ``((states, accel), exact, iterations)``."""
         columns = list(end.key[1])
-        steps, spent = self._arm_steps(len(reference), extend), 0
-        for _ in range(ARM_ATTEMPTS if extend else 1):
-            ref = retimed(reference, steps)
-            near, miss = self._nearest_rest(x0, ref, columns, values, arm)
-            spent += near.iterations
-            if self._holds(near):
-                break
-            steps = math.ceil(steps * EXTEND_GROWTH)
-        else:
+        misses: list[np.ndarray] = []
+
+        def attempt(steps: int, i: int) -> Solution:
+            near, miss = self._nearest_rest(x0, retimed(reference, steps), columns, values, arm)
+            misses.append(miss)
+            return near
+
+        near, steps, spent, held = self._lengthen(self._arm_steps(len(reference), extend),
+                                                  ARM_ATTEMPTS if extend else 1, attempt)
+        if not held:
             warnings.warn(f"keep_end: the polish failed on motion {b} within {arm.robot}'s limits ({near.status}); "
                           "it keeps the learned motion", RuntimeWarning, stacklevel=6)
             return learned, False, spent
+        ref, miss = retimed(reference, steps), misses[-1]
         form = self.exact_form()
         pose = [self.state_layout.index(f) for f in self.task_def.end_pose[0]]
         weights = np.array([form.accel_weights[c] if c < form.dim else 1.0 for c in pose])
