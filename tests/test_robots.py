@@ -176,7 +176,7 @@ def test_scene_on_a_robot_has_the_tool_on_its_flange_and_the_same_world(kind):
     mujoco = import_mujoco()
     robot = rb.get_robot("panda")
     scene = get_scene(kind, "panda")
-    assert scene is get_scene(kind, robot) and scene.robot is robot
+    assert scene is get_scene(kind, robot) and scene.robot == rb.placed_for(robot, kind)
     m, d = scene.model, None
     default = get_scene(kind).model  # the built-in arm's scene
     for name in ("timestep", "impratio", "noslip_iterations", "tolerance", "cone", "solver", "integrator",
@@ -202,13 +202,17 @@ def test_scene_on_a_robot_has_the_tool_on_its_flange_and_the_same_world(kind):
     arm_bodies = {i for i in range(m.nbody) if m.body(i).name.startswith("panda/")}
     assert arm_bodies and not any(m.geom_contype[g] or m.geom_conaffinity[g] for g in range(m.ngeom)
                                   if m.geom_bodyid[g] in arm_bodies)
-    # The control site sits where the tool frame says: the flange's mount frame, turned by the tool roll.
+    # The control site sits where the tool frame says: the flange's mount frame, turned by the tool roll about its
+    # z axis, then by the tool pitch about the turned y axis.
     d = mujoco.MjData(m)
+    robot = scene.robot  # where it stands for this task
     d.qpos[scene.arm_qpos] = robot.home
     mujoco.mj_forward(m, d)
     flange_rot = d.site_xmat[scene.flange].reshape(3, 3)
     c, s = np.cos(robot.tool_roll), np.sin(robot.tool_roll)
-    tool_rot = flange_rot @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    cp, sp = np.cos(robot.tool_pitch), np.sin(robot.tool_pitch)
+    tool_rot = flange_rot @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0],
+                                                                                    [-sp, 0, cp]])
     np.testing.assert_allclose(d.site_xpos[scene.site], d.site_xpos[scene.flange] + tool_rot @ SITE_IN_TOOL[kind],
                                atol=1e-9)
     np.testing.assert_allclose(d.site_xmat[scene.site].reshape(3, 3), tool_rot, atol=1e-9)

@@ -4,9 +4,10 @@ of the exact polish: :func:`planar_chain`, :func:`chain_joint_speeds`, :func:`ar
 Why: keeping a pancake on an inverted spatula needs a loop (centripetal acceleration Ω²R ≥ ≈ 1.05 g at μ = 1), and
 no single wrist joint at its rated speed can turn the spatula fast enough for one (the UR5e's wrist 3 at π rad/s
 needs R ≥ 0.99 m). Where the arm stands so that several of its joints turn about axes parallel to the task's θ axis
-(world x: the UR5e's shoulder lift, elbow and wrist 1, :data:`~seqmotion.sim.robot_models.PLACEMENTS`), their speeds
-add up about one axis (3 × π rad/s), and the spatula's (y, z, θ) is a planar three-link chain of them with every other
-joint held still: the generator's planar motion *is* the arm's joint path.
+(world x: the UR5e's shoulder lift, elbow and wrist 1; the Panda's joints 2, 4 and 6 with 1, 3 and 5 held at 0;
+:data:`~seqmotion.sim.robot_models.PLACEMENTS`), their speeds add up about one axis (3 × π rad/s; 6.96 rad/s), and
+the spatula's (y, z, θ) is a planar three-link chain of them with every other joint held still: the generator's
+planar motion *is* the arm's joint path.
 
 The chain (task-plane coordinates: ``y`` = world y, ``z`` = world z − 0.35 m, the pancake's origin at (0, 0)):
 the shoulder's axis at ``S``, the elbow's at ``E`` (``|E − S| = upper``), the third joint's at ``W``
@@ -76,7 +77,8 @@ normal-force floor, still held at every sample of the README's turns."""
 
 @dataclass(frozen=True)
 class PlanarChain:
-    """Three consecutive arm joints with axes along world x, holding the spatula's site, as a planar chain.
+    """Three arm joints with axes along world x, holding the spatula's site, as a planar chain (any joint between
+    them held at home).
 
     Attributes:
         robot: the robot, ``"name (source)"``.
@@ -131,7 +133,7 @@ class PlanarChain:
 
 def planar_chain(robot: str | Robot | None) -> PlanarChain | None:
     """The robot's planar chain in the pancake scene (:class:`PlanarChain`), or ``None`` where its placement has no
-    three consecutive joints along the task's θ axis holding the site (the Panda's, the built-in arm's)."""
+    three joints along the task's θ axis holding the site (the built-in arm's, which turns it with its wrist)."""
     standard = resolve_robot(robot)
     if standard is None:
         return None
@@ -147,34 +149,32 @@ def _chain(robot: Robot) -> PlanarChain | None:
     data.qpos[scene.arm_qpos] = robot.home
     mujoco.mj_forward(m, data)
     joint_ids = [int(m.dof_jntid[d]) for d in scene.arm_dof]
-    along_x = [abs(data.xaxis[j][0]) >= 1 - PARALLEL_TOLERANCE for j in joint_ids]
-    run = [i for i in range(len(joint_ids) - 2) if all(along_x[i: i + 3])]
-    if not run:
+    along_x = [k for k, j in enumerate(joint_ids) if abs(data.xaxis[j][0]) >= 1 - PARALLEL_TOLERANCE]
+    if len(along_x) < 3:
         return None
-    i = run[-1]  # the three nearest the flange: they carry the tool
-    if any(along_x[j] for j in range(i + 3, len(joint_ids))):
-        return None  # a fourth parallel joint past them would be a redundancy this chain does not model
+    # The three nearest the flange carry the tool. Joints between them (the Panda's 3 and 5, along its links) are
+    # held at home, which keeps each link between two chain axes rigid: the chain stays planar.
+    index = tuple(along_x[-3:])
     origin = np.array([PANCAKE_ORIGIN[1], PANCAKE_ORIGIN[2]])
-    anchors = [data.xanchor[joint_ids[i + k]][1:] - origin for k in range(3)]
+    anchors = [data.xanchor[joint_ids[k]][1:] - origin for k in index]
     site = data.site_xpos[scene.site][1:] - origin
     shoulder, elbow_at, wrist = (np.asarray(a, dtype=np.float64) for a in anchors)
     d = wrist - shoulder
     side = float(np.sign(_cross(d, elbow_at - shoulder)))
     if side == 0.0:
         return None  # a stretched arm at home: no branch to follow
-    names = tuple(m.joint(joint_ids[i + k]).name.split("/")[-1] for k in range(3))
+    names = tuple(m.joint(joint_ids[k]).name.split("/")[-1] for k in index)
     flange = data.xanchor[joint_ids[-1]][1:] - origin
     base = joint_ids[0]
     base_line = float(data.xanchor[base][1] - origin[0]) if abs(data.xaxis[base][2]) >= 1 - PARALLEL_TOLERANCE else None
     base_side = 1.0 if base_line is None or flange[0] >= base_line else -1.0
     chain = PlanarChain(
-        robot=robot.label, joints=names, index=(i, i + 1, i + 2), shoulder=shoulder,
+        robot=robot.label, joints=names, index=index, shoulder=shoulder,
         upper=float(np.linalg.norm(elbow_at - shoulder)), fore=float(np.linalg.norm(wrist - elbow_at)),
         wrist=wrist - site, elbow=side, home=np.array(robot.home, dtype=np.float64),
-        axis_sign=np.sign([data.xaxis[joint_ids[i + k]][0] for k in range(3)]), flange=flange - site,
+        axis_sign=np.sign([data.xaxis[joint_ids[k]][0] for k in index]), flange=flange - site,
         base_line=base_line, base_side=base_side,
-        **_link_dynamics(m, data, [joint_ids[i + k] for k in range(3)], [scene.arm_dof[i + k] for k in range(3)],
-                         anchors),
+        **_link_dynamics(m, data, [joint_ids[k] for k in index], [scene.arm_dof[k] for k in index], anchors),
     )
     return chain
 
@@ -315,7 +315,7 @@ def flange_clearance(chain: PlanarChain, states: Any, cos: Any = np.cos, sin: An
     return chain.base_side * (y + cos(theta) * fy - sin(theta) * fz - chain.base_line)
 
 
-def _link_angles(chain: PlanarChain) -> tuple[float, float]:
+def link_angles(chain: PlanarChain) -> tuple[float, float]:
     """The upper and fore links' angles in the task plane at home [rad] (from +y toward +z)."""
     elbow = _home_elbow(chain)
     wrist = chain.wrist  # W − P at θ = 0, and P = 0 at home
@@ -326,7 +326,7 @@ def _link_angles(chain: PlanarChain) -> tuple[float, float]:
 def _forward(chain: PlanarChain, q: Any, qd: Any, qdd: Any, cos: Any, sin: Any) -> tuple[Any, ...]:
     """The site's (y, z, θ), its velocities and its accelerations from the chain's joint angles, speeds and
     accelerations (rows of three; NumPy or CasADi): exact planar forward kinematics and its time derivatives."""
-    a1, a2 = _link_angles(chain)
+    a1, a2 = link_angles(chain)
     sign, home = chain.axis_sign, chain.home[list(chain.index)]
     d = [float(sign[j]) * (q[j] - float(home[j])) for j in range(3)]
     dd = [float(sign[j]) * qd[j] for j in range(3)]
@@ -367,7 +367,7 @@ def chain_joints(chain: PlanarChain, states: np.ndarray) -> np.ndarray:
     wrist = chain.shoulder + d
     phi1 = np.unwrap(np.arctan2(e[:, 1] - chain.shoulder[1], e[:, 0] - chain.shoulder[0]))
     phi2 = np.unwrap(np.arctan2(wrist[:, 1] - e[:, 1], wrist[:, 0] - e[:, 0]))
-    a1, a2 = _link_angles(chain)
+    a1, a2 = link_angles(chain)
     delta = np.stack([phi1 - a1, (phi2 - a2) - (phi1 - a1), theta - (phi2 - a2)], axis=1)
     delta -= 2 * np.pi * np.round(delta[:1] / (2 * np.pi))  # the branch nearest home at the start
     speeds, _ = chain_joint_speeds(chain, arr)
@@ -396,7 +396,7 @@ def joint_space(chain: PlanarChain, limits: JointLimits) -> JointSpace:
     high = np.full(3, np.inf) if limits.position is None else limits.position[index, 1].copy()
     # the elbow stays on its home's side, ELBOW_MARGIN from stretched and from folded: near either the simulator's
     # IK cannot follow the chain (a stretched elbow asked it for 5.7 rad/s at the shoulder)
-    a1, a2 = _link_angles(chain)
+    a1, a2 = link_angles(chain)
     bend = math.remainder(a2 - a1, 2 * math.pi)
     side = math.copysign(1.0, bend)
     ends = sorted(float(chain.home[index[1]]) + float(chain.axis_sign[1]) * (side * b - bend)
@@ -458,4 +458,4 @@ def arm_form(robot: str | Robot | None, dt: float) -> ArmForm | None:
 
 __all__ = ["ELBOW_MARGIN", "JOINT_HOLD", "PARALLEL_TOLERANCE", "SINGULARITY_CLEARANCE", "SPEED_MARGIN",
            "TORQUE_MARGIN", "PlanarChain", "arm_form", "chain_joint_speeds", "chain_joints", "chain_task",
-           "chain_torques", "flange_clearance", "joint_space", "planar_chain"]
+           "chain_torques", "flange_clearance", "joint_space", "link_angles", "planar_chain"]

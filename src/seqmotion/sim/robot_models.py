@@ -30,30 +30,30 @@ the tool's rotation about the flange axis [rad] (it puts the last joint mid-rang
 ``home`` is the posture used as the IK seed and posture target, with the tool at the pancake's origin pose.
 Per robot (:data:`PLACEMENTS`):
 
-==============================  =====================  =====  ========  =========================================
-robot                           base [m]               yaw    roll      home [rad]
-==============================  =====================  =====  ========  =========================================
-panda (robosuite)               (0, -0.3, -0.2)        π/4    -1.0458   (-1.501, 1.523, 2.103, -2.546, -2.747,
-                                                                        1.247, 0)
-ur5e (robosuite)                (0.206, -0.45, 0.087)  -π/2   0 (pitch  (0, -2.361, -1.666, 2.457, π/2, 0)
+==============================  =====================  =====  =========  ========================================
+robot                           base [m]               yaw    roll       home [rad]
+==============================  =====================  =====  =========  ========================================
+panda (robosuite)               (0.34, -0.6, -0.2)     π/2    -0.7849    (0, 0.1191, 0, -1.6301, 0, 1.7492, 0)
+                                                              (pitch
+                                                              -π/2)
+ur5e (robosuite)                (0.206, -0.45, 0.087)  -π/2   0 (pitch   (0, -2.361, -1.666, 2.457, π/2, 0)
                                                               π/2)
-franka_emika_panda (menagerie)  (0, -0.3, -0.2)        π/4    -1.0458-π IK from the robosuite Panda's home
-universal_robots_ur5e (men.)    (0.206, -0.45, 0.087)  -π     0 (pitch  IK from the robosuite UR5e's home
+franka_emika_panda (menagerie)  as robosuite's Panda   π/2    -0.7849-π  as robosuite's Panda
+universal_robots_ur5e (men.)    (0.206, -0.45, 0.087)  -π     0 (pitch   IK from the robosuite UR5e's home
                                                               π/2)
-iiwa (robosuite)                (-0.3, 0, -0.2)        0      0         IK (not checked along the motions)
-any other arm                   (-0.15, 0, 0)          0      0         IK from the file's ``home`` key, else the
-                                                                        middle of its ranges, else random seeds
-==============================  =====================  =====  ========  =========================================
+iiwa (robosuite)                (-0.3, 0, -0.2)        0      0          IK (not checked along the motions)
+any other arm                   (-0.15, 0, 0)          0      0          IK from the file's ``home`` key, else the
+                                                                         middle of its ranges, else random seeds
+==============================  =====================  =====  =========  ========================================
 
-The UR5e's shoulder lift, elbow and wrist 1 turn about world x, the pancake's θ axis (:mod:`.planar_chain`).
-Reach, checked by following every motion with differential IK (mink, 1 ms, the joint ranges as the only
-limit) from ``home``: the Panda holds 94 of 100 deformed ``keep_end`` pancake motions and 95 of their 100
-sketches within 2 mm / 1° (with 7 joints it gets there by running some joint to its range; its wrist, joint 5,
-stops the rest); the UR5e in its earlier placement (base (-0.15, 0, 0), the roll on wrist 3) held 100 and 100. On
-the frying pan's square ``x_p, y_p ∈ [-0.15, 0.15]`` the Panda reaches every pose with a joint at its range. None of
-the deformed pancake motions keeps within the published joint *speed* limits as they are: their tilt rates (median
-peak 17 rad/s) asked the IK for 6× (Panda) and 5.5× (UR5e, earlier placement) the last joints' limits (2.61 and
-π rad/s); ``deform(..., keep_end=True, robot="ur5e")`` makes them within the UR5e's.
+Both turn the spatula with three parallel joints about world x, the pancake's θ axis (:mod:`.planar_chain`): the
+UR5e its shoulder lift, elbow and wrist 1; the Panda, its joints 1, 3 and 5 at 0 so that it moves in the task plane,
+its joints 2, 4 and 6. A task may place an arm elsewhere (:data:`TASK_PLACEMENTS`, :func:`placed_for`): the
+Panda shakes the frying pan from the table 0.3 m to the right of it, turned 45° toward it (base (0, -0.3, -0.2),
+yaw π/4, roll -1.0458), where every joint shares the pan's motion; from there it reaches every pose of the pan's
+square ``x_p, y_p ∈ [-0.15, 0.15]`` with a joint at its range. Motions as the learned model makes them exceed the rated
+joint speeds on either arm (their tilt rates, median peak 17 rad/s); ``deform(..., keep_end=True, robot=...)``
+makes them within them (``benchmarks/RESULTS_sim.md``).
 
 Velocity limits are not in the files: :data:`.limits.RATED_LIMITS` holds the manufacturers' published
 values (and accelerations where published) for the arms named there, each with its document; any other arm gets
@@ -141,19 +141,21 @@ class Placement:
     seed: tuple[float, ...] | None = None
 
 
-_PANDA_HOME = (-1.500511, 1.522837, 2.103322, -2.54637, -2.747437, 1.247156, -0.000102)
+_PANDA_HOME = (0.0, 0.11907327, 0.0, -1.63014838, 0.0, 1.74922165, 0.0)
 _UR5E_HOME = (0.0, -2.361047, -1.666286, 2.456537, math.pi / 2, 0.0)
 
 PLACEMENTS: dict[str, Placement] = {
-    # The Panda cannot hold its flange level and pointing away from its base at its own shoulder height within
-    # joint 6's range; standing on the table 0.3 m to the right, turned 45° toward the workspace, it reaches 94 % of
-    # the deformed motions' poses (its wrist, joint 5, limits the rest). Held instead as a hand pointing down holds
-    # a handle (``pitch=-π/2``, base (-0.2, 0, -0.2), roll π) it reaches 97 %, but the blade's roll is then a swing
-    # of the wrist, not a spin of joint 7, and the motions' 300 rad/s² saturate joints 2 and 5.
-    "robosuite:panda": Placement(base=(0.0, -0.3, -0.2), yaw=math.pi / 4, roll=-1.0458, home=_PANDA_HOME),
+    # The Panda stands on the table top beside the task plane, turned so that its arm moves in that plane: with joints
+    # 1, 3 and 5 at 0, its joints 2, 4 and 6 turn about world x, the pancake's θ axis, and their rated speeds add up
+    # about one axis (2.175 + 2.175 + 2.61 rad/s), as the UR5e's three pitch joints do (``sim.planar_chain``). The tool
+    # is bent to the flange's side (pitch -π/2): the handle runs along +x out of the arm's plane and joint 7's axis
+    # lies in it. The shoulder's axis is 0.6 m to the side of the pancake's origin and 0.22 m below it; this home is
+    # the one farthest from the ranges of joints 2, 4 and 6 (1.44 rad or more) of the bases tried on a 5 cm grid.
+    "robosuite:panda": Placement(base=(0.34, -0.6, -0.2), yaw=math.pi / 2, roll=-0.78490554, pitch=-math.pi / 2,
+                                 home=_PANDA_HOME),
     # Menagerie's Panda is the same arm; its mount frame is robosuite's turned by π about the flange axis.
-    "menagerie:franka_emika_panda": Placement(base=(0.0, -0.3, -0.2), yaw=math.pi / 4, roll=-1.0458 - math.pi,
-                                              seed=_PANDA_HOME),
+    "menagerie:franka_emika_panda": Placement(base=(0.34, -0.6, -0.2), yaw=math.pi / 2, roll=-0.78490554 - math.pi,
+                                              pitch=-math.pi / 2, home=_PANDA_HOME),
     # The UR5e stands on a pedestal beside the task plane, its base turned so that its three parallel pitch joints
     # (shoulder lift, elbow, wrist 1) turn about world x, the pancake's θ axis: the arm moves in the task plane and
     # their rated speeds add up about one axis (3 × π rad/s), which a pancake turn needs (``sim.planar_chain``). The
@@ -169,6 +171,23 @@ PLACEMENTS: dict[str, Placement] = {
                                                  seed=_UR5E_HOME),
 }
 """Per ``"source:name"``; any other arm gets :data:`DEFAULT_PLACEMENT` (home by IK from its file's posture)."""
+
+_PANDA_PAN_HOME = (-1.500511, 1.522837, 2.103322, -2.54637, -2.747437, 1.247156, -0.000102)
+
+TASK_PLACEMENTS: dict[tuple[str, str], Placement] = {
+    # The frying pan is shaken level, not turned: standing in the pancake's plane the Panda would move the pan
+    # sideways with joint 1 alone and along y with joints 2 and 4 (the pan could accelerate at 11.8 m/s² along x but
+    # only 2.3 m/s² along y within the rated accelerations). Standing on the table 0.3 m to the right, turned 45°
+    # toward the pan, every joint shares the pan's motion: the 20 chapter-3 commands then ran 20/20 within the rated
+    # speeds, ranges and torques (19/20 from the pancake's placement). Home: the tool at the pancake's origin pose
+    # there, the IK seed of the pan's start pose.
+    ("robosuite:panda", "sliding"): Placement(base=(0.0, -0.3, -0.2), yaw=math.pi / 4, roll=-1.0458,
+                                              home=_PANDA_PAN_HOME),
+    ("menagerie:franka_emika_panda", "sliding"): Placement(base=(0.0, -0.3, -0.2), yaw=math.pi / 4,
+                                                           roll=-1.0458 - math.pi, seed=_PANDA_PAN_HOME),
+}
+"""Per ``("source:name", task kind)``: where an arm stands for that task instead of its :data:`PLACEMENTS` entry
+(:func:`placed_for`); the scenes of that task (``get_scene(kind, robot)``) put it there."""
 
 DEFAULT_PLACEMENT = Placement()
 
@@ -650,6 +669,29 @@ def _with_home(robot: Robot, seed: np.ndarray, tries: int = 24) -> Robot:
         raise ValueError(f"{robot.label}: no posture puts the tool at {pos} m, pointing +x, {HOME_MARGIN} rad inside "
                          "the joint ranges; give it a Placement with another base or a home")
     return replace(robot, home=best)
+
+
+def placed_for(robot: Robot | None, kind: str) -> Robot | None:
+    """``robot`` where it stands for the task ``kind`` (``"pancake"``, ``"sliding"``): moved to its
+    :data:`TASK_PLACEMENTS` entry where it has one and stands at its default placement (a robot a user placed
+    elsewhere stays where they put it); the built-in arm (``None``) as it is."""
+    if robot is None:
+        return None
+    key = f"{robot.source}:{robot.name}"
+    place = TASK_PLACEMENTS.get((key, kind))
+    default = PLACEMENTS.get(key, DEFAULT_PLACEMENT)
+    at_default = (np.allclose(robot.base_pos, default.base) and robot.base_yaw == default.yaw
+                  and robot.tool_roll == default.roll and robot.tool_pitch == default.pitch)
+    return robot if place is None or not at_default else _placed(robot, place)
+
+
+@lru_cache(maxsize=8)
+def _placed(robot: Robot, place: Placement) -> Robot:
+    from dataclasses import replace
+
+    moved = replace(robot, base_pos=np.array(place.base), base_yaw=place.yaw, tool_roll=place.roll,
+                    tool_pitch=place.pitch, home=np.array(place.home if place.home is not None else robot.home))
+    return moved if place.home is not None else _with_home(moved, np.asarray(place.seed, dtype=np.float64))
 
 
 def tool_mount(robot: Robot) -> tuple[np.ndarray, np.ndarray]:

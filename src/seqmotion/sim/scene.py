@@ -85,7 +85,7 @@ import numpy as np
 
 from ..physics.pancake import MU as MU_PANCAKE
 from .backend import CONTROL_DT, GRAVITY, import_mujoco
-from .robot_models import Robot, resolve_robot, tool_mount
+from .robot_models import Robot, placed_for, resolve_robot, tool_mount
 
 # CONTROL_DT (from .backend): the control period [s], 1 ms everywhere (SPEC §2).
 PHYSICS_DT = 5e-4
@@ -566,7 +566,9 @@ def build_scene(kind: str, robot: str | Robot | None = None) -> Scene:
         robot: ``None`` (or ``"mh3f"``) for the built-in arm, exactly as it always was; a standard
             arm's name (``"panda"``, ``"menagerie:universal_robots_ur5e"``; see
             :func:`seqmotion.sim.robot_models.robots`) or a :class:`~seqmotion.sim.robot_models.Robot`: the same
-            world and options with that robot at its ``base_pos`` and the tool on its flange.
+            world and options with that robot where it stands for this task
+            (:func:`~seqmotion.sim.robot_models.placed_for`: its ``base_pos``, or the task's own placement) and the
+            tool on its flange; ``scene.robot`` is the robot as placed.
 
     Raises:
         ValueError: an unknown kind, an unknown or unavailable robot.
@@ -574,7 +576,7 @@ def build_scene(kind: str, robot: str | Robot | None = None) -> Scene:
     mujoco = import_mujoco()
     if kind not in SITE_IN_TOOL:
         raise ValueError(f"scene kind must be 'pancake' or 'sliding', got {kind!r}")
-    arm = resolve_robot(robot)
+    arm = placed_for(resolve_robot(robot), kind)  # where the arm stands for this task
     if arm is None:
         model = mujoco.MjModel.from_xml_string(scene_xml(kind))
         joints: tuple[str, ...] = ARM_JOINTS
