@@ -1,5 +1,6 @@
-"""The UR5e turns the spatula with its three parallel pitch joints: the planar chain they form, its kinematics and
-inverse dynamics against MuJoCo's, and the polish on those joints (a turn within the rated limits)."""
+"""The UR5e turns the spatula with its three parallel pitch joints, the Panda with its joints 2, 4 and 6: the planar
+chain they form, its kinematics and inverse dynamics against MuJoCo's, and the polish on those joints (a turn within
+the rated limits)."""
 
 from __future__ import annotations
 
@@ -33,8 +34,20 @@ def test_the_ur5e_turns_the_spatula_with_its_pitch_joints(chain):
     assert chain.joints == ("shoulder_lift_joint", "elbow_joint", "wrist_1_joint")
     assert chain.upper == pytest.approx(0.425, abs=1e-3) and chain.fore == pytest.approx(0.392, abs=1e-3)
     assert planar_chain("mh3f") is None  # the built-in arm turns the spatula with its wrist
-    if "panda" in {r.name for r in rb.robots()}:
-        assert planar_chain("panda") is None
+
+
+HAS_PANDA = "panda" in {r.name for r in rb.robots()}
+
+
+@pytest.mark.skipif(not HAS_PANDA, reason="no Panda model here")
+def test_the_panda_turns_the_spatula_with_joints_2_4_and_6():
+    """Joints 3 and 5 (along its links) held at 0 leave the Panda's links between joints 2, 4 and 6 rigid: a planar
+    chain of the DH offsets' lengths (0.316 m and 0.0825 m, 0.384 m and 0.0825 m)."""
+    panda = planar_chain("panda")
+    assert panda.joints == ("joint2", "joint4", "joint6") and panda.index == (1, 3, 5)
+    assert panda.upper == pytest.approx(np.hypot(0.316, 0.0825), abs=1e-4)
+    assert panda.fore == pytest.approx(np.hypot(0.384, 0.0825), abs=1e-4)
+    assert np.allclose(panda.home[[0, 2, 4, 6]], 0.0)
 
 
 def test_forward_kinematics_inverts_the_inverse(chain):
@@ -48,12 +61,15 @@ def test_forward_kinematics_inverts_the_inverse(chain):
     assert np.median(np.abs(spatula_accel - implied)) < 0.05  # exact accelerations vs their 1 ms differences
 
 
-def test_the_chains_inverse_dynamics_is_mujocos(chain):
+@pytest.mark.parametrize("robot", ["ur5e", pytest.param("panda", marks=pytest.mark.skipif(not HAS_PANDA,
+                                                                                     reason="no Panda model here"))])
+def test_the_chains_inverse_dynamics_is_mujocos(robot):
     import mujoco
 
     from seqmotion.sim.scene import get_scene
 
-    scene = get_scene("pancake", "ur5e")
+    chain = planar_chain(robot)
+    scene = get_scene("pancake", robot)
     data = mujoco.MjData(scene.model)
     rng = np.random.default_rng(0)
     dofs = np.array(scene.arm_dof)[list(chain.index)]
@@ -148,3 +164,57 @@ def test_a_turn_the_arm_cannot_end_at_rest_ends_as_near_as_it_can_rising_and_bra
     assert (result.accel[result.length - 40 : result.length - 1, 1] < -9.8).all()  # …braking at more than g
     run = sim.run_pancake(states, gains="ch2", robot="ur5e")
     assert not run.contact_lost and run.joints.problem is None
+
+
+def test_the_chain_in_torch_is_the_chain_in_numpy(chain):
+    """``chain_motion`` (the latent objective's differentiable chain) gives the closed-form joints of
+    ``chain_joints`` and the inverse dynamics of ``chain_torques`` on the same motion."""
+    import torch
+
+    from seqmotion.latent.arm_limits import chain_motion
+
+    states = gen.straight((0.15, -0.1, 1.5), 400)
+    q, qd, dist = chain_motion(chain, torch.as_tensor(states)[None])
+    joints = chain_joints(chain, states)
+    assert np.abs(q[0].numpy() - joints[:, :3]).max() < 1e-9 and np.abs(qd[0].numpy() - joints[:, 3:]).max() < 1e-9
+    inner, outer = chain.reach
+    assert ((dist > inner) & (dist < outer)).all()
+
+
+def test_latent_updates_with_the_arms_limits_bring_the_learned_motion_within_its_rated_speeds(deformer):
+    """Ch. 4's external order on a real arm: the learned motion of a fast turn asks the UR5e's joints for several times
+    their rated speeds; gradient steps on z with ``ArmLimits`` beside the end pose bring it near them, with the
+    pancake kept — and say what that cost (a turn this fast within these speeds ends short of its end attitude)."""
+    import warnings
+
+    import seqmotion as sm
+    from seqmotion.latent.arm_limits import ArmLimits
+
+    sketch = gen.straight((0.05, 0.05, 1.5), 250)
+    objective = ArmLimits("ur5e") + sm.objectives.EndPose((0.05, 0.05, 1.5))
+    before = objective.bind(deformer).report(*_batched(deformer.deform(sketch)))
+    assert before["rated joint speeds"].value[0] > 1.5 and not before["rated joint speeds"].met
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = sm.optimize_latent(deformer, sketch, objective, steps=15)
+    after = result.terms
+    speeds = float(np.max(after["rated joint speeds"].value))
+    assert speeds < 1.1 and after["torque limits"].met  # from 1.8× the rated speed
+    assert result.violation is None or float(np.max(result.violation)) <= 0.01  # the pancake kept
+
+
+def _batched(result):
+    import torch
+
+    return torch.as_tensor(result.states)[None], torch.as_tensor(result.accel)[None]
+
+
+def test_arm_limits_refuse_an_arm_without_a_chain_by_name():
+    from seqmotion.latent.arm_limits import ArmLimits
+
+    with pytest.raises(ValueError, match="built-in arm"):
+        ArmLimits("mh3f")
+    with pytest.raises(ValueError, match="kinds"):
+        ArmLimits("ur5e", kinds=("speed", "jerk"))
+    with pytest.raises(ValueError, match="margin"):
+        ArmLimits("ur5e", margin=1.5)

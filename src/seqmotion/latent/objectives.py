@@ -15,6 +15,9 @@ with ``+`` and ``*``::
 
     objective = 2 * EndPose((0.1, 0.0, math.pi)) + my_callable
 
+:class:`~seqmotion.latent.arm_limits.ArmLimits` (``sm.objectives.ArmLimits("ur5e")``) holds a robot's rated joint
+speeds, accelerations and torques on pancake motions — ch. 4's velocity limits for a real arm.
+
 **An objective is bound to a model before it is evaluated** (:meth:`Objective.bind`;
 :func:`seqmotion.optimize_latent` does it): the fields' columns, the end pose, the constraint and its
 physics come from the model's task, and an objective that declares a state layout refuses a model of
@@ -449,5 +452,14 @@ class AtRest(Objective):
         return "AtRest()" if self.fields is None else f"AtRest(fields={list(self.fields)})"
 
 
+def __getattr__(name: str) -> Any:
+    # A robot's limits need the robot layer (its models and MuJoCo): imported when first asked for.
+    if name == "ArmLimits":
+        from .arm_limits import ArmLimits
+
+        return ArmLimits
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = ["AtRest", "EndPose", "Function", "Objective", "ObjectiveFn", "Ranges", "Scaled", "Sum", "TaskConstraint",
-           "Term", "as_objective", "check_layout", "for_model"]
+           "Term", "as_objective", "check_layout", "for_model"]  # and ArmLimits, on first use
