@@ -125,6 +125,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_deform(args: argparse.Namespace) -> int:
+    from seqmotion.core.polish import ARM_MIN_DURATION
     from seqmotion.io import check_not_an_input, check_output, check_writable, read_trajectory
     from seqmotion.physics.integrator import DoubleIntegratorDynamics, implied_accel
 
@@ -173,7 +174,10 @@ def cmd_deform(args: argparse.Namespace) -> int:
                   "limits and reach; this one ends at rest as near it as they allow (end error below)")
         else:
             print("not exact: the learned motion, unpolished")
-        if result.length > len(inputs):
+        if result.length > len(inputs) and args.robot:
+            print(f"  it takes {result.length - len(inputs)} samples more than the input: on {args.robot}'s joints the "
+                  f"polish plans at least {ARM_MIN_DURATION:g} s, and longer where its rated limits need it")
+        elif result.length > len(inputs):
             print(f"  it takes {result.length - len(inputs)} samples more than the input: ending at rest within the "
                   f"arm's acceleration limits {model.exact_form().accel_limits} needs that time")
     for line in model.trust_lines(result):

@@ -1,7 +1,9 @@
-"""The simulated MH3F-like arm, shared by the pancake and sliding scenes and the Gymnasium envs.
+"""The simulated arm — the built-in MH3F-like arm or a standard robot (``robot="ur5e"``) — shared by the pancake and
+sliding scenes and the Gymnasium envs.
 
 * :func:`get_scene` — the compiled scene, once per process.
-* :class:`Arm` — one ``MjData`` of a scene driven by the task-space controller:
+* :class:`Arm` — one ``MjData`` of a scene driven by its controller (:func:`~seqmotion.sim.control.make_controller`:
+  task space on the built-in arm, differential IK + joint-space PD + DOB on a standard one):
   :meth:`Arm.reset` (inverse kinematics to a start pose, the object placed at rest on the
   tool, the controller started) and :meth:`Arm.step` (one 1 ms control period through
   :func:`seqmotion.sim.backend.control_period`, the torque held over :data:`SUBSTEPS` physics steps).
