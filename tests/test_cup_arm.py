@@ -349,3 +349,19 @@ def test_the_onnx_stepper_stops_the_arm_like_pytorch(run, bundle, tmp_path):
     with pytest.raises(ValueError, match=r"'stop\.outputs' is missing and the outputs \(N·m, N·m\) are not "
                                          r"accelerations.*re-export"):
         OnnxModel(old)
+
+
+def test_the_onnx_steppers_control_loop_calls_are_its_shared_codes(run, bundle):
+    """One measured state per call runs on the stepper's buffers (the arm's dynamics one sample per call through
+    the bundle's one-sample graph, the stop's outputs_for, dynamics and constraint through bound sessions, issue
+    49) and gives what the shared stepper code gives, bit for bit, through the motion and the stop."""
+    from seqmotion.deploy import OnnxStepper
+
+    model = sm.load(run)
+    sketch = model.task_def.sketch((0.75, -0.7), 80)
+    fast, core = OnnxStepper(bundle, sketch), OnnxStepper(bundle, sketch)
+    core._fast = None
+    assert fast._fast.sample is not None and fast._fast.stop.outputs_for is not None
+    states, (mine, theirs) = drive([fast, core], model.dynamics(), sketch[0], until=79 + 300, sizes=(1,))
+    assert np.abs(states[79, 2:]).max() > 0.1 and fast.stopping == core.stopping
+    assert np.array_equal(mine, theirs)

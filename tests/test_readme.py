@@ -84,6 +84,9 @@ CHECKS: dict[str, tuple[str, str | None]] = {
     "seqmotion export runs/pancake-small-seed0 --name pancake --metrics reproduce/ch2/results.json": (
         "stand-in: seqmotion export runs/p --name pancake-newcomer --to shipped", r"with MODEL_CARD.md"),
     "seqmotion export-onnx pancake onnx/pancake/": ("as written", r"parity with PyTorch"),
+    "seqmotion export-c pancake c/pancake/": ("as written", r"parity with PyTorch .*states within"),
+    "seqmotion bench-step pancake --rt": ("tests/test_realtime.py::test_bench_step_runs_the_stepper_in_a_paced_loop",
+                                          None),
     "seqmotion lfd collect --out demos": ("tests/test_lfd_train.py::test_cli_train_and_evaluate", None),
     "seqmotion lfd train --data demos --out policies": ("tests/test_lfd_train.py::test_cli_train_and_evaluate", None),
     "seqmotion lfd evaluate policies/proposed_default --json eval.json": (

@@ -69,10 +69,11 @@ SEAL = "contract_sha256"
 """The contract's own hash (of its canonical JSON without this key)."""
 HASHES = "sha256"
 """The graphs' hashes, keyed like ``files``."""
-GRAPHS = ("encoder", "decoder_step", "dynamics", "violation", "decoder_step_int8", "outputs_for")
-"""The keys of ``files`` a bundle may have (``violation`` may be null; ``decoder_step_int8`` and ``outputs_for``
-absent)."""
-OPTIONAL_GRAPHS = ("decoder_step_int8", "outputs_for")
+GRAPHS = ("encoder", "decoder_step", "dynamics", "violation", "decoder_step_int8", "outputs_for",
+          "dynamics_sample")
+"""The keys of ``files`` a bundle may have (``violation`` may be null; ``decoder_step_int8``, ``outputs_for`` and
+``dynamics_sample`` absent)."""
+OPTIONAL_GRAPHS = ("decoder_step_int8", "outputs_for", "dynamics_sample")
 """Graphs a bundle may lack; where the key is there, the file must be."""
 MAX_CONTRACT_BYTES = 2**20
 """A ``contract.json`` larger than this (exported ones are ~10 kB) is refused before it is parsed."""
@@ -757,6 +758,8 @@ def graph_interface(contract: dict, key: str) -> tuple[dict[str, Tensor], tuple[
         return rollout, tuple(rollout), {"states": states}
     if key == "outputs_for":
         return rollout, (), {"outputs": ((None, chunk, d), DOUBLE)}
+    if key == "dynamics_sample":  # one sample of the dynamics (a graph may not read every input)
+        return {**rollout, "accel": ((None, 1, d), DOUBLE)}, (), {"states": ((None, 1, s), DOUBLE)}
     if key == "violation":
         return ({"states": ((None, None, s), FLOAT), "accel": ((None, None, d), FLOAT)}, (),
                 {"violation": ((None, None), FLOAT)})

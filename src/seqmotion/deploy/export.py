@@ -16,6 +16,10 @@
   ``accel`` ``(B, C, d)`` float64, and ``physics`` ``(P,)`` float64 — the fields of the task's physics
   the dynamics read (:func:`~seqmotion.core.stepper.physics_inputs`; absent when there are none) —
   output ``states`` ``(B, C, S)`` float64, the C states that follow ``x``.
+* ``dynamics_sample.onnx`` (dynamics without a closed form) — the same dynamics traced on one sample (``accel``
+  ``(B, 1, d)``, ``states`` ``(B, 1, S)``): the runner predicts the plan's states one sample per call, so a
+  chunk boundary does not pay for the whole chunk's prediction at once. Written only where C of its steps
+  chained agree with ``dynamics.onnx`` (:func:`sample_graph`); without it the runner predicts the chunk at once.
 * ``outputs_for.onnx`` (tasks whose outputs are not accelerations, e.g. joint torques) — the dynamics'
   ``outputs_for``, traced like ``dynamics.onnx``: inputs ``x`` ``(B, S)``, ``accel`` ``(B, C, d)`` float64
   (accelerations of the velocity columns) and ``physics`` as above, output ``outputs`` ``(B, C, d)``
@@ -27,7 +31,7 @@
   tensors, sealed: the SHA-256 of each graph and of the contract itself (:mod:`seqmotion.deploy.bundle`,
   which also holds the schema the runner checks it against; an export the runner would refuse is
   refused here).
-* ``onnx_stepper.py``, ``bundle.py``, ``stepper.py``, ``numpy_physics.py`` — the runner: NumPy +
+* ``onnx_stepper.py``, ``hot_path.py``, ``bundle.py``, ``stepper.py``, ``numpy_physics.py`` — the runner: NumPy +
   onnxruntime only (``from onnx_stepper import OnnxStepper`` with OUT/ on the path). Dynamics the
   contract names a closed form of (the double integrator) it computes in NumPy.
 * with ``int8=True`` also ``decoder_step.int8.onnx``: onnxruntime's dynamic quantisation (int8
@@ -71,10 +75,10 @@ from .scan import TracedLoop, defined_loops, expand_loops, prefixed, traced_loop
 
 OPSET = 17
 INT8_MIN_FEATURES = 256
-RUNNER_FILES = ("onnx_stepper.py", "bundle.py", "numpy_physics.py")
+RUNNER_FILES = ("onnx_stepper.py", "hot_path.py", "bundle.py", "numpy_physics.py")
 GRAPH_FILES = {"encoder": "encoder.onnx", "decoder_step": "decoder_step.onnx", "dynamics": DYNAMICS_GRAPH,
                "violation": "violation.onnx", "decoder_step_int8": "decoder_step.int8.onnx",
-               "outputs_for": OUTPUTS_FOR_GRAPH}
+               "outputs_for": OUTPUTS_FOR_GRAPH, "dynamics_sample": "dynamics_sample.onnx"}
 """The graphs' file names, by their key in the contract's ``files``."""
 BUNDLE_NAMES = frozenset({CONTRACT, "stepper.py", *RUNNER_FILES, *GRAPH_FILES.values(), "__pycache__"})
 """What a previous export (of any version) holds; ``__pycache__``: Python's, from running the runner there."""
@@ -429,6 +433,50 @@ def dynamics_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> 
     return proto
 
 
+def sample_graph(model: TrainedModel, physics: Physics, inputs: list[str], chunk_graph: Any) -> Any | None:
+    """The ``dynamics_sample`` graph (module docstring): the dynamics traced on one sample, or None where it cannot
+    stand in for the chunk graph — tracing fails, or C of its steps chained from random states and outputs (at rest
+    and moving, up to the output scale) differ from one run of ``chunk_graph`` by more than
+    :data:`PARITY_TOLERANCE` of the states' magnitude (dynamics whose chunk is more than its samples one after the
+    other: the runner then predicts whole chunks)."""
+    import onnxruntime as ort
+
+    cfg = model.model.cfg
+    s, d, c = model.state_layout.dim, model.accel_layout.dim, cfg.chunk
+    vector = (torch.tensor([getattr(physics, name) for name in inputs], dtype=torch.float64),) if inputs else ()
+    try:
+        proto = to_onnx(DynamicsStep(model, physics, inputs),
+                        (torch.zeros(1, s, dtype=torch.float64), torch.zeros(1, 1, d, dtype=torch.float64), *vector),
+                        ["x", "accel", *(["physics"] if inputs else [])], ["states"],
+                        {"x": {0: "B"}, "accel": {0: "B"}, "states": {0: "B"}},
+                        traced_loops(model.dynamics(physics)))
+        proto = shared_constants(proto)
+        rng = np.random.default_rng(1)
+        x = 0.1 * rng.standard_normal((8, s))
+        x[:2] = 0.0
+        accel = np.asarray(cfg.output_scale or [1.0] * d, dtype=np.float64) * rng.standard_normal((8, c, d))
+        feeds = {"x": x, "accel": accel}
+        if inputs:
+            feeds["physics"] = np.array([getattr(physics, name) for name in inputs], dtype=np.float64)
+        whole = ort.InferenceSession(chunk_graph.SerializeToString(), providers=["CPUExecutionProvider"])
+        (ref,) = whole.run(None, {i.name: feeds[i.name] for i in whole.get_inputs()})
+        one = ort.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+        names = [i.name for i in one.get_inputs()]
+        state, chained = x, []
+        for k in range(c):
+            given = {**feeds, "x": state, "accel": np.ascontiguousarray(accel[:, k:k + 1])}
+            (out,) = one.run(None, {name: given[name] for name in names})
+            state = out[:, 0]
+            chained.append(state)
+    except Exception:  # the task's own code under the tracer, or a graph onnxruntime refuses: predict whole chunks
+        return None
+    got = np.stack(chained, axis=1)
+    scale = max(float(np.abs(ref).max()), 1e-300)
+    if not np.all(np.isfinite(got)) or float(np.abs(got - ref).max()) / scale > PARITY_TOLERANCE:
+        return None
+    return proto
+
+
 def outputs_for_graph(model: TrainedModel, physics: Physics, inputs: list[str]) -> Any:
     """The ``outputs_for`` graph of ``model`` at ``physics`` (module docstring), with the same ``physics`` input
     as the dynamics graph, checked against the PyTorch ``outputs_for`` on fresh inputs like the dynamics graph.
@@ -546,6 +594,10 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
              "accel": {0: "B"}}),
         "dynamics": dynamics_graph(model, physics, contract["dynamics"]["physics"]["inputs"]),
     }
+    if contract["dynamics"]["closed_form"] is None:
+        sample = sample_graph(model, physics, contract["dynamics"]["physics"]["inputs"], graphs["dynamics"])
+        if sample is not None:
+            graphs["dynamics_sample"] = sample
     if contract["stop"]["outputs"] == "outputs_for":
         graphs["outputs_for"] = outputs_for_graph(model, physics, contract["dynamics"]["physics"]["inputs"])
     if contract["constraint"]:
@@ -560,8 +612,9 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
     files["violation"] = GRAPH_FILES["violation"] if contract["constraint"] else None
     if int8:
         files["decoder_step_int8"] = GRAPH_FILES["decoder_step_int8"]
-    if "outputs_for" in graphs:
-        files["outputs_for"] = GRAPH_FILES["outputs_for"]
+    for key in ("outputs_for", "dynamics_sample"):
+        if key in graphs:
+            files[key] = GRAPH_FILES[key]
     vector_doc = {"physics": "(P,) float64: the values of dynamics.physics.inputs, in that order"} \
         if contract["dynamics"]["physics"]["inputs"] else {}
     contract = {
@@ -589,6 +642,12 @@ def export_onnx(model: TrainedModel, out: str | Path, *, int8: bool = False, sou
                                     "the first states (the dynamics are causal)", **vector_doc},
                 "outputs": {"states": "(B, C, S) float64: the C states that follow x"},
             },
+            **({"dynamics_sample": {
+                "inputs": {"x": "(B, S) float64: the state before the sample (state_layout)",
+                           "accel": "(B, 1, d) float64: one output (accel_layout)", **vector_doc},
+                "outputs": {"states": "(B, 1, S) float64: the state that follows x (the dynamics graph's first "
+                                      "state; C of them chained give its C states)"},
+            }} if "dynamics_sample" in graphs else {}),
             **({"outputs_for": {
                 "inputs": {"x": "(B, S) float64: the state before the chunk (state_layout)",
                            "accel": "(B, C, d) float64: accelerations of the velocity columns (their units per "
@@ -797,4 +856,5 @@ def check_parity(model: TrainedModel, out: str | Path, inputs: np.ndarray, physi
 
 
 __all__ = ["OPSET", "bundle_target", "check_parity", "dynamics_graph", "encoder_graph", "example_inputs", "export_onnx",
-           "outputs_for_graph", "physics_ranges", "physics_read", "shared_constants", "to_onnx", "write_bundle"]
+           "outputs_for_graph", "physics_ranges", "physics_read", "sample_graph", "shared_constants", "to_onnx",
+           "write_bundle"]

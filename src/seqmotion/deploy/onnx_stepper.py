@@ -1,8 +1,8 @@
 """Run an exported model with onnxruntime and NumPy only: the same stepper as ``model.generator``.
 
-``seqmotion export-onnx MODEL OUT/`` writes the graphs, ``contract.json`` and this file (with
-``bundle.py``, ``stepper.py`` and ``numpy_physics.py``) into OUT/. Loading checks the bundle first (``bundle.py``): the
-contract's seal and schema, each graph's SHA-256, then what a re-sealed bundle could hide — each graph's ops and
+``seqmotion export-onnx MODEL OUT/`` writes the graphs, ``contract.json`` and this file (with ``hot_path.py``,
+``bundle.py``, ``stepper.py`` and ``numpy_physics.py``) into OUT/. Loading checks the bundle first (``bundle.py``):
+the contract's seal and schema, each graph's SHA-256, then what a re-sealed bundle could hide — each graph's ops and
 constant shapes, and its inputs and outputs against the contract. The sessions run in a capped arena, and an
 output of the wrong shape or with NaN or inf is refused, in every method. On a robot computer that has only NumPy
 and onnxruntime::
@@ -25,6 +25,17 @@ outputs through the bundle's ``outputs_for.onnx`` graph (``contract["stop"]["out
 Inside seqmotion the same classes are ``sm.deploy.OnnxModel`` / ``sm.deploy.OnnxStepper``. The
 semantics of ``step``, ``set_latent``, ``reset`` and the end of the motion are the module
 docstring of ``stepper.py`` (:mod:`seqmotion.core.stepper`), shared by both backends.
+
+**In a control loop** a call of one measured state runs on buffers the stepper made once (``hot_path.py``,
+:mod:`seqmotion.deploy.hot_path`, shipped beside this file): the sessions bound to them (onnxruntime's I/O binding,
+one thread), the decoder's windows slices of a history of states, the plan's states predicted one per call (closed
+form, or the bundle's ``dynamics_sample.onnx``: a chunk boundary costs one decoder run, like any call), the stop on
+buffers too. ``gen.step_into(measured, out)`` writes into the caller's array and makes no NumPy array and no Python
+container; its outputs are the shared code's, bit for bit::
+
+    out = np.zeros((gen.chunk, gen.accel_dim))
+    n = gen.step_into(None, out)                     # out[:n]: the first chunk
+    n = gen.step_into(measured, out)                 # measured: float64 (1, S), one state per call
 """
 
 from __future__ import annotations
@@ -47,6 +58,7 @@ try:  # inside the seqmotion package
         read_contract,
         read_graphs,
     )
+    from .hot_path import F64, FastPath, first_line
     from .numpy_physics import integrate
 except ImportError:  # the standalone copy that export-onnx writes beside the graphs
     from bundle import (  # type: ignore[no-redef]
@@ -58,6 +70,7 @@ except ImportError:  # the standalone copy that export-onnx writes beside the gr
         read_contract,
         read_graphs,
     )
+    from hot_path import F64, FastPath, first_line  # type: ignore[no-redef]
     from numpy_physics import integrate  # type: ignore[no-redef]
     from stepper import StepperCore, check_vectors  # type: ignore[no-redef]
 
@@ -82,11 +95,6 @@ def _capped_arena(ort: Any) -> bool:
     return _ARENA["registered"]
 
 
-def _first_line(exc: BaseException) -> str:
-    """onnxruntime's message on one line (its own are several, with a source location)."""
-    return " ".join(str(exc).split())[:400] or type(exc).__name__
-
-
 class OnnxModel:
     """An exported model: encoder, decoder step, dynamics and constraint in onnxruntime sessions.
 
@@ -98,6 +106,8 @@ class OnnxModel:
     Attributes:
         physics_inputs: the physics fields the dynamics graph reads, which ``physics=`` may override.
         physics_defaults: every physics field's value in the contract (what the graph runs at by default).
+        sample_session: the session of ``dynamics_sample.onnx`` (one sample of the dynamics), None where the bundle
+            has none (a closed form, or an export from before it).
 
     Raises:
         ValueError: no bundle there, or one whose contract is unsealed, edited, of another format or invalid,
@@ -131,7 +141,7 @@ class OnnxModel:
                 made = ort.InferenceSession(graphs[key], options, providers=["CPUExecutionProvider"],
                                             disabled_optimizers=["ConstantFolding"])
             except Exception as exc:  # onnxruntime's own (InvalidProtobuf, InvalidGraph, Fail, ...)
-                raise ValueError(f"{where}: onnxruntime cannot load it: {_first_line(exc)}") from None
+                raise ValueError(f"{where}: onnxruntime cannot load it: {first_line(exc)}") from None
             check_interface(where, graph_interface(self.contract, key),
                             [(i.name, i.shape, i.type) for i in made.get_inputs()],
                             [(o.name, o.shape, o.type) for o in made.get_outputs()])
@@ -145,6 +155,9 @@ class OnnxModel:
         self.dynamics_session = session("dynamics")
         self.violation_session = session("violation") if files.get("violation") else None
         self.outputs_for_session = session("outputs_for") if files.get("outputs_for") else None
+        # one sample of the dynamics (bundles of dynamics without a closed form): the stepper predicts the plan's
+        # states one per call with it instead of the whole chunk at its boundary
+        self.sample_session = session("dynamics_sample") if files.get("dynamics_sample") else None
         self._outputs_for_inputs = [i.name for i in self.outputs_for_session.get_inputs()] \
             if self.outputs_for_session else []
         # a constraint that reads only the accelerations (tray) has no states input in its graph
@@ -180,7 +193,7 @@ class OnnxModel:
         except Exception as exc:  # onnxruntime's own: a graph over the arena's cap, a shape it cannot run
             capped = f" (the sessions hold at most {MAX_RUN_BYTES} bytes: a smaller batch may run)" \
                 if "Available memory" in str(exc) else ""
-            raise ValueError(f"{self.where(key)}: onnxruntime failed running it{capped}: {_first_line(exc)}") from None
+            raise ValueError(f"{self.where(key)}: onnxruntime failed running it{capped}: {first_line(exc)}") from None
         for (name, shape), out in zip(shapes.items(), outs, strict=True):
             if out.shape != shape:
                 raise ValueError(f"{self.where(key)}: its output {name!r} has shape {out.shape}, not {shape}: "
@@ -411,6 +424,14 @@ class OnnxStepper(StepperCore):
         int8: with a folder, use its int8 decoder step.
         physics: values of the physics fields the dynamics graph reads (``OnnxModel.physics_inputs``; sliding:
             ``{"mu": 0.8, "mu_dyn": 0.4}``); the others, and any not given, are the contract's.
+
+    **The control loop's calls** (one motion, one measured state per call, float64 ``(1, S)``) run on buffers
+    made when the stepper is: the sessions' inputs and outputs bound to them (onnxruntime's I/O binding, one
+    thread), the windows slices of a history of states, the plan's states predicted one per call (so a chunk
+    boundary costs one decoder run, like a call between boundaries), the stop planned on buffers too. Such a call
+    makes no array; :meth:`step_into` writes its outputs into the caller's array, so it makes none at all.
+    Other calls (the first, several states at once, a restart, the chunk where the motion ends, a batch) run
+    the shared ``StepperCore`` code on the same state. Both give the same outputs.
     """
 
     def __init__(self, model: OnnxModel | str | Path, inputs: object | None = None, *, latent: object | None = None,
@@ -429,7 +450,119 @@ class OnnxStepper(StepperCore):
             start = x0
         else:
             raise ValueError("give either the input motion, or both latent and x0")
+        self._fast: FastPath | None = None
+        self._out_checked: np.ndarray | None = None
         super().__init__(contract, z, start, single, length, replan)
+        if self._single:
+            self._fast = FastPath(self)
+
+    # --- the control loop's calls -------------------------------------------------------------------------
+
+    def step(self, measured: object | None = None) -> np.ndarray:
+        """The next outputs (``StepperCore.step``; the module docstring of ``stepper.py``): ``(m, d)``, or
+        ``(B, m, d)`` for a batch, 1 ≤ m ≤ C. A new array each call (:meth:`step_into` writes into yours)."""
+        fast = self._fast
+        if fast is not None:
+            n = self._fast_call(measured, fast.out)
+            if n >= 0:
+                return fast.out[:n].copy()
+        return self._core_step(measured)
+
+    def step_into(self, measured: object | None, out: np.ndarray) -> int:
+        """:meth:`step` writing the outputs into ``out`` (rows ``0..m-1``) and returning m: for a control loop
+        that makes no Python object per call. ``out``: float64, C-contiguous, ``(C, d)`` (a batch: ``(B, C, d)``).
+
+        Raises:
+            ValueError: ``out`` of another type, dtype or shape, or read-only; what :meth:`step` raises.
+        """
+        if out is not self._out_checked:
+            c, d = self.chunk, self.accel_dim
+            want = (c, d) if self._single else (self._batch, c, d)
+            if not (isinstance(out, np.ndarray) and out.dtype == F64 and out.shape == want
+                    and out.flags.c_contiguous and out.flags.writeable):
+                shown = f"{type(out).__name__} {getattr(out, 'dtype', '')} {getattr(out, 'shape', '')}".strip()
+                raise ValueError(f"out must be a writable C-contiguous float64 array of shape {want} (C outputs of "
+                                 f"the accel layout), got {shown}")
+            self._out_checked = out
+        fast = self._fast
+        if fast is not None:
+            n = self._fast_call(measured, out)
+            if n >= 0:
+                return n
+        u = self._core_step(measured)
+        n = u.shape[-2]
+        out[..., :n, :] = u
+        return n
+
+    def _fast_call(self, measured: object, out: np.ndarray) -> int:
+        """One call on the buffers (class docstring) writing into ``out``; -1 where the call is the core's (nothing
+        changed then)."""
+        fast = self._fast
+        if (not self._started or type(measured) is not np.ndarray or measured.dtype is not F64
+                or measured.ndim != 2 or len(measured) != 1 or measured.size != fast.s):
+            return -1
+        c = fast.c
+        tau = self._t - self._origin + 1
+        j = tau % c
+        last = self._length - 1
+        motion = min(c, last - (tau - j)) - j  # how many of this call's outputs are the motion's (> 0)
+        if j == 0 and self._pending is not None:
+            return -1  # a restart: the core's
+        if j != 0 and motion > 0 and not (fast.active or fast.final):
+            return -1  # outputs of the motion in a chunk the core planned
+        np.abs(measured, out=fast.check)
+        np.less_equal(fast.check, fast.max_abs, out=fast.check_ok)  # NaN and inf fail it too
+        if np.count_nonzero(fast.check_ok) != fast.s:
+            return -1  # the core names the problem
+        position = (j or c) - 1
+        np.copyto(fast.measured_rows()[position], measured)
+        np.copyto(fast.row_m[position], measured)
+        np.copyto(self._latest, measured)
+        self._t += 1
+        heads = fast.heads_of(out)
+        n = c - j
+        if j == 0:
+            fast.active = False
+            if motion >= c:
+                fast.boundary(heads)
+            elif motion > 0:
+                fast.final_boundary(motion, heads)
+            else:  # past the end: no plan, the stop
+                self._plan = self._pred = self._window = None
+                fast.final = False
+                fast.stopping(c, heads)
+        elif motion <= 0:
+            fast.stopping(n, heads)
+        elif fast.active:
+            fast.between(j, heads)
+        else:
+            fast.final_between(j, motion, heads)
+        self._available = n
+        return n
+
+    def _core_step(self, measured: object) -> np.ndarray:
+        fast = self._fast
+        if fast is not None:
+            fast.before_core()
+        out = super().step(measured)
+        if fast is not None:
+            fast.after_core()
+        return out
+
+    def set_latent(self, latent: object, *, restart: bool = False, length: int | None = None) -> None:
+        """``StepperCore.set_latent`` (a new length may end the motion inside the chunk under way)."""
+        fast = self._fast
+        if fast is not None:
+            fast.before_core()
+        super().set_latent(latent, restart=restart, length=length)
+        if fast is not None:
+            fast.after_core()
+
+    def reset(self, x0: object | None = None) -> None:
+        """``StepperCore.reset``."""
+        super().reset(x0)
+        if getattr(self, "_fast", None) is not None:
+            self._fast.active = self._fast.final = False
 
     @property
     def physics(self) -> dict[str, float]:
@@ -461,6 +594,14 @@ class OnnxStepper(StepperCore):
 
     def _outputs_for(self, x: np.ndarray, accel: np.ndarray) -> np.ndarray:
         return self.onnx.outputs_for(x, accel, self._physics)
+
+    def _stop(self, x: np.ndarray, n: int) -> np.ndarray:
+        fast = self._fast
+        if fast is None or fast.stop is None or x.shape[0] != 1:
+            return super()._stop(x, n)
+        out = np.empty((1, n, self.accel_dim))
+        fast.stop.plan(x, n, out[0])
+        return out
 
 
 __all__ = ["OnnxModel", "OnnxStepper"]
