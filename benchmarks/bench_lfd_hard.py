@@ -7,6 +7,9 @@
     # rows of every finished job (and of ACT's, benchmarks/peers/act/) into one JSON and a plot
     python benchmarks/bench_lfd_hard.py merge --out runs/curve --act runs/act/*/eval.json \
         --json benchmarks/results_lfd_act.json --plot benchmarks/figures/lfd_hard_curve.png
+    # ACT trained to convergence (benchmarks/peers/act/campaign.py), replacing kept rows of the same N and seed
+    python benchmarks/bench_lfd_hard.py merge --out runs/curve_fb --keep benchmarks/results_lfd_act.json \
+        --act-campaign runs/act_campaign/results.json --json benchmarks/results_lfd_act.json
 
     # the object-feedback policy (the shipped pushing-hard's kind) on the same trials: 3 x 64 decoder, 700 epochs,
     # a pose network on 15,000 rendered frames of the N demonstrations' states
@@ -130,12 +133,14 @@ def chapter(args: argparse.Namespace) -> int:
 
 def merge(args: argparse.Namespace) -> int:
     rows = [json.loads(p.read_text())["row"] for p in sorted((Path(args.out) / "jobs").glob("*.json"))]
-    if args.keep:  # rows measured earlier, into another --out, unless a job here measured them again
+    for path in args.act or []:
+        rows.append(_act_row(Path(path)))
+    for path in args.act_campaign or []:
+        rows.extend(_act_campaign_rows(Path(path)))
+    if args.keep:  # rows measured earlier, into another --out, unless measured again here
         ran = {(r["method"], r["demonstrations"], r["seed"]) for r in rows}
         kept = json.loads(Path(args.keep).read_text())["rows"]
         rows = [r for r in kept if (r["method"], r["demonstrations"], r["seed"]) not in ran] + rows
-    for path in args.act or []:
-        rows.append(_act_row(Path(path)))
     from seqmotion.training.provenance import machine_record
 
     payload = {"benchmark": "hard", "machine": machine_record(), "rows": rows}
@@ -167,6 +172,31 @@ def _act_row(path: Path) -> dict:
     }
 
 
+def _act_campaign_rows(path: Path) -> list[dict]:
+    """Rows of ``benchmarks/peers/act/campaign.py``'s ``results.json``: each finished training's final
+    checkpoint, with every evaluated checkpoint as its ``curve`` (steps, wall time, val_l1, success)."""
+    rows = []
+    for run in json.loads(path.read_text())["runs"]:
+        final = next((c for c in run["checkpoints"] if c["step"] == run["steps"]), None)
+        if not run["finished"] or final is None:
+            continue
+        low, high = final["wilson_95"]
+        rows.append({
+            "method": "act", "demonstrations": run["demonstrations"], "seed": run["seed"],
+            "success_rate": final["success_rate"], "successes": final["successes"], "trials": final["trials"],
+            "wilson_95": [low, high], "train_seconds": round(run["seconds"]["train_loop"], 1),
+            "train_steps": run["steps"], "batch_size": run["batch_size"],
+            "decision_ms": {**final["select_action_ms"], "what": "select_action"},
+            "per_shape": final.get("per_shape"), "eval_seed": final["eval_seed"], "eval_seconds": final["eval_seconds"],
+            "stop_reason": run["stop_reason"], "val_l1": final["val_l1"], "best_val_l1": run["best_val_l1"],
+            "policy_config": run["policy_config"], "lerobot": run["lerobot"], "model": final["model"],
+            "episode_seconds": _episode_seconds(),
+            "curve": [{k: c.get(k) for k in ("step", "train_loop_s", "wall_s", "val_l1", "success_rate", "successes",
+                                             "trials", "wilson_95")} for c in run["checkpoints"]],
+        })
+    return rows
+
+
 def _plot(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
@@ -185,7 +215,11 @@ def _plot(rows: list[dict], path: Path) -> None:
         ci = np.array([wilson_interval(k, t) for k, t in zip(ok, total, strict=True)])
         shifted = np.array(counts) * (1 + 0.04 * i)  # side by side, not on top of each other
         steps = sorted({r["train_steps"] for r in mine})
-        label = f"LeRobot ACT ({', '.join(map(str, steps))} steps: budget-limited)" if method == "act" else method
+        label = method
+        if method == "act" and all(r.get("stop_reason") == "patience" for r in mine):
+            label = f"LeRobot ACT (to convergence: {min(steps)}-{max(steps)} steps)"
+        elif method == "act":
+            label = f"LeRobot ACT ({', '.join(map(str, steps))} steps: budget-limited)"
         older = sorted({r["episode_seconds"] for r in mine} - {_episode_seconds()})
         if older:  # trained and scored on an earlier version of the benchmark: say so on the plot
             label += f", on {'/'.join(f'{s:g}' for s in older)} s episodes (v1)"
@@ -228,6 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--act", nargs="*", help="ACT's evaluations (eval_act.py --json files, benchmarks/peers/act/)")
     p.add_argument("--json", required=True)
+    p.add_argument("--act-campaign", nargs="*",
+                   help="results.json of benchmarks/peers/act/campaign.py (finished trainings, with their curves)")
     p.add_argument("--keep", help="a results JSON whose rows stay, except those the jobs in --out measured again")
     p.add_argument("--plot")
     p.set_defaults(func=merge)

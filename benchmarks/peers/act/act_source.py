@@ -47,18 +47,21 @@ def load_act(model_dir: str | Path, device: str = "cpu"):
 
 
 class ActSource:
-    """``source(t, slave_state) -> ArmState``: one ACT action every call (every 20 ms, the dataset's 50 fps).
+    """ACT as the master's stand-in: one ACT action per decision (every 20 ms, the dataset's 50 fps).
 
-    One instance per episode (or call :meth:`reset`); the scene must already be reset to the episode's
-    placement. The 9 numbers of ``action`` are the master's θ, θ̇, τ (seqmotion's export, ``yaw.pos`` ...
-    ``elbow.effort``).
+    Two ways in: :meth:`command` ``(slave_state, image) -> ArmState`` (the image handed in, as
+    seqmotion's rollout does for a :class:`~seqmotion.lfd.policy.interface.Controller`: see
+    ``eval_act.ActPolicy``), or ``source(t, slave_state) -> ArmState`` (a plain command source; it then
+    renders the webcam from ``scene`` itself). One instance per episode, or call :meth:`reset`. The 9
+    numbers of ``action`` are the master's θ, θ̇, τ (seqmotion's export, ``yaw.pos`` ... ``elbow.effort``).
 
     Attributes:
         select_ms: wall time of each ``policy.select_action`` call [ms].
-        call_ms: wall time of each whole call (render + pre + select_action + post) [ms].
+        call_ms: wall time of each whole call (pre + select_action + post, and the render when this
+            object renders) [ms].
     """
 
-    def __init__(self, policy, preprocessor, postprocessor, scene, camera: str = "default",
+    def __init__(self, policy, preprocessor, postprocessor, scene=None, camera: str = "default",
                  image: str = "live") -> None:
         if image not in IMAGE_MODES:
             raise ValueError(f"image must be one of {IMAGE_MODES}, got {image!r}")
@@ -76,25 +79,39 @@ class ActSource:
         self.reset()
 
     def reset(self, first_image: np.ndarray | None = None) -> None:
-        """New episode: ``policy.reset()`` (clears the temporal ensemble) and the episode's first image."""
+        """New episode: ``policy.reset()`` (clears the temporal ensemble) and the episode's first image
+        (rendered from ``scene`` if not given and there is a scene; else the first call's image)."""
         self.policy.reset()
-        self.first_image = self.scene.render(self.camera) if first_image is None else first_image
+        if first_image is None and self.scene is not None:
+            first_image = self.scene.render(self.camera)
+        self.first_image = first_image
         self.calls = 0
 
-    def observation(self, slave_state) -> dict[str, np.ndarray]:
+    def _image(self, image: np.ndarray | None) -> np.ndarray:
+        """The image this call shows ACT: ``first`` mode the episode's first; ``live`` the one handed in,
+        else a fresh render."""
+        if self.first_image is None:
+            self.first_image = image
+        if self.image_mode == "first" or self.calls == 0:
+            return self.first_image
+        if image is not None:
+            return image
+        return self.scene.render(self.camera)
+
+    def observation(self, slave_state, image: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """The robot observation as LeRobot's record loop hands it to ``predict_action`` (numpy, no batch)."""
-        image = self.first_image if self.image_mode == "first" or self.calls == 0 else self.scene.render(self.camera)
         obs = {
             STATE: np.concatenate([slave_state.theta, slave_state.dtheta]).astype(np.float32),
-            WEBCAM: np.ascontiguousarray(image, dtype=np.uint8),
+            WEBCAM: np.ascontiguousarray(self._image(image), dtype=np.uint8),
         }
         if self.use_effort:  # in the policy's input features; normalised, then ignored by ACT
             obs[EFFORT] = np.asarray(slave_state.tau, dtype=np.float32)
         return obs
 
-    def __call__(self, t: float, slave_state):
+    def command(self, slave_state, image: np.ndarray | None = None):
+        """One decision: observation -> ``predict_action`` (LeRobot's) -> ``ArmState`` (θ, θ̇, τ)."""
         start = time.perf_counter()
-        obs = self.observation(slave_state)
+        obs = self.observation(slave_state, image)
         select = self.policy.select_action
         timings = self.select_ms
 
@@ -116,3 +133,6 @@ class ActSource:
         self.calls += 1
         self.call_ms.append((time.perf_counter() - start) * 1e3)
         return self._arm_state(a[0:3].copy(), a[3:6].copy(), a[6:9].copy())
+
+    def __call__(self, t: float, slave_state):
+        return self.command(slave_state)
