@@ -1,4 +1,4 @@
-"""Issue 50's ACT campaign: choose the configuration, then train ACT to convergence and evaluate along the way.
+"""The ACT convergence campaign: choose the configuration, then train ACT to convergence and evaluate along the way.
 
 Run with the LeRobot venv's python (seqmotion installed there, see README.md), one job at a time, in the
 background; every step is idempotent, so the same command resumes it after any stop::
@@ -255,6 +255,7 @@ def main_training(args: argparse.Namespace, config: list[str], demos: int, seed:
         finished = tl.get("finished") and not (tl.get("stop_reason") == "steps" and args.cap > tl.get("steps", 0))
         for s in pending_evals(args, out, name):
             evaluate(args, out, name, s)
+            results(args)
         if finished:
             return
         current = tl.get("steps", 0)
