@@ -66,7 +66,9 @@ class LayerNormLSTMCell(nn.Module):
             c = f * c + i * (2 * g - 1)
             h = o * _tanh(self.ln_cell(c))
         else:  # inference (and export): exactly the plain cell, so trained models' outputs stay what they were
-            i, f, o, g = gates.chunk(4, dim=-1)
+            # split by the constant H, not chunk(4): a traced chunk computes its sizes from the tensor's shape
+            # at run time (12 more graph nodes per step that onnxruntime runs one by one); the same views
+            i, f, o, g = gates.split(self.hidden_size, dim=-1)
             c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
             h = torch.sigmoid(o) * torch.tanh(self.ln_cell(c))
         return h, c

@@ -207,7 +207,9 @@ class GaussianHead(nn.Module):
 
     def raw(self, h: torch.Tensor) -> torch.Tensor:
         """The head's raw output ``(B, C, 2d + pairs)`` for decoder outputs ``h`` (B, hidden)."""
-        return self.net(h).view(h.shape[0], self.chunk, self.per_sample)
+        out = self.net(h)
+        # -1, not h.shape[0]: a traced graph then reads no shape at run time (torch cannot infer -1 for 0 rows)
+        return out.reshape(-1, self.chunk, self.per_sample) if len(out) else out.view(0, self.chunk, self.per_sample)
 
     def mean(self, raw: torch.Tensor) -> torch.Tensor:
         """Means ``(..., d)`` of raw outputs ``(..., 2d + pairs)``."""
@@ -383,7 +385,7 @@ class ChunkedSeq2Seq(nn.Module):
 
     def decoder_output(self, state: LSTMState, inputs: torch.Tensor) -> tuple[LSTMState, torch.Tensor]:
         """The decoder's new state and top-layer output ``(B, H)`` for the last C states ``(B, C, dim)``."""
-        flat = (inputs.to(self.decoder_scale.dtype) / self.decoder_scale).reshape(inputs.shape[0], -1)
+        flat = (inputs.to(self.decoder_scale.dtype) / self.decoder_scale).flatten(1)  # a graph reads no shape
         out, state = self.decoder(self.decoder_in(flat), state)
         return state, out
 
