@@ -6,9 +6,11 @@
 For the shipped pancake and sliding models and the cup arm (``examples/cup_arm``, the ``small`` preset built
 untrained with seed 0: a call's time does not depend on the weights), each exported with ``export-onnx``:
 
-* **the ONNX stepper** (``OnnxStepper.step_into``, one measured state per call, the robot the bundle's own dynamics
-  between calls, untimed) in four loops: ``tight, shared code`` (no sleep, every call through ``StepperCore``: the
-  general path, in the same run), ``tight`` (no sleep, as ``bench_deploy.py`` measured), ``normal`` (paced
+* **the ONNX stepper** (``OnnxStepper.step_into``, one measured state per call, then ``prepare()`` timed apart —
+  the work a loop does once its command went out —, the robot the bundle's own dynamics between calls, untimed)
+  in five loops: ``tight, shared code`` (no sleep, every call through ``StepperCore``: the general path, in the
+  same run), ``tight, no prepare`` (the call doing the predicted window's decoder run itself), ``tight`` (no
+  sleep, as ``bench_deploy.py`` measured), ``normal`` (paced
   at 1 kHz to absolute deadlines, normal scheduling) and ``realtime`` (the same, pinned to one core with
   ``SCHED_FIFO`` where permitted: ``seqmotion.deploy.realtime``); p50 / p99 / p99.9 / max per kind of call
   (``between`` chunk boundaries, ``boundary``, ``final_chunk`` — the chunk where the motion ends, which also plans
@@ -17,7 +19,8 @@ untrained with seed 0: a call's time does not depend on the weights), each expor
   the same loop, the same run; every stepper figure is also given as a ratio to it (p50 to its p50, p99 to its
   p99), which carries over between machines better than microseconds;
 * **the C generator** (``export-c``, ``cc -O2``): ``PREFIX_decoder_step`` in a tight loop and
-  ``PREFIX_generator_step`` per kind of call, tight and paced at 1 kHz, normal and real-time.
+  ``PREFIX_generator_step`` per kind of call (with ``PREFIX_generator_prepare`` after each, timed apart, and
+  without), tight and paced at 1 kHz, normal and real-time.
 
 A busy machine inflates every tail: give the load averages (printed, and in the JSON) with the figures, and
 measure on a quiet machine for the record.
@@ -76,7 +79,8 @@ static void report(const char *name, long *t, int n, int last) {
            last ? "" : ",");
 }
 static seqmotion_generator g;
-static long td[20000], tb[20000], tm[200000], tp[200000], tpb[20000], late[200000];
+static long td[20000], tb[20000], tm[200000], tm0[200000], tpr[200000], tp[200000], tpp[200000], tpb[20000],
+    late[200000];
 int main(int argc, char **argv) {
     static float z[SEQMOTION_LATENT_DIM], h[SEQMOTION_LATENT_DIM], c[SEQMOTION_LATENT_DIM];
     static float ho[SEQMOTION_LATENT_DIM], co[SEQMOTION_LATENT_DIM];
@@ -84,21 +88,31 @@ int main(int argc, char **argv) {
     double x0[S] = {0}, out[C * D], meas[S];
     const int calls = argc > 1 ? atoi(argv[1]) : 5000;
     const long length = SEQMOTION_DEFAULT_LENGTH > 4 * C ? SEQMOTION_DEFAULT_LENGTH : 4 * C;
-    int nb = 0, nm = 0, np_ = 0, npb = 0;
+    int nb = 0, nm = 0, nm0 = 0, npr = 0, np_ = 0, npp = 0, npb = 0;
     for (int i = 0; i < SEQMOTION_LATENT_DIM; ++i) z[i] = 0.1f * (float)((i * 7919) % 13 - 6);
     memcpy(c, z, sizeof c);
     for (int i = 0; i < 2000; ++i) seqmotion_decoder_step(h, c, w, ho, co, a);
     for (int i = 0; i < 20000; ++i) { long s = now(); seqmotion_decoder_step(h, c, w, ho, co, a); td[i] = now() - s; }
-    /* tight: the motion's calls, fed the plan's own states (plus a little) */
-    while (nm < calls) {
-        seqmotion_generator_start(&g, z, x0, length, NULL, 1);
-        seqmotion_generator_step(&g, NULL, 0, out);
-        for (long t = 0; t < length - 1 - C && nm < calls; ++t) {
-            memcpy(meas, g.pred + (t % C) * S, sizeof meas);
-            meas[0] += 1e-5;
-            long s = now(); int n = seqmotion_generator_step(&g, meas, 1, out); long d = now() - s;
-            if (n < 0) { fprintf(stderr, "error %d\n", n); return 1; }
-            if ((g.t - g.origin) % C == 0) { if (nb < 20000) tb[nb++] = d; } else tm[nm++] = d;
+    /* tight: the motion's calls, fed the plan's own states (plus a little); without prepare, then with it after
+     * each call (timed apart: the work once the command went out) */
+    for (int with_prepare = 0; with_prepare < 2; ++with_prepare) {
+        int *count = with_prepare ? &nm : &nm0;
+        long *times = with_prepare ? tm : tm0;
+        while (*count < calls) {
+            seqmotion_generator_start(&g, z, x0, length, NULL, 1);
+            seqmotion_generator_step(&g, NULL, 0, out);
+            for (long t = 0; t < length - 1 - C && *count < calls; ++t) {
+                memcpy(meas, g.pred + (t % C) * S, sizeof meas);
+                meas[0] += 1e-5;
+                long s = now(); int n = seqmotion_generator_step(&g, meas, 1, out); long d = now() - s;
+                if (n < 0) { fprintf(stderr, "error %d\n", n); return 1; }
+                int at_boundary = (g.t - g.origin) % C == 0;
+                if (at_boundary) { if (with_prepare && nb < 20000) tb[nb++] = d; } else times[(*count)++] = d;
+                if (with_prepare) {
+                    s = now(); seqmotion_generator_prepare(&g); d = now() - s;
+                    if (!at_boundary && (g.t - g.origin + 1) % C != 0) tpr[npr++] = d;
+                }
+            }
         }
     }
     /* paced at 1 kHz to absolute deadlines */
@@ -119,12 +133,17 @@ int main(int argc, char **argv) {
         long s = now(); seqmotion_generator_step(&g, meas, 1, out); long d = now() - s;
         late[i] = s - deadline;
         if ((g.t - g.origin) % C == 0) { if (npb < 20000) tpb[npb++] = d; } else tp[np_++] = d;
+        s = now(); seqmotion_generator_prepare(&g); d = now() - s;
+        if ((g.t - g.origin) % C != 0 && (g.t - g.origin + 1) % C != 0) tpp[npp++] = d;
     }
     printf("{\n");
     report("decoder_step", td, 20000, 0);
     report("between", tm, nm, 0);
+    report("between_without_prepare", tm0, nm0, 0);
+    report("prepare", tpr, npr, 0);
     report("boundary", tb, nb, 0);
     report("paced_between", tp, np_, 0);
+    report("paced_prepare", tpp, npp, 0);
     report("paced_boundary", tpb, npb, 0);
     report("paced_wake_late", late, calls, 1);
     printf("}\n");
@@ -164,12 +183,13 @@ def ratios(stats: dict, floor: dict) -> dict:
 def onnx_runs(onnx: OnnxModel, motion: np.ndarray, calls: int, cpu: int, priority: int) -> dict:
     trivial = trivial_call()
     runs = {}
-    for mode in ("tight, shared code", "tight", "normal", "realtime"):
+    for mode in ("tight, shared code", "tight, no prepare", "tight", "normal", "realtime"):
         rt = mode == "realtime"
         period = 1e-9 if mode.startswith("tight") else 1e-3
         with realtime(cpu=cpu if rt else None, fifo=rt, priority=priority) as setup:
             floor = paced(lambda _: trivial(), min(calls, 3000), period)
-            report = bench_stepper(onnx, motion, calls, period, buffers=mode != "tight, shared code")
+            report = bench_stepper(onnx, motion, calls, period, buffers=mode != "tight, shared code",
+                                   prepare=mode not in ("tight, shared code", "tight, no prepare"))
         stats = report.stats()
         floor_stats = floor.stats()["call"]
         runs[mode] = {"setup": setup.to_dict(), "trivial_onnxruntime_call": floor_stats,
@@ -214,7 +234,7 @@ def markdown(result: dict) -> str:
             lines.append(f"| {name} | {mode} | trivial onnxruntime call | {floor['p50_us']:.1f} | "
                          f"{floor['p99_us']:.1f} | {floor['p99.9_us']:.1f} | {floor['max_us']:.1f} | 1 | 1 | "
                          f"{floor['calls']} |")
-            for kind in ("between", "boundary", "final_chunk", "stop"):
+            for kind in ("between", "boundary", "final_chunk", "stop", "after between", "after boundary"):
                 s = run.get(kind)
                 if s and s.get("calls"):
                     lines.append(f"| {name} | {mode} | {kind} | {s['p50_us']:.1f} | {s['p99_us']:.1f} | "
@@ -229,7 +249,8 @@ def markdown(result: dict) -> str:
             run = entry.get("c", {}).get(mode)
             if not run:
                 continue
-            for kind in ("decoder_step", "between", "boundary", "paced_between", "paced_boundary"):
+            for kind in ("decoder_step", "between", "between_without_prepare", "prepare", "boundary",
+                         "paced_between", "paced_prepare", "paced_boundary"):
                 s = run[kind]
                 lines.append(f"| {name} | C {mode} | {kind} | {s['p50_us']:.1f} | {s['p99_us']:.1f} | "
                              f"{s['p99.9_us']:.1f} | {s['max_us']:.1f} | | | {s['calls']} |")

@@ -138,6 +138,32 @@ def test_the_c_generator_steps_like_the_pytorch_stepper(built, name):
     assert reference.stopping and worst <= 1e-5
 
 
+@pytest.mark.parametrize("name", ["pancake", "sliding"])
+def test_prepare_between_calls_changes_no_output_bit(built, name):
+    """Two C generators fed the same noisy states one per call (several now and then), one calling
+    ``seqmotion_generator_prepare`` after most calls (twice now and then): the same outputs, bit for bit."""
+    model, _, library = built[name]
+    c, d = model.model.chunk, model.accel_layout.dim
+    k = 2 * c + 30
+    reference = model.generator(inputs(name, model, k)[0])
+    plain, prepared = (generator(library, model, reference.latent, reference._x0[0], k) for _ in range(2))
+    out_a, out_b = np.zeros((c, d)), np.zeros((c, d))
+    n = library.seqmotion_generator_step(ptr(plain), None, 0, ptr(out_a))
+    assert library.seqmotion_generator_step(ptr(prepared), None, 0, ptr(out_b)) == n
+    x, rng = reference._x0[0], np.random.default_rng(5)
+    for call in range(k + 60):
+        m = min(3 if call % 23 == 11 else 1, n)
+        with torch.inference_mode():
+            states = model.integrate_torch(torch.from_numpy(x[None]), torch.from_numpy(out_a[None, :m]))[0, 1:]
+        x = states.numpy()[-1]
+        measured = np.ascontiguousarray(states.numpy() + 1e-4 * rng.standard_normal((m, len(x))))
+        n = library.seqmotion_generator_step(ptr(plain), ptr(measured), m, ptr(out_a))
+        assert library.seqmotion_generator_step(ptr(prepared), ptr(measured), m, ptr(out_b)) == n > 0
+        assert np.array_equal(out_a[:n], out_b[:n]), call
+        for _ in range((call % 4 != 0) + (call % 9 == 2)):
+            library.seqmotion_generator_prepare(ptr(prepared))
+
+
 def test_the_generator_refuses_what_the_stepper_refuses_and_changes_nothing(built):
     model, _, library = built["pancake"]
     motion = inputs("pancake", model, 120)[0]

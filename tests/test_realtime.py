@@ -57,10 +57,12 @@ def counted(gen: OnnxStepper) -> list[int]:
     return calls
 
 
-def drive(gens: list[OnnxStepper], model, k: int, extra: int, seed: int = 0) -> list[list[np.ndarray]]:  # noqa: ANN001
+def drive(gens: list[OnnxStepper], model, k: int, extra: int, seed: int = 0,  # noqa: ANN001
+          prepare: bool = False) -> list[list[np.ndarray]]:
     """The steppers fed the same measured states (the first one's outputs applied to the model's own dynamics, plus
     noise), one per call except a few calls of several; a latent swap (replay) and a restart on the way; ``extra``
-    samples past the end. The first stepper is called through ``step_into``, the others through ``step``."""
+    samples past the end. The first stepper is called through ``step_into``, the others through ``step``;
+    ``prepare``: the first one's ``prepare()`` after two calls of three (and twice in a row now and then)."""
     robot, rng = plant(model), np.random.default_rng(seed)
     out = np.zeros((gens[0].chunk, gens[0].accel_dim))
     n = gens[0].step_into(None, out)
@@ -84,6 +86,9 @@ def drive(gens: list[OnnxStepper], model, k: int, extra: int, seed: int = 0) -> 
         outputs[0].append(out[:n].copy())
         for g, o in zip(gens[1:], outputs[1:], strict=True):
             o.append(g.step(measured))
+        if prepare and call % 3:
+            for _ in range(1 + (call % 11 == 1)):
+                gens[0].prepare()
         call += 1
     return outputs
 
@@ -105,6 +110,49 @@ def test_the_control_loop_calls_give_the_cores_outputs_bit_for_bit(bundles, name
     a, b = drive([again, torch_gen], model, k, extra=model.model.chunk)
     scale = np.asarray(model.model.cfg.output_scale)
     assert max(float((np.abs(p - q) / scale).max()) for p, q in zip(a[:-model.model.chunk], b, strict=False)) < 1e-2
+
+
+@pytest.mark.parametrize("name", ["pancake", "sliding"])
+def test_prepare_between_calls_leaves_one_decoder_run_per_call_and_the_same_outputs(bundles, name):
+    model = sm.load_pretrained(name)
+    k = 3 * model.model.chunk + 20
+    fast, core = OnnxStepper(bundles / name, motion(name, k)), OnnxStepper(bundles / name, motion(name, k))
+    core._fast = None
+    runs = {"m": 0, "p": 0, "2": 0}
+    for side in runs:
+        bound = getattr(fast._fast, f"decode_{side}" if side != "2" else "decode2")
+
+        def counting(bound=bound, side=side):  # noqa: ANN001, ANN202
+            runs[side] += 1
+            bound()
+        setattr(fast._fast, f"decode_{side}" if side != "2" else "decode2", counting)
+    calls = counted(fast)
+    mine, theirs = drive([fast, core], model, k, extra=2 * model.model.chunk + 7, prepare=True)
+    assert len(mine) == len(theirs) and all(np.array_equal(a, b) for a, b in zip(mine, theirs, strict=True))
+    # prepared calls ran the measured window alone (B = 1), the others both windows at once (B = 2); a prepare is
+    # wasted only before a call the core runs (several states, the latent swap, the restart)
+    assert runs["m"] > model.model.chunk and runs["2"] > model.model.chunk // 2
+    assert runs["m"] <= runs["p"] <= runs["m"] + len(mine) - calls[0]
+    # a call after prepare holds one decoder run, the measured window's; prepare twice runs it once
+    gen = OnnxStepper(bundles / name, motion(name, k))
+    out = np.zeros((gen.chunk, gen.accel_dim))
+    gen.step_into(None, out)
+    gen.step_into(gen._x0.copy(), out)  # the core's first chunk, taken over
+    seen = []
+    for side in ("decode_p", "decode_m", "decode2"):
+        bound = getattr(gen._fast, side)
+
+        def counting(bound=bound, side=side) -> None:  # noqa: ANN001
+            seen.append(side)
+            bound()
+        setattr(gen._fast, side, counting)
+    gen.prepare()
+    gen.prepare()
+    assert seen == ["decode_p"] and gen._fast.prepared == 2
+    gen.step_into(gen._x0.copy(), out)
+    assert seen == ["decode_p", "decode_m"] and gen._fast.prepared == -1
+    gen.step_into(gen._x0.copy(), out)  # not prepared: both windows in one run
+    assert seen == ["decode_p", "decode_m", "decode2"]
 
 
 def test_without_the_one_sample_graph_the_chunk_is_predicted_at_its_boundary(bundles):

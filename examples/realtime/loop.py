@@ -8,6 +8,8 @@ What makes the loop's calls short and steady:
 
 * ``OnnxStepper.step_into(measured, out)``: the stepper's buffers and bound onnxruntime sessions (one thread), no
   array made per call; ``measured`` a float64 ``(1, S)`` array filled in place, ``out`` a ``(C, d)`` one;
+* ``gen.prepare()`` once the command went out: the next call's work that no measurement changes (the predicted
+  window's decoder run), done while the loop waits, so the next call holds one decoder run;
 * absolute deadlines ``start + i · 1 ms``: a late period is not made up for by shifting the rest;
 * ``realtime()``: one core (``os.sched_setaffinity``), ``SCHED_FIFO`` where permitted, a 1 µs timer slack, the
   garbage collector frozen and off for the loop (reference counting still frees everything).
@@ -43,6 +45,7 @@ def main() -> None:
     x = gen._x0.copy()
     periods = int(args.seconds * 1000)
     took, late = np.zeros(periods, dtype=np.int64), np.zeros(periods, dtype=np.int64)
+    prepared = np.zeros(periods, dtype=np.int64)
     gen.step_into(None, out)  # the first chunk, before the loop
     with realtime(cpu=-1 if args.rt else None, fifo=args.rt) as setup:
         clock, period = time.perf_counter_ns, 1_000_000
@@ -57,7 +60,9 @@ def main() -> None:
             measured[...] = x
             begin = clock()
             gen.step_into(measured, out)
-            took[i], late[i] = clock() - begin, woke - deadline
+            sent = clock()  # here a robot's loop sends out[0]
+            gen.prepare()
+            took[i], late[i], prepared[i] = sent - begin, woke - deadline, clock() - sent
             if gen.done or gen.time > k + gen.chunk:  # stopped: the next motion
                 gen.reset()
                 x = gen._x0.copy()
@@ -65,7 +70,8 @@ def main() -> None:
     print(setup.describe())
     call, wake = percentiles(took), percentiles(np.maximum(late, 0))
     print(f"{periods} periods: {int(np.count_nonzero(late > 100_000))} woke more than 100 µs late")
-    for name, s in (("wake-up lateness", wake), ("step_into", call)):
+    for name, s in (("wake-up lateness", wake), ("step_into", call), ("prepare (after the command)",
+                                                                      percentiles(prepared))):
         print(f"{name}: p50 {s['p50_us']:.1f}  p99 {s['p99_us']:.1f}  p99.9 {s['p99.9_us']:.1f}  "
               f"max {s['max_us']:.1f} µs")
 

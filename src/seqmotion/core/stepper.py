@@ -60,6 +60,12 @@ cross a chunk boundary: a chunk's last output is always the last row returned).
   their units) nor mapped by ``outputs_for`` has ``stop.outputs`` null: its stepper is refused (it
   could not stop the robot).
 
+**prepare().** Optional, between calls: the work of the next call that no measurement changes,
+done now — a control loop calls it after its command went out, while it waits for the next period,
+so the next call (one measured state between boundaries) holds one decoder run instead of two. The
+outputs are the same, bit for bit, whether it is called or not. ``OnnxStepper`` prepares the
+predicted window's decoder run; the PyTorch generator has nothing to prepare.
+
 **set_latent(z, restart=False, length=None).** Replay (default): takes effect at the next chunk
 boundary; the decoder state there becomes the one it would have had with ``z`` from the start, fed
 the same measured chunks (c = z, h = 0, x0 repeated C times, then the measured chunks); the clock
@@ -517,6 +523,10 @@ class StepperCore:
         self._next_state, self._z = state, z
         if length is not None:
             self._length = length
+
+    def prepare(self) -> None:
+        """The next call's work that no measurement changes, done now (module docstring, "prepare()"): nothing
+        here; a backend with such work (``OnnxStepper``) overrides it."""
 
     def step(self, measured: object | None = None) -> np.ndarray:
         """The next outputs (see the module docstring): ``(m, d)``, or ``(B, m, d)`` for a batch, 1 ≤ m ≤ C."""

@@ -77,8 +77,6 @@ MODEL_H = """\
  *   {p}_decoder_step: h, c (L*H floats, layer-major: layer l's cells at l*H) and window (C states) -> h_out,
  *       c_out and accel (the next C outputs). The first step of a motion reads c = z (the latent), h = 0 and x0
  *       repeated C times (see {p}_generator.h).
- *   {p}_decoder_step2: the same for two trajectories at once (h, c: L*2*H, [layer][trajectory][cell];
- *       window: 2*C states; accel: 2*C outputs), the weights read once for both.
  *   {p}_dynamics: x (S) and accel (C outputs) at physics (P values, {physics_doc}) -> states (the C states
  *       that follow x).
 {extra_doc} *
@@ -136,9 +134,13 @@ GENERATOR_H = """\
  *   n = {p}_generator_step(&g, NULL, 0, out);                  first call: out[0..C-1], the first chunk
  *   n = {p}_generator_step(&g, measured, m, out);              later: the m >= 1 states measured since (at
  *                                                              most as many as the last call returned)
+ *   {p}_generator_prepare(&g);                                 optional, once the command went out: the next
+ *                                                              call's work that no measurement changes
  * Each call writes n outputs (1..C, n*d doubles) into out, from the sample after the latest measured state to
  * the end of its chunk: at a chunk boundary one decoder step on the chunk just measured; between boundaries
- * (replan) the plan corrected by the decoder's response to what was measured (two decoder steps); from sample
+ * (replan) the plan corrected by the decoder's response to what was measured against what the plan predicted
+ * (two decoder steps: the predicted window's one is what {p}_generator_prepare makes ahead of the call, so a call
+ * after it holds one; the outputs are the same either way); from sample
  * K-1 on, the stop (a deceleration of the velocity columns within the contract's limits that keeps the
  * constraint, then a hold). A negative n is an error and changes nothing: {P}_ERR_*.
  * {p}_rollout: generate, the decoder in closed loop through the dynamics, from a latent (what PyTorch's
@@ -164,8 +166,9 @@ typedef struct {p}_generator {{
     float z[{P}_LATENT_DIM];
     float h[{P}_LATENT_DIM], c[{P}_LATENT_DIM];            /* the decoder state at the chunk's boundary */
     float h_next[{P}_LATENT_DIM], c_next[{P}_LATENT_DIM];  /* after the chunk's step */
-    float h2[2 * {P}_LATENT_DIM], c2[2 * {P}_LATENT_DIM], h2_out[2 * {P}_LATENT_DIM], c2_out[2 * {P}_LATENT_DIM];
-    float window2[2 * {P}_CHUNK * {P}_STATE_DIM], mean2[2 * {P}_CHUNK * {P}_ACCEL_DIM];
+    float h_scratch[{P}_LATENT_DIM], c_scratch[{P}_LATENT_DIM];
+    float window_m[{P}_CHUNK * {P}_STATE_DIM], mean_m[{P}_CHUNK * {P}_ACCEL_DIM];  /* the measured window's step */
+    float window_p[{P}_CHUNK * {P}_STATE_DIM], mean_p[{P}_CHUNK * {P}_ACCEL_DIM];  /* the predicted window's */
     float window_f[{P}_CHUNK * {P}_STATE_DIM];
     float mean_f[{P}_CHUNK * {P}_ACCEL_DIM];
     double window[{P}_CHUNK * {P}_STATE_DIM];    /* the chunk's decoder window */
@@ -179,6 +182,7 @@ typedef struct {p}_generator {{
     float v_states[({P}_CHUNK + 1) * {P}_STATE_DIM], v_accel[{P}_CHUNK * {P}_ACCEL_DIM], v_out[{P}_CHUNK];
     long t, origin, length;
     int available, started, planned, replan;
+    int prepared;  /* the position whose predicted window's step is in mean_p (-1: none) */
 }} {p}_generator;
 
 int {p}_generator_start({p}_generator *g, const float *z, const double *x0, long length, const double *physics,
@@ -186,6 +190,7 @@ int {p}_generator_start({p}_generator *g, const float *z, const double *x0, long
 void {p}_generator_reset({p}_generator *g);
 unsigned long {p}_generator_size(void);  /* sizeof({p}_generator), for a caller that allocates it by size */
 int {p}_generator_step({p}_generator *g, const double *measured, int count, double *out);
+void {p}_generator_prepare({p}_generator *g);
 int {p}_rollout(const float *z, const double *x0, long length, const double *physics, double *states,
                 double *accel);
 
@@ -249,6 +254,7 @@ void {p}_generator_reset({p}_generator *g)
 {{
     g->t = g->origin = 0;
     g->started = g->available = g->planned = 0;
+    g->prepared = -1;
     memcpy(g->latest, g->x0, sizeof g->latest);
     memset(g->h_next, 0, sizeof g->h_next);  /* h = 0, c = z */
     memcpy(g->c_next, g->z, sizeof g->c_next);
@@ -356,6 +362,26 @@ static void stop({p}_generator *g, const double *x, int n, double *out)
 #endif
 }}
 
+static void prepare_at({p}_generator *g, int j)
+{{
+    /* what the correction at position j reads that no measurement changes: pi(W_pred) */
+    for (int i = 0; i < (CH - j) * SD; ++i) g->window_p[i] = (float)g->window[j * SD + i];
+    for (int i = 0; i < j * SD; ++i) g->window_p[(CH - j) * SD + i] = (float)g->pred[i];
+    {p}_decoder_step(g->h, g->c, g->window_p, g->h_scratch, g->c_scratch, g->mean_p);
+    g->prepared = j;
+}}
+
+void {p}_generator_prepare({p}_generator *g)
+{{
+    /* the next call's correction (one measured state, between boundaries, in the motion) prepared now */
+    const long tau = g->t - g->origin + 1;
+    const int j = (int)(tau % CH);
+    long left = g->length - 1 - (tau - j);
+    if (left > CH) left = CH;
+    if (!g->started || !g->replan || !g->planned || j == 0 || left - j <= 0 || g->prepared == j) return;
+    prepare_at(g, j);
+}}
+
 static int emit({p}_generator *g, double *out)
 {{
     const long tau = g->t - g->origin;
@@ -370,16 +396,14 @@ static int emit({p}_generator *g, double *out)
         memcpy(out, g->plan + j * AD, (size_t)motion * AD * sizeof(double));
         if (j > 0 && g->replan) {{
             /* u += pi(W_meas) - pi(W_pred): the chunk's step re-run from its boundary's state on the window with
-             * the states measured since and on the same window with the plan's predicted states, in one run */
-            float *meas = g->window2, *pred = g->window2 + CH * SD;
-            for (int i = 0; i < (CH - j) * SD; ++i) meas[i] = pred[i] = (float)g->window[j * SD + i];
-            for (int i = 0; i < j * SD; ++i) {{
-                meas[(CH - j) * SD + i] = (float)g->measured[i];
-                pred[(CH - j) * SD + i] = (float)g->pred[i];
-            }}
-            {p}_decoder_step2(g->h2, g->c2, g->window2, g->h2_out, g->c2_out, g->mean2);
+             * the states measured since, and on the same window with the plan's predicted states (prepared) */
+            if (g->prepared != j) prepare_at(g, j);
+            g->prepared = -1;
+            for (int i = 0; i < (CH - j) * SD; ++i) g->window_m[i] = (float)g->window[j * SD + i];
+            for (int i = 0; i < j * SD; ++i) g->window_m[(CH - j) * SD + i] = (float)g->measured[i];
+            {p}_decoder_step(g->h, g->c, g->window_m, g->h_scratch, g->c_scratch, g->mean_m);
             for (int i = 0; i < motion * AD; ++i)
-                out[i] = out[i] + ((double)g->mean2[i] - (double)g->mean2[CH * AD + i]);
+                out[i] = out[i] + ((double)g->mean_m[i] - (double)g->mean_p[i]);
         }}
     }}
     if (total > motion) {{
@@ -401,6 +425,7 @@ static int emit({p}_generator *g, double *out)
 static int boundary({p}_generator *g, double *out)
 {{
     const long tau = g->t - g->origin;
+    g->prepared = -1;
     if (tau < g->length - 1) {{
         if (tau == 0)
             for (int r = 0; r < CH; ++r) memcpy(g->window + r * SD, g->latest, sizeof g->latest);
@@ -408,11 +433,6 @@ static int boundary({p}_generator *g, double *out)
             memcpy(g->window, g->measured, sizeof g->window);
         memcpy(g->h, g->h_next, sizeof g->h);
         memcpy(g->c, g->c_next, sizeof g->c);
-        for (int l = 0; l < {P}_LAYERS; ++l)  /* the state repeated for the correction's two windows */
-            for (int r = 0; r < 2; ++r) {{
-                memcpy(g->h2 + (2 * l + r) * {P}_HIDDEN, g->h + l * {P}_HIDDEN, {P}_HIDDEN * sizeof(float));
-                memcpy(g->c2 + (2 * l + r) * {P}_HIDDEN, g->c + l * {P}_HIDDEN, {P}_HIDDEN * sizeof(float));
-            }}
         decode(g->h, g->c, g->window, CH, g->window, g->h_next, g->c_next, g->window_f, g->mean_f);
         for (int i = 0; i < CH * AD; ++i) g->plan[i] = (double)g->mean_f[i];
         {p}_dynamics(g->latest, g->plan, g->physics, g->pred);
@@ -565,13 +585,6 @@ def export_c(model: Any, out: str | Path, *, prefix: str = "seqmotion", physics:
         [("h_out", "h_out"), ("c_out", "c_out"), ("accel", "accel")],
         {"h": rng.standard_normal(state).astype(np.float32), "c": rng.standard_normal(state).astype(np.float32),
          "window": rng.standard_normal((1, c, s)).astype(np.float32)}).emit()
-    state2 = (layers, 2, hidden)  # the replanning correction's two windows in one run (weights read once)
-    functions["decoder_step2"] = Emitter(
-        statics, f"{prefix}_decoder_step2", decoder,
-        [("h", "h", state2, F32), ("c", "c", state2, F32), ("window", "window", (2, c, s), F32)],
-        [("h_out", "h_out"), ("c_out", "c_out"), ("accel", "accel")],
-        {"h": rng.standard_normal(state2).astype(np.float32), "c": rng.standard_normal(state2).astype(np.float32),
-         "window": rng.standard_normal((2, c, s)).astype(np.float32)}).emit()
     rollout = {"x": rng.standard_normal((1, s)), "accel": rng.standard_normal((1, c, d)), "physics": vector}
     rollout_inputs = [("x", "x", (1, s), F64), ("accel", "accel", (1, c, d), F64),
                       ("physics", "physics", (max(len(inputs), 1),), F64)]

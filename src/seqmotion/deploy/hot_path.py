@@ -4,8 +4,9 @@ the stop on buffers too (:class:`StopPlan`), for :class:`~seqmotion.deploy.onnx_
 The sessions are bound to preallocated arrays (onnxruntime's I/O binding, one thread), the decoder's windows are
 slices of a history of states, and the plan's states are predicted one per call (closed form, or the bundle's
 ``dynamics_sample.onnx``): a chunk boundary costs one decoder run, like any call, and no call makes a NumPy array or
-a Python container. Its outputs are the shared code's (:mod:`seqmotion.core.stepper`), bit for bit. Shipped in every
-ONNX bundle beside ``onnx_stepper.py``.
+a Python container. What the next call needs that no measurement changes (the predicted window's decoder run)
+can be made between calls (``OnnxStepper.prepare``), so a call holds one decoder run. Its outputs are the shared
+code's (:mod:`seqmotion.core.stepper`), bit for bit. Shipped in every ONNX bundle beside ``onnx_stepper.py``.
 """
 
 from __future__ import annotations
@@ -246,7 +247,9 @@ class FastPath:
     boundary inside the motion, and past its end (the stop), with every array made once.
 
     * The decoder runs through bound sessions (:class:`Bound`): at a boundary at B = 1 from one of two state
-      buffers into the other (they take turns), between boundaries at B = 2 (W_meas and W_pred in one run).
+      buffers into the other (they take turns); between boundaries on W_meas and W_pred from the boundary's state,
+      in one run at B = 2. W_pred's run needs no measurement: :meth:`prepare` makes it at B = 1 (and the predicted
+      states it reads) before the call, after the loop sent its command; the call then runs W_meas alone at B = 1.
     * The windows are slices of two histories of 2C states (float32): the chunk's window, then the states measured
       (resp. predicted) in the chunk, so W_meas at position j is ``measured_history[j:j+C]``.
     * The plan's predicted states are computed one per call, as the correction needs them (row j−1 at position j),
@@ -272,12 +275,24 @@ class FastPath:
         self.decode1 = [Bound(m, key, m.decoder, {"h": self.ping[i][0], "c": self.ping[i][1], "window": window},
                                {"h_out": self.ping[1 - i][0], "c_out": self.ping[1 - i][1], "accel": self.accel1})
                         for i in (0, 1)]
+        # the replanning correction: the decoder's step from the chunk's boundary state on the measured window and
+        # on the predicted one: both in one run at B = 2 (the weights read once), or, where prepare ran the
+        # predicted one at B = 1 ahead of the call, the measured one at B = 1 (rows of a B = 2 run bit for bit)
         self.h2, self.c2 = np.zeros((layers, 2, hidden), F32), np.zeros((layers, 2, hidden), F32)
         self.window2 = np.zeros((2, c, s), F32)
         self.accel2 = np.zeros((2, c, d), F32)
         self.decode2 = Bound(m, key, m.decoder, {"h": self.h2, "c": self.c2, "window": self.window2},
                               {"h_out": np.zeros_like(self.h2), "c_out": np.zeros_like(self.c2),
                                "accel": self.accel2})
+        self.h1, self.c1 = np.zeros(state, F32), np.zeros(state, F32)
+        scratch = {"h_out": np.zeros(state, F32), "c_out": np.zeros(state, F32)}
+        self.window_in_m, self.window_in_p = np.zeros((1, c, s), F32), np.zeros((1, c, s), F32)
+        self.accel_m, self.accel_p = np.zeros((1, c, d), F32), np.zeros((1, c, d), F32)
+        self.decode_m = Bound(m, key, m.decoder, {"h": self.h1, "c": self.c1, "window": self.window_in_m},
+                              {**scratch, "accel": self.accel_m})
+        self.decode_p = Bound(m, key, m.decoder, {"h": self.h1, "c": self.c1, "window": self.window_in_p},
+                              {**scratch, "accel": self.accel_p})
+        self.prepared = -1  # the position whose predicted window's response is in accel_p64 (-1: none)
         self.plan = np.zeros((1, c, d))
         self.pred = np.zeros((1, c, s))
         self.start = np.zeros((1, s))  # the state at the chunk's boundary, where its prediction starts
@@ -316,12 +331,15 @@ class FastPath:
         self.plan_row = [self.plan[0, p:p + 1] for p in range(c)]
         self.plan_tail = [self.plan[0, p:] for p in range(c)]
         self.accel2_64 = np.zeros((2, c, d))
-        self.accel2_m = [self.accel2_64[0, :k] for k in range(c + 1)]
-        self.accel2_p = [self.accel2_64[1, :k] for k in range(c + 1)]
+        self.accel_m64, self.accel_p64 = self.accel2_64[0], self.accel2_64[1]
+        self.accel_m_head = [self.accel_m64[:k] for k in range(c + 1)]
+        self.accel_p_head = [self.accel_p64[:k] for k in range(c + 1)]
         self.plan0 = self.plan[0]
         self.accel1_finite = Finite(self.accel1)
         self.max_abs = np.array(MAX_ABS_STATE)
         self.window2_m, self.window2_p = self.window2[0], self.window2[1]
+        self.window_in_m0, self.window_in_p0 = self.window_in_m[0], self.window_in_p[0]
+        self.accel_m0, self.accel_p0 = self.accel_m[0], self.accel_p[0]
         self.heads: tuple[np.ndarray, list[np.ndarray]] = (self.out, [self.out[:k] for k in range(c + 1)])
         self.finite = np.zeros((c, d), dtype=bool)
         self.finite_head = [self.finite[:k] for k in range(c + 1)]
@@ -407,6 +425,7 @@ class FastPath:
     def begin_prediction(self, start: np.ndarray) -> None:
         np.copyto(self.start, start)
         self.predicted = 0
+        self.prepared = -1
         if self.closed:
             self.s1.fill(0.0)
             self.s2.fill(0.0)
@@ -492,17 +511,48 @@ class FastPath:
 
     def correct(self, j: int, k: int, head: np.ndarray) -> None:
         """The plan's rows j..j+k corrected by the decoder's response to the measured window against the
-        predicted one (one decoder run at B = 2), into ``head`` ``(k, d)``; without replanning the plan's rows."""
+        predicted one, into ``head`` ``(k, d)``; without replanning the plan's rows. Where a ``prepare`` made the
+        predicted window's response for this position (:meth:`prepare_at`), one decoder run at B = 1 on the
+        measured window; otherwise both windows in one run at B = 2."""
         if self.gen.replan:
-            self.predict(j)
-            np.copyto(self.window2_m, self.window_m[j])
-            np.copyto(self.window2_p, self.window_p[j])
-            self.decode2()
-            np.copyto(self.accel2_64, self.accel2)  # in float64, as the core subtracts
-            np.subtract(self.accel2_m[k], self.accel2_p[k], out=head)
+            if self.prepared == j:
+                np.copyto(self.window_in_m0, self.window_m[j])
+                self.decode_m()
+                np.copyto(self.accel_m64, self.accel_m0)  # in float64, as the core subtracts
+            else:
+                self.predict(j)
+                np.copyto(self.window2_m, self.window_m[j])
+                np.copyto(self.window2_p, self.window_p[j])
+                self.decode2()
+                np.copyto(self.accel2_64, self.accel2)
+            self.prepared = -1
+            np.subtract(self.accel_m_head[k], self.accel_p_head[k], out=head)
             np.add(self.plan_tail_k(j, k), head, out=head)
         else:
             np.copyto(head, self.plan_tail_k(j, k))
+
+    def prepare_at(self, j: int) -> None:
+        """What the correction at position j needs that no measurement changes: the plan's predicted states up to
+        row j−1 and the decoder's response to the window they make."""
+        self.predict(j)
+        np.copyto(self.window_in_p0, self.window_p[j])
+        self.decode_p()
+        np.copyto(self.accel_p64, self.accel_p0)
+        self.prepared = j
+
+    def prepare(self) -> None:
+        """Before the next call, if it is one measured state between boundaries of a chunk planned here (the
+        control loop's ``prepare`` after its command went out): that call's :meth:`prepare_at`, so the call holds
+        one decoder run. Anything else (a boundary next, the stop, no replanning) has nothing to prepare."""
+        gen = self.gen
+        if not (gen.replan and (self.active or self.final)):
+            return
+        c = self.c
+        tau = gen._t - gen._origin + 1  # the next call's, one state measured
+        j = tau % c
+        if j == 0 or self.prepared == j or min(c, gen._length - 1 - (tau - j)) - j <= 0:
+            return
+        self.prepare_at(j)
 
     def plan_tail_k(self, j: int, k: int) -> np.ndarray:
         return self.plan_tail[j] if j + k == self.c else self.plan[0, j:j + k]
@@ -527,6 +577,8 @@ class FastPath:
         refuse_nan(run.where, self.accel1_finite)
         np.copyto(self.plan, self.accel1)
         gen._state, gen._next_state = current, following
+        np.copyto(self.h1, current[0])
+        np.copyto(self.c1, current[1])
         np.copyto(self.h2, current[0])  # (L, 1, H) into both rows of (L, 2, H)
         np.copyto(self.c2, current[1])
         np.copyto(self.window_m[0], self.row_block_m)  # the chunk just measured is the next window
@@ -562,6 +614,7 @@ class FastPath:
         run here (its plan, predicted states, window and state copied in where the core made them)."""
         gen, c = self.gen, self.c
         self.active = self.final = False
+        self.prepared = -1
         if gen._plan is None or gen._pred is None or gen._window is None:
             return
         tau = gen._t - gen._origin
@@ -570,6 +623,8 @@ class FastPath:
             np.copyto(self.pred, gen._pred)
             np.copyto(self.window_m[0], gen._window[0])
             np.copyto(self.window_p[0], gen._window[0])
+            np.copyto(self.h1, gen._state[0])
+            np.copyto(self.c1, gen._state[1])
             np.copyto(self.h2, gen._state[0])
             np.copyto(self.c2, gen._state[1])
             for i in range(c):

@@ -494,6 +494,12 @@ class OnnxStepper(StepperCore):
         out[..., :n, :] = u
         return n
 
+    def prepare(self) -> None:
+        """Between calls (after the control loop sent its command): the next call's predicted window and its
+        decoder run, so that call holds one decoder run (``stepper.py``, "prepare()"); same outputs either way."""
+        if self._fast is not None and self._started:
+            self._fast.prepare()
+
     def _fast_call(self, measured: object, out: np.ndarray) -> int:
         """One call on the buffers (class docstring) writing into ``out``; -1 where the call is the core's (nothing
         changed then)."""

@@ -171,6 +171,7 @@ class LoopReport:
     kinds: list[str]
     overruns: int
     late_us: float = LATE_US
+    after_ns: np.ndarray | None = None  # the work after each call (``after``: the stepper's prepare), if any
 
     def stats(self) -> dict[str, Any]:
         kinds = np.asarray(self.kinds)
@@ -183,6 +184,11 @@ class LoopReport:
         for kind in sorted(set(self.kinds)):
             if kind:
                 out[kind] = percentiles(self.call_ns[kinds == kind])
+        if self.after_ns is not None:
+            out["after"] = percentiles(self.after_ns)
+            for kind in sorted(set(self.kinds)):
+                if kind:
+                    out[f"after {kind}"] = percentiles(self.after_ns[kinds == kind])
         return out
 
     def summary(self) -> str:
@@ -195,16 +201,21 @@ class LoopReport:
                  f"{s['late_threshold_us']:.0f} µs late, {s['overruns']} overran the next deadline",
                  line("wake-up lateness", s["wake_late"]), line("call", s["call"])]
         lines += [line(f"  {kind}", s[kind]) for kind in sorted(set(self.kinds)) if kind]
+        if "after" in s:
+            lines.append(line("after the call (prepare, off the command's path)", s["after"]))
         return "\n".join(lines)
 
 
 def paced(step: Callable[[int], str | None], calls: int, period: float = 1e-3,
-          between: Callable[[int], Any] | None = None, spin: float = 0.0) -> LoopReport:
+          between: Callable[[int], Any] | None = None, spin: float = 0.0,
+          after: Callable[[int], Any] | None = None) -> LoopReport:
     """Call ``step(i)`` for i = 0..calls-1 at absolute deadlines ``start + i · period`` (module docstring); ``step``
-    may return the kind of its call (a name the report groups by). ``between(i)``, if given, runs after call i,
-    untimed (a simulated robot taking the outputs). ``spin`` [s]: the last part of each wait is a busy wait
-    instead of a sleep (``spin = period``: never sleep): a core kept busy wakes on time and keeps the model's
-    weights in its caches, at the price of the whole core (on a robot, the core the loop is pinned to).
+    may return the kind of its call (a name the report groups by). ``after(i)``, if given, runs right after call i
+    and is timed apart (the work a loop does once its command went out: the stepper's ``prepare``);
+    ``between(i)`` then runs untimed (a simulated robot taking the outputs). ``spin`` [s]: the last part of each
+    wait is a busy wait instead of a sleep (``spin = period``: never sleep): a core kept busy wakes on time and
+    keeps the model's weights in its caches, at the price of the whole core (on a robot, the core the loop is
+    pinned to).
 
     Raises:
         ValueError: ``calls`` < 1 or ``period`` not > 0.
@@ -214,6 +225,7 @@ def paced(step: Callable[[int], str | None], calls: int, period: float = 1e-3,
     calls, period_ns, spin_ns = int(calls), int(round(period * 1e9)), int(round(max(spin, 0.0) * 1e9))
     wake = np.zeros(calls, dtype=np.int64)
     took = np.zeros(calls, dtype=np.int64)
+    after_took = np.zeros(calls, dtype=np.int64) if after is not None else None
     kinds = [""] * calls
     clock, sleep = time.perf_counter_ns, time.sleep
     overruns = 0
@@ -230,11 +242,14 @@ def paced(step: Callable[[int], str | None], calls: int, period: float = 1e-3,
         end = clock()
         wake[i], took[i] = begin - deadline, end - begin
         kinds[i] = kind or ""
+        if after_took is not None:
+            after(i)
+            after_took[i] = clock() - end
         if between is not None:
             between(i)
         if clock() > deadline + period_ns:
             overruns += 1
-    return LoopReport(period, wake, took, kinds, overruns)
+    return LoopReport(period, wake, took, kinds, overruns, after_ns=after_took)
 
 
 def trivial_call() -> Callable[[], None]:
@@ -283,14 +298,16 @@ def simulated_robot(model: Any, physics: np.ndarray | None = None) -> Callable[[
 
 
 def bench_stepper(model: Any, inputs: np.ndarray, calls: int, period: float = 1e-3, *, noise: float = 1e-5,
-                  seed: int = 0, buffers: bool = True) -> LoopReport:
+                  seed: int = 0, buffers: bool = True, prepare: bool = True) -> LoopReport:
     """``calls`` control-loop calls of an :class:`~seqmotion.deploy.onnx_stepper.OnnxStepper` on ``model`` (an
     ``OnnxModel``) for the motion ``inputs``, paced at ``period``, one measured state per call (the robot:
     :func:`simulated_robot`, untimed, with measurement noise), motion after motion (each run into its stop for
     half a chunk, then the stepper is reset). Calls are named by kind: ``boundary`` (a chunk boundary inside the
     motion), ``between`` (between boundaries), ``final_chunk`` (the chunk where the motion ends: the stop is
-    planned too), ``stop`` (past the end); the first call of each motion is not timed. ``buffers=False``: every
-    call through the shared ``StepperCore`` code (the general path every call took before)."""
+    planned too), ``stop`` (past the end); the first call of each motion is not timed. ``prepare``: the stepper's
+    ``prepare()`` after each call, timed apart (``LoopReport.after_ns``), as a loop runs it once its command went
+    out. ``buffers=False``: every call through the shared ``StepperCore`` code (the general path every call took
+    before)."""
     from .onnx_stepper import OnnxStepper
 
     gen = OnnxStepper(model, inputs)
@@ -323,7 +340,7 @@ def bench_stepper(model: Any, inputs: np.ndarray, calls: int, period: float = 1e
         if t // c == last:  # the outputs of the chunk in which the motion ends (its boundary's call too)
             return "final_chunk"
         return "boundary" if t % c == 0 else "between"
-    return paced(step, calls, period, between)
+    return paced(step, calls, period, between, after=(lambda _: gen.prepare()) if prepare else None)
 
 
 __all__ = ["LATE_US", "LoopReport", "Setup", "bench_stepper", "paced", "percentiles", "realtime", "simulated_robot",
