@@ -5,7 +5,7 @@ before and after latent updates with the limits as an objective (ch. 4's externa
                                           [--out benchmarks/results_arm_latent.json]
 
 For each sketch (the README-style turns and the task generator's inputs of ``bench_robot_limits.py``, at their own
-lengths) the learned motion ``deform(sketch)`` is judged on the robot's planar chain (:func:`seqmotion.latent.arm_limits
+lengths) the learned motion ``deform(sketch)`` is judged on the robot's planar chain (:func:`seqmotion.sim.arm_limits
 .arm_limit_shares`: the worst share of the rated joint speeds, accelerations and torque limits, and how far out of
 reach), then ``optimize_latent(model, sketch, ArmLimits(robot) + EndPose(sketch's end), steps=STEPS)`` (gradient
 descent with a line search) and judged again, with the friction cone's worst violation and how far the end pose moved.
@@ -26,7 +26,7 @@ import numpy as np
 
 import seqmotion as sm
 from seqmotion.io import atomic_write_json
-from seqmotion.latent.arm_limits import ArmLimits, arm_limit_shares
+from seqmotion.sim.arm_limits import ArmLimits, arm_limit_shares
 from seqmotion.training.provenance import machine_description
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -75,8 +75,8 @@ def paper_size_planner():  # noqa: ANN201
 
 def motion_for(model, k: int) -> np.ndarray:  # noqa: ANN001
     if model.task_def.name == "pancake":
-        return sm.data.pancake.straight((0.2, 0.0, 2.5), k)
-    return sm.data.sliding.circle(0.05, k)
+        return sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), k)
+    return sm.tasks.sliding.data.circle(0.05, k)
 
 
 def bench_decoder_step(name: str, model, onnx_model: OnnxModel, steps: int) -> list[dict]:  # noqa: ANN001

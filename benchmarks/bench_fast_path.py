@@ -81,7 +81,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    batch = sm.data.pancake.position_type(args.n, np.random.default_rng(args.seed))
+    batch = sm.tasks.pancake.data.position_type(args.n, np.random.default_rng(args.seed))
     sketches = [batch.states[b, : batch.lengths[b]] for b in range(args.n)]
     sketch_end_speed = np.array([np.linalg.norm(s[-1, 3:5]) for s in sketches])
     print(f"# {args.n} position-type sketches, position_type({args.n}, default_rng({args.seed})); "

@@ -38,10 +38,10 @@ import numpy as np
 import torch
 
 import seqmotion as sm
-from seqmotion.data import pancake as sketches
 from seqmotion.io import atomic_write_json
-from seqmotion.physics import pancake as physics
 from seqmotion.physics.integrator import integrate_numpy, reach_end
+from seqmotion.tasks.pancake import data as sketches
+from seqmotion.tasks.pancake import physics
 from seqmotion.training.provenance import machine_description
 
 
@@ -77,7 +77,7 @@ def distribution(values: list[float]) -> dict:
 
 def readme_polishes(deformer: sm.tasks.TrainedModel, n: int, seed: int) -> dict:
     """IPOPT iterations and seconds of the README's polishes and of ``n`` more like them (see the docstring)."""
-    from seqmotion.latent.cli import default_length
+    from seqmotion.cli import default_length
 
     rng = np.random.default_rng(seed)
     ends = [(0.2, 0.0, 2.5)] + [(rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.1), rng.uniform(-math.pi, math.pi))

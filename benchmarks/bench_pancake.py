@@ -22,7 +22,7 @@ from seqmotion.training.provenance import machine_description
 
 def bench_deform(model: str | None) -> None:
     import seqmotion as sm
-    from seqmotion.data import pancake as inputs
+    from seqmotion.tasks.pancake import data as inputs
 
     deformer = sm.load_pretrained("pancake") if model is None else sm.load(model)
     one = inputs.position_type(1, np.random.default_rng(0), length=500).states[0]

@@ -6,13 +6,13 @@
 
 All at μ = 1, μ' = 0.5 unless the friction grid says otherwise; K samples at dt = 1 ms.
 
-* ``shapes``: a circle (``sm.data.sliding.circle``) of radius 2 and 5 cm, a straight line of
+* ``shapes``: a circle (``sm.tasks.sliding.data.circle``) of radius 2 and 5 cm, a straight line of
   2, 5 and 10 cm, a figure-eight (Gerono lemniscate, half-width 2 and 5 cm), each traversed
   once rest to rest along an S-curve in K samples — K sets the speed. Per command: mean speed
   (path length / duration) [m/s], the object's RMSE [mm], travel share (object path length /
   command path length), reach share (farthest distance from the start, object / command), the
   pan's farthest excursion [m]; and per shape the fastest speed tracked within 5 mm.
-  ``--refine`` adds :func:`seqmotion.latent.sliding.refine_plan` (Adam on the latent, through
+  ``--refine`` adds :func:`seqmotion.tasks.sliding.latent.refine_plan` (Adam on the latent, through
   the contact physics; ``refined+accel``: then Adam on the pan accelerations; ``refined+dither``:
   the same from the plan plus a 1.2 μg, 50 Hz rotating vibration) and its wall time.
 * ``training``: mean speed, peak speed, reach, path length, turning (∫|dθ| along the path) of
@@ -36,9 +36,9 @@ import numpy as np
 import torch
 
 import seqmotion as sm
-from seqmotion.data import sliding as commands
-from seqmotion.latent.sliding import Tracking, refine_plan
 from seqmotion.reproduce.ch3 import FRICTION_GRID, eval_commands, farthest_m, rmse_mm
+from seqmotion.tasks.sliding import data as commands
+from seqmotion.tasks.sliding.latent import Tracking, refine_plan
 from seqmotion.training.provenance import machine_description
 
 DT = 1e-3

@@ -30,7 +30,7 @@ SNIPPETS = {
 import time, statistics
 import seqmotion as sm
 t0 = time.perf_counter(); deformer = sm.load_pretrained("pancake"); load = time.perf_counter() - t0
-sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 500)
+sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500)
 t0 = time.perf_counter(); deformer.deform(sketch); first = time.perf_counter() - t0
 warm = []
 for _ in range(30):
@@ -46,7 +46,7 @@ rng = np.random.default_rng(2027)
 times = []
 for i in range(21):
     end = (rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.1), rng.uniform(-3.0, 3.0))
-    sketch = sm.data.pancake.straight(end, 500)
+    sketch = sm.tasks.pancake.data.straight(end, 500)
     t0 = time.perf_counter(); deformer.deform(sketch, keep_end=True); times.append(time.perf_counter() - t0)
 print({"first_s": times[0], "warm_median_s": statistics.median(times[1:]), "warm_max_s": max(times[1:])})
 """,
@@ -54,7 +54,7 @@ print({"first_s": times[0], "warm_median_s": statistics.median(times[1:]), "warm
 import time
 import seqmotion as sm
 planner = sm.load_pretrained("sliding")
-circle = sm.data.sliding.circle(0.05, 900)
+circle = sm.tasks.sliding.data.circle(0.05, 900)
 t0 = time.perf_counter(); sm.refine_plan(planner, circle); first = time.perf_counter() - t0
 t0 = time.perf_counter(); sm.refine_plan(planner, circle); warm = time.perf_counter() - t0
 print({"first_s": first, "warm_s": warm})

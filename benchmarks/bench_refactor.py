@@ -36,7 +36,7 @@ def median_time(fn, n):
 
 out = {}
 d = sm.load_pretrained("pancake")
-sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 500)
+sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500)
 batch = np.repeat(sketch[None], 128, axis=0)
 out["deform_k500_ms"] = 1000 * median_time(lambda: d.deform(sketch), 50)
 out["deform_batch128_ms"] = 1000 * median_time(lambda: d.deform(batch), 5)
@@ -46,7 +46,7 @@ out["lm_update_ms"] = 1000 * res.seconds_per_update
 res = sm.optimize_latent(d, sketch, target, steps=10)
 out["line_search_update_ms"] = 1000 * res.seconds_per_update
 p = sm.load_pretrained("sliding")
-command = sm.data.sliding.circle(0.05, 1200)
+command = sm.tasks.sliding.data.circle(0.05, 1200)
 out["plan_k1200_ms"] = 1000 * median_time(lambda: p.plan(command), 10)
 
 def train_step(task_name, steps):

@@ -31,9 +31,9 @@ NOMINAL = {"mu": 1.0, "mu_dyn": 0.5}
 def examples() -> dict[str, np.ndarray]:
     """The README's plan commands, ``(K, 4)`` each."""
     return {
-        "line 5 cm, K = 500": sm.data.sliding.line(0.05, 500),
-        "circle 5 cm, K = 900": sm.data.sliding.circle(0.05, 900),
-        "circle 5 cm, K = 1200": sm.data.sliding.circle(0.05, 1200),
+        "line 5 cm, K = 500": sm.tasks.sliding.data.line(0.05, 500),
+        "circle 5 cm, K = 900": sm.tasks.sliding.data.circle(0.05, 900),
+        "circle 5 cm, K = 1200": sm.tasks.sliding.data.circle(0.05, 1200),
     }
 
 

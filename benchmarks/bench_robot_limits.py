@@ -8,7 +8,7 @@ Sets per robot, ``--n`` motions each:
 * **turns**: README-style turn sketches, ``straight((y, z, θ), K)`` with θ ~ U(2, 3) rad, y, z ~ U(−0.2, 0.2) m and
   K ~ U(300, 800) samples (0.3–0.8 s) — :func:`turn_sketches`;
 * **peer**: the whole-arm OCP peer's 20 sketches (``benchmarks/peers/arm_ocp.py``, its seed 0), for the side-by-side;
-* **generator**: the task's own input generator, fresh position-type sketches (``data.pancake.position_type``, the
+* **generator**: the task's own input generator, fresh position-type sketches (``tasks.pancake.data.position_type``, the
   chapter-2 inputs: ends up to ±0.3 m and ±π rad, 0.1–0.5 s).
 
 Each is deformed by the shipped ``pancake`` model with ``deform(sketch, keep_end=True, robot=NAME)``: on an arm whose
@@ -50,13 +50,13 @@ def turn_sketches(n: int, seed: int) -> list[np.ndarray]:
     out = []
     for _ in range(n):
         end = (rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(2.0, 3.0))
-        out.append(sm.data.pancake.straight(end, int(rng.integers(300, 801))))
+        out.append(sm.tasks.pancake.data.straight(end, int(rng.integers(300, 801))))
     return out
 
 
 def generator_sketches(n: int, seed: int) -> list[np.ndarray]:
     """``n`` fresh position-type sketches of the chapter-2 input generator, each cut to its own length."""
-    batch = sm.data.pancake.position_type(n, np.random.default_rng(seed))
+    batch = sm.tasks.pancake.data.position_type(n, np.random.default_rng(seed))
     return [batch.states[i, : int(batch.lengths[i])] for i in range(n)]
 
 

@@ -24,8 +24,8 @@ import numpy as np
 import torch
 
 import seqmotion as sm
-from seqmotion.data import pancake as sketches
 from seqmotion.io import atomic_write_json
+from seqmotion.tasks.pancake import data as sketches
 from seqmotion.training.provenance import machine_description
 
 

@@ -24,11 +24,11 @@ import time
 
 import numpy as np
 
-from seqmotion.data.pancake import acceleration_type
-from seqmotion.physics.pancake import violation
 from seqmotion.sim import GAP_LIMIT, SLIP_LIMIT, run_pancake, run_sliding, workspace_problem
 from seqmotion.sim.kinematics import planar_reference
 from seqmotion.sim.motions import pan_circle, pan_ramp, still
+from seqmotion.tasks.pancake.data import acceleration_type
+from seqmotion.tasks.pancake.physics import violation
 from seqmotion.training.provenance import machine_record
 
 MU_G = 0.5 * 9.8

@@ -20,7 +20,7 @@ import numpy as np
 
 import seqmotion as sm
 from seqmotion import sim
-from seqmotion.data import pancake as inputs
+from seqmotion.tasks.pancake import data as inputs
 from seqmotion.training.provenance import machine_description
 
 

@@ -3,7 +3,7 @@
     python benchmarks/bench_sliding_physics.py physics [--repeats N] [--device cuda]   # contact model alone
     python benchmarks/bench_sliding_physics.py train [--repeats N] [--device cuda]     # a whole training step
 
-``physics``: forward and forward+backward of :func:`seqmotion.physics.sliding.contact_chunk` on one
+``physics``: forward and forward+backward of :func:`seqmotion.tasks.sliding.physics.contact_chunk` on one
 decoder chunk (C = 100 samples) of the shipped ``small`` training batch (B = 64, float32 pan
 accelerations as the decoder emits them, per-trajectory friction), for ``numba``, ``torch`` (hand-derived
 backward in torch) and ``torch_autograd`` (the same forward differentiated by autograd), and per
@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from seqmotion import tasks
-from seqmotion.physics import sliding
+from seqmotion.tasks.sliding import physics as sliding
 from seqmotion.training.provenance import machine_description
 from seqmotion.training.trainer import step_loss
 

@@ -34,8 +34,8 @@ import torch
 import seqmotion as sm
 from seqmotion.core import trust
 from seqmotion.core.results import Motion
-from seqmotion.data import pancake as pancake_data
-from seqmotion.data import sliding as sliding_data
+from seqmotion.tasks.pancake import data as pancake_data
+from seqmotion.tasks.sliding import data as sliding_data
 from seqmotion.training.provenance import machine_description
 
 

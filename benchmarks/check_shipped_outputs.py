@@ -24,22 +24,22 @@ SLIDING = ["sliding", "sliding-A-nominal", "sliding-A-velocity", "sliding-B", "s
 def outputs() -> dict[str, np.ndarray]:
     out: dict[str, np.ndarray] = {}
     d = sm.load_pretrained("pancake")
-    sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 500)
+    sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500)
     r = d.deform(sketch)
     out.update({"pancake.states": r.states, "pancake.accel": r.accel, "pancake.violation": r.violation,
                 "pancake.latent": r.latent})
     rng = np.random.default_rng(0)
     ends = [(rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(-3, 3)) for _ in range(4)]
-    out["pancake.batch"] = d.deform(np.stack([sm.data.pancake.straight(e, 300) for e in ends])).states
+    out["pancake.batch"] = d.deform(np.stack([sm.tasks.pancake.data.straight(e, 300) for e in ends])).states
     target = sm.objectives.EndPose((0.1, 0.0, math.pi))
     out["pancake.lm"] = sm.optimize_latent(d, sketch, target, steps=5, optimizer="lm", continuation=(1e-3, 4)).states
     out["pancake.j2"] = sm.optimize_latent(d, sketch, sm.objectives.Ranges(), steps=3).states
     out["pancake.gen0"] = d.generator(sketch).step()
     for name in SLIDING:
         planner = sm.load_pretrained(name)
-        plan = planner.plan(sm.data.sliding.circle(0.05, 1200))
+        plan = planner.plan(sm.tasks.sliding.data.circle(0.05, 1200))
         out[f"{name}.pan"], out[f"{name}.rel"] = plan.pan_states, plan.rel_states
-        out[f"{name}.pan2"] = planner.plan(sm.data.sliding.circle(0.03, 800), mu=0.6, mu_dyn=0.3).pan_states
+        out[f"{name}.pan2"] = planner.plan(sm.tasks.sliding.data.circle(0.03, 800), mu=0.6, mu_dyn=0.3).pan_states
     images = np.random.default_rng(1).uniform(0, 1, (3, 64, 64, 3)).astype(np.float32)
     out["pushing.latent"] = sm.load_pretrained("pushing").latent(images)
     return out

@@ -63,7 +63,8 @@ def npz_declaring(path, shape, key="states"):
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
         archive.writestr(f"{key}.npy", header.getvalue() + bytes(64))
 import seqmotion as sm
-from seqmotion.data import pancake as sketches, sliding as commands
+from seqmotion.tasks.pancake import data as sketches
+from seqmotion.tasks.sliding import data as commands
 """
 
 # round 2: defect number → [(name, snippet)]

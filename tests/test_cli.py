@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from seqmotion.cli import main
-from seqmotion.data import pancake as gen
-from seqmotion.data import sliding as commands
+from seqmotion.tasks.pancake import data as gen
+from seqmotion.tasks.sliding import data as commands
 
 
 @pytest.fixture(scope="module")

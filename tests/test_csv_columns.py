@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from seqmotion.cli import main
-from seqmotion.data import pancake as sketches
 from seqmotion.io import parse_csv, read_trajectory
+from seqmotion.tasks.pancake import data as sketches
 
 NAMES = ("y", "z", "theta", "v_y", "v_z", "v_theta")
 
@@ -63,7 +63,7 @@ def test_deform_reads_a_permuted_header_by_name(tmp_path, capsys):
 
 
 def test_plan_reads_a_permuted_command_header_by_name(tmp_path):
-    from seqmotion.data import sliding as commands
+    from seqmotion.tasks.sliding import data as commands
 
     command = commands.line(0.05, 300)
     write_csv(tmp_path / "c.csv", ["y", "x", "v_y", "v_x"], command[:, [1, 0, 3, 2]])

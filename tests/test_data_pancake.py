@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from seqmotion.data import pancake as gen
 from seqmotion.data.trajectories import s_curve
 from seqmotion.physics import integrator
-from seqmotion.physics import pancake as phys
+from seqmotion.tasks.pancake import data as gen
+from seqmotion.tasks.pancake import physics as phys
 
 
 def valid_violation(batch):

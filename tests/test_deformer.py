@@ -5,10 +5,11 @@ import pytest
 
 import seqmotion as sm
 from seqmotion import tasks
-from seqmotion.data import pancake as gen
-from seqmotion.physics import integrator, pancake
+from seqmotion.physics import integrator
 from seqmotion.tasks import train
 from seqmotion.tasks.pancake import Deformer
+from seqmotion.tasks.pancake import data as gen
+from seqmotion.tasks.pancake import physics as pancake
 
 
 @pytest.fixture(scope="module")

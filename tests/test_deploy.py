@@ -45,8 +45,8 @@ def exported(tmp_path_factory):
 
 def motions(task: str, rng: np.random.Generator, k: int) -> np.ndarray:
     if task == "pancake":
-        return sm.data.pancake.straight((rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(-2, 2)), k)
-    return sm.data.sliding.circle(rng.uniform(0.02, 0.06), k)
+        return sm.tasks.pancake.data.straight((rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(-2, 2)), k)
+    return sm.tasks.sliding.data.circle(rng.uniform(0.02, 0.06), k)
 
 
 def reference(model: TrainedModel, batch: np.ndarray) -> dict[str, np.ndarray | None]:
@@ -126,7 +126,7 @@ def test_the_onnx_stepper_steps_like_the_pytorch_one(exported, name):
 
 def test_the_contract_is_the_steppers(exported):
     contract = json.loads((exported["pancake"] / "contract.json").read_text())
-    gen = sm.load_pretrained("pancake").generator(sm.data.pancake.straight((0.1, 0.0, 0.5), 100))
+    gen = sm.load_pretrained("pancake").generator(sm.tasks.pancake.data.straight((0.1, 0.0, 0.5), 100))
     same = {k: v for k, v in gen.contract().items() if k not in ("length", "batch", "replan")}
     assert {k: contract[k] for k in same} == same
     assert contract["files"]["encoder"] == "encoder.onnx" and contract["opset"] >= 17

@@ -302,7 +302,7 @@ def test_a_bundle_from_before_stop_outputs_still_runs_and_stops_alike(pristine, 
     assert contract["stop"]["outputs"] == "accelerations" and "outputs_for" not in contract["files"]
     del contract["stop"]["outputs"]
     write(pancake, contract)
-    sketch = sm.data.pancake.straight((0.0, 0.1, -0.3), 120)
+    sketch = sm.tasks.pancake.data.straight((0.0, 0.1, -0.3), 120)
     gens = [OnnxStepper(folder, sketch) for folder in (pristine / "pancake", pancake)]
     outputs = [[g.step()] for g in gens]
     x = sketch[:1]

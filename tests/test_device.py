@@ -101,7 +101,7 @@ def test_checkpoint_loads_device_independently(tmp_path):
     train(tiny_config(), tmp_path / "run", progress=False, stop_at_step=2, device="cpu")
     model = sm.load(tmp_path / "run", device="cpu")
     assert model.device == torch.device("cpu")
-    sketch = sm.data.pancake.straight((0.1, 0.0, 1.0), 40)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.0, 1.0), 40)
     plain = sm.load(tmp_path / "run").deform(sketch)
     moved = model.deform(sketch)
     np.testing.assert_array_equal(plain.states, moved.states)
@@ -111,7 +111,7 @@ def test_checkpoint_loads_device_independently(tmp_path):
 
 def test_latent_optimisation_takes_a_device():
     model = sm.load_pretrained("pancake")
-    sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 200)
+    sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 200)
     target = sm.objectives.EndPose((0.1, 0.0, 3.0))
     a = sm.optimize_latent(model, sketch, target, steps=2)
     b = sm.optimize_latent(model, sketch, target, steps=2, device="cpu")
@@ -133,7 +133,7 @@ def test_cuda_training_resumes_on_the_cpu(tmp_path):
 
 @needs_cuda
 def test_cuda_inference_matches_the_cpu():
-    sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 300)
+    sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 300)
     cpu = sm.load_pretrained("pancake").deform(sketch)
     gpu_model = sm.load_pretrained("pancake", device="cuda")
     assert gpu_model.device.type == "cuda"

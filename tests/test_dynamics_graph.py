@@ -98,7 +98,7 @@ def test_the_pancake_graph_is_the_double_integrator_and_reads_no_physics(bundles
             np.testing.assert_allclose(predict(x[:2], long), ref, rtol=1e-12, atol=1e-10)
     through_graph = OnnxModel(bundles / "pancake")
     through_graph.closed_form = None  # what a runner does for dynamics of no closed form
-    motion = sm.data.pancake.straight((0.1, 0.05, 1.0), 180)
+    motion = sm.tasks.pancake.data.straight((0.1, 0.05, 1.0), 180)
     np.testing.assert_allclose(through_graph.generate(motion)["states"], onnx_model.generate(motion)["states"],
                                rtol=0, atol=1e-12)
 
@@ -130,7 +130,7 @@ class _Loop(torch.nn.Module):
         self.dt = dt
 
     def forward(self, v0, neg_u, breaks, decel):  # noqa: ANN001, ANN201
-        from seqmotion.physics.sliding import ContactLoop
+        from seqmotion.tasks.sliding.physics import ContactLoop
 
         return ContactLoop.apply(v0, neg_u, breaks, decel, self.dt)
 
@@ -143,7 +143,7 @@ def test_the_contact_loop_scan_is_the_eager_loop_and_the_kernel_bit_for_bit():
     import onnxruntime as ort
 
     from seqmotion.deploy.export import to_onnx
-    from seqmotion.physics.sliding import GRAVITY, ContactChunk, _breakaway_t, _torch_forward, contact_loop
+    from seqmotion.tasks.sliding.physics import GRAVITY, ContactChunk, _breakaway_t, _torch_forward, contact_loop
 
     rng = np.random.default_rng(7)
     b, c, dt = 48, 60, 0.003
@@ -185,7 +185,7 @@ def test_sliding_generate_and_the_stepper_at_another_friction(sliding_onnx):
     model, onnx_model = sm.load_pretrained("sliding"), sliding_onnx
     physics = model.physics.replace(mu=0.6, mu_dyn=0.3)
     overrides = {"mu": 0.6, "mu_dyn": 0.3}
-    batch = np.stack([sm.data.sliding.circle(r, 260) for r in (0.03, 0.06)])
+    batch = np.stack([sm.tasks.sliding.data.circle(r, 260) for r in (0.03, 0.06)])
     ref, mine = torch_generate(model, batch, physics), onnx_model.generate(batch, physics=overrides)
     branch = torch_step(model, ref["states"][:, 0], ref["accel"][:, :100], physics)["branch"]
     assert {0, 2} <= set(np.unique(branch).tolist())  # the object sticks and slides in these motions
@@ -210,7 +210,7 @@ def test_sliding_generate_and_the_stepper_at_another_friction(sliding_onnx):
 def test_the_int8_runner_closes_the_loop_through_the_same_dynamics(bundles):
     """The pancake's layers are all narrower than 256: its int8 decoder step is the float one, so the int8 runner
     (another decoder session, the same dynamics graph) generates exactly what the float runner does."""
-    motion = sm.data.pancake.straight((0.1, 0.05, 1.0), 180)
+    motion = sm.tasks.pancake.data.straight((0.1, 0.05, 1.0), 180)
     float_run, int8_run = OnnxModel(bundles / "pancake"), OnnxModel(bundles / "pancake", int8=True)
     np.testing.assert_array_equal(int8_run.generate(motion)["states"], float_run.generate(motion)["states"])
 

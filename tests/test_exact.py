@@ -8,14 +8,13 @@ import pytest
 import torch
 
 import seqmotion as sm
-from seqmotion.data import pancake as gen
-from seqmotion.data import sliding as commands
 from seqmotion.latent.objectives import AtRest, EndPose, Ranges
-from seqmotion.latent.pancake import true_j1
 from seqmotion.physics import integrator
-from seqmotion.physics import pancake as physics
 from seqmotion.physics.transcription import casadi
-from seqmotion.tasks.pancake import POLISH_REACH
+from seqmotion.tasks.pancake import POLISH_REACH, physics
+from seqmotion.tasks.pancake import data as gen
+from seqmotion.tasks.pancake.latent import true_j1
+from seqmotion.tasks.sliding import data as commands
 
 HARD_TARGETS = np.array([[0.1, -0.1, math.pi], [-0.1, 0.1, -math.pi], [0.0, 0.1, 0.0]])  # ch. 4's, incl. θ = ±π
 

@@ -65,10 +65,10 @@ def built(tmp_path_factory, spring):
 def inputs(name: str, model, k: int) -> np.ndarray:  # noqa: ANN001
     rng = np.random.default_rng(7)
     if name == "pancake":
-        return np.stack([sm.data.pancake.straight((rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2),
+        return np.stack([sm.tasks.pancake.data.straight((rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2),
                                                    rng.uniform(-2, 2)), k) for _ in range(3)])
     if name == "sliding":
-        return np.stack([sm.data.sliding.circle(rng.uniform(0.02, 0.06), k) for _ in range(3)])
+        return np.stack([sm.tasks.sliding.data.circle(rng.uniform(0.02, 0.06), k) for _ in range(3)])
     from test_dynamics_graph import SPRING, SpringParams
 
     return SPRING.sample(3, rng, SpringParams(0.0), model.options).states[:, :k]

@@ -208,7 +208,7 @@ def test_rollout_skips_ended_trajectories_with_the_same_numbers_within_their_len
     if task_name == "pancake":
         x0, dynamics, prob = states[:, 0], DoubleIntegratorDynamics(3), 0.5
     else:
-        from seqmotion.physics.sliding import SlidingDynamics
+        from seqmotion.tasks.sliding.physics import SlidingDynamics
 
         x0 = torch.zeros(len(batch), 8, dtype=torch.float64)
         x0[:, 4:] = states[:, 0]

@@ -9,8 +9,8 @@ import torch
 
 import seqmotion as sm
 from seqmotion import tasks
-from seqmotion.data import pancake as inputs
 from seqmotion.tasks.pancake import PancakeOptions, chapter2_curriculum
+from seqmotion.tasks.pancake import data as inputs
 from seqmotion.training import checkpoint as ckpt
 from seqmotion.training.trainer import step_loss
 

@@ -23,9 +23,9 @@ from seqmotion.cli import main
 
 @pytest.fixture(scope="module")
 def readme_sketch(tmp_path_factory):
-    """The README's sketch, ``sm.data.pancake.straight((0.2, 0.0, 2.5), 500)``, as the CLI's input."""
+    """The README's sketch, ``sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500)``, as the CLI's input."""
     path = tmp_path_factory.mktemp("sketch") / "sketch.npz"
-    np.savez(path, states=sm.data.pancake.straight((0.2, 0.0, 2.5), 500))
+    np.savez(path, states=sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500))
     return path
 
 
@@ -103,7 +103,7 @@ def test_snapshot_times_are_the_ones_the_arm_renders():
     from seqmotion.sim.pancake import PancakeResult
     from seqmotion.sim.plots import snapshot_steps
 
-    states = sm.data.pancake.straight((0.1, 0.0, 1.0), 300)
+    states = sm.tasks.pancake.data.straight((0.1, 0.0, 1.0), 300)
     ref = planar_reference(states, decel_time=0.1, hold_time=0.5)
     planned = Media.plan(ref, None, "x.png", 6, 30.0, 1.0, "front").snapshot_steps
     n = len(ref)

@@ -20,9 +20,9 @@ import torch
 
 import seqmotion as sm
 from seqmotion.cli import main
-from seqmotion.data import pancake as inputs
-from seqmotion.data import sliding as commands
 from seqmotion.io import parse_csv, read_trajectory, write_arrays
+from seqmotion.tasks.pancake import data as inputs
+from seqmotion.tasks.sliding import data as commands
 from seqmotion.training import checkpoint as ckpt
 
 

@@ -260,7 +260,7 @@ def test_a_graph_that_returns_nan_is_refused_everywhere(pristine, tmp_path):
     folder = copy(pristine, "pancake", tmp_path / "b")
     reseal(folder, decoder_step=nan_decoder(pristine))
     model = OnnxModel(folder)  # a NaN is a value: only running the graph shows it
-    sketch = sm.data.pancake.straight((0.1, 0.0, 2.0), 150)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.0, 2.0), 150)
     for call in (lambda: model.generate(sketch), lambda: model.decode(np.zeros(128), np.zeros(6), 80),
                  lambda: OnnxStepper(model, sketch).step()):
         text = message(call)
@@ -276,7 +276,7 @@ def test_a_graph_that_returns_nan_is_refused_everywhere(pristine, tmp_path):
 
 
 def test_the_shipped_bundles_pass_the_load_checks_and_run_as_before(pristine):
-    for name, motion in (("pancake", np.zeros((120, 6))), ("sliding", sm.data.sliding.line(0.05, 300))):
+    for name, motion in (("pancake", np.zeros((120, 6))), ("sliding", sm.tasks.sliding.data.line(0.05, 300))):
         out = OnnxModel(pristine / name).generate(motion)
         assert np.all(np.isfinite(out["states"])) and np.all(np.isfinite(out["accel"]))
 
@@ -300,7 +300,7 @@ def test_the_standalone_runner_refuses_the_physics_the_package_refuses(pristine,
     assert lines == [f"ValueError: {text}" for text in mine]
     # and both run where the package's physics class runs
     for physics in ({"mu": 0.5, "mu_dyn": 0.5}, {"mu": 1000.0, "mu_dyn": 0.0}, {"mu": 1e-9, "mu_dyn": 0.0}):
-        sm.physics.sliding.SlidingPhysics(**physics)
+        sm.tasks.sliding.physics.SlidingPhysics(**physics)
         OnnxStepper(folder, command, physics=physics)
 
 

@@ -160,7 +160,7 @@ def test_buffers_that_disagree_with_the_config_are_refused(tmp_path, deformer):
 
 def test_the_stop_limit_is_the_scale_the_model_computes_with(deformer):
     """Item 14: what the contract reports is what the network uses (the shipped model agrees with itself)."""
-    limit = deformer.generator(sm.data.pancake.straight((0.1, 0.0, 1.0), 200)).contract()["stop"]["accel_limit"]
+    limit = deformer.generator(sm.tasks.pancake.data.straight((0.1, 0.0, 1.0), 200)).contract()["stop"]["accel_limit"]
     assert limit == pytest.approx(deformer.model.head.scale.tolist())
 
 

@@ -17,8 +17,8 @@ from seqmotion.core import registry
 from seqmotion.core.results import Motion
 from seqmotion.data.trajectories import TrajectoryBatch
 from seqmotion.physics.layout import StateLayout
-from seqmotion.physics.pancake import PancakePhysics
 from seqmotion.tasks.pancake import DeformResult
+from seqmotion.tasks.pancake.physics import PancakePhysics
 
 TRAY = Path(__file__).resolve().parents[1] / "examples" / "tray" / "src"
 

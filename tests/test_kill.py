@@ -42,13 +42,13 @@ import builtins, json, os, signal, sys, time, traceback
 
 import numpy, torch  # imported once, before any fork
 import seqmotion, seqmotion.api, seqmotion.cli, seqmotion.tasks, seqmotion.io.trajectories
-import seqmotion.physics.sliding, seqmotion.training.trainer
+import seqmotion.tasks.sliding.physics, seqmotion.training.trainer
 
 seqmotion.core.registry.names()
 import matplotlib  # warm up what the children would otherwise each import or compile
 matplotlib.use("Agg")
 import matplotlib.pyplot
-seqmotion.physics.sliding.rollout(numpy.zeros((3, 2)))  # compiles (or loads) the numba kernels
+seqmotion.tasks.sliding.physics.rollout(numpy.zeros((3, 2)))  # compiles (or loads) the numba kernels
 try:
     import mujoco, seqmotion.sim.pancake
 except ImportError:
@@ -346,9 +346,9 @@ def test_cli_outputs_survive_kills(server, tmp_path, command):
         pytest.importorskip("mujoco")
     rng = random.Random(f"{SEED}-{command}")
     if command == "plan":
-        old_input, new_input = sm.data.sliding.circle(0.02, 150), sm.data.sliding.circle(0.03, 200)
+        old_input, new_input = sm.tasks.sliding.data.circle(0.02, 150), sm.tasks.sliding.data.circle(0.03, 200)
     else:
-        old_input, new_input = sm.data.pancake.straight((0.02, 0.01, 0.3), 100), sm.data.pancake.straight(
+        old_input, new_input = sm.tasks.pancake.data.straight((0.02, 0.01, 0.3), 100), sm.tasks.pancake.data.straight(
             (0.05, 0.0, 0.6), 120)
     suffix = {"simulate": ".json", "plan": ".csv"}.get(command, ".npz")
     np.savez(tmp_path / "old_in.npz", states=old_input)

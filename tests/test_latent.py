@@ -8,11 +8,11 @@ import torch
 
 import seqmotion as sm
 from seqmotion import tasks
-from seqmotion.data import pancake as gen
-from seqmotion.data import sliding as commands
 from seqmotion.latent.objectives import EndPose, Ranges
 from seqmotion.physics import integrator
 from seqmotion.tasks import train
+from seqmotion.tasks.pancake import data as gen
+from seqmotion.tasks.sliding import data as commands
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import torch
 from seqmotion.data.trajectories import tracking_rmse
 from seqmotion.models.seq2seq import chunks_needed
 from seqmotion.physics import integrator
-from seqmotion.physics.pancake import PancakePhysics, check_mu, cone_half_angle, violation_torch
+from seqmotion.tasks.pancake.physics import PancakePhysics, check_mu, cone_half_angle, violation_torch
 from seqmotion.training.config import Optimization, TrainConfig
 
 

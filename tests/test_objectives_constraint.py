@@ -39,7 +39,7 @@ def _violation(model, res) -> np.ndarray:
 
 
 def test_a_function_objective_keeps_the_tasks_constraint(deformer):
-    sketch = sm.data.pancake.straight((0.1, 0.0, 1.0), 300)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.0, 1.0), 300)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         res = sm.optimize_latent(deformer, sketch, fast_end, steps=10)
@@ -62,7 +62,7 @@ def test_a_function_objective_keeps_the_tasks_constraint(deformer):
 
 
 def test_the_constraint_penalty_is_weighed_or_dropped_on_request_and_never_counted_twice(deformer):
-    sketch = sm.data.pancake.straight((0.1, 0.0, 1.0), 200)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.0, 1.0), 200)
     # weight 0: not penalised (the unconstrained optimum), still reported, and the miss is warned about
     with pytest.warns(RuntimeWarning, match="constraint"):
         free = sm.optimize_latent(deformer, sketch, Function(fast_end) + TaskConstraint(alpha=0), steps=10)
@@ -81,7 +81,7 @@ def test_the_constraint_penalty_is_weighed_or_dropped_on_request_and_never_count
 
 
 def test_case_3_and_batches_carry_the_violation_too(deformer):
-    starts = np.stack([sm.data.pancake.straight(t, 150) for t in ((0.1, 0.0, 1.0), (0.0, 0.1, -1.0))])
+    starts = np.stack([sm.tasks.pancake.data.straight(t, 150) for t in ((0.1, 0.0, 1.0), (0.0, 0.1, -1.0))])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = sm.optimize_trajectory(deformer, starts, fast_end, steps=3)
@@ -151,7 +151,7 @@ def test_ranges_by_field_name_on_a_plug_in_task(tray):
 
 
 def test_ranges_by_field_name_match_the_pancakes_own_on_its_layout(deformer):
-    sketch = sm.data.pancake.straight((0.0, 0.0, -2.0), 300)
+    sketch = sm.tasks.pancake.data.straight((0.0, 0.0, -2.0), 300)
     named = Ranges(end={"theta": (-3.0, -2.0)}, limits={"v_y": 1.5, "v_z": 1.5, "v_theta": 4.5})
     res = sm.optimize_latent(deformer, sketch, named, steps=0)
     assert set(res.terms) == {"end theta band", "limits", "constraint"}

@@ -12,9 +12,8 @@ import torch
 import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.cli import main
-from seqmotion.data import pancake as gen
-from seqmotion.physics import pancake as physics
-from seqmotion.tasks.pancake import PancakeOptions
+from seqmotion.tasks.pancake import PancakeOptions, physics
+from seqmotion.tasks.pancake import data as gen
 from seqmotion.tasks.sliding import SlidingOptions
 
 

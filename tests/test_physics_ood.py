@@ -9,8 +9,8 @@ from __future__ import annotations
 import pytest
 
 import seqmotion as sm
-from seqmotion.data import sliding as commands
-from seqmotion.physics.pancake import PancakePhysics
+from seqmotion.tasks.pancake.physics import PancakePhysics
+from seqmotion.tasks.sliding import data as commands
 
 
 @pytest.fixture(scope="module")

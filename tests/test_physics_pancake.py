@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from seqmotion.physics import integrator, pancake
+from seqmotion.physics import integrator
+from seqmotion.tasks.pancake import physics as pancake
 
 
 def still(theta: float) -> tuple[np.ndarray, np.ndarray]:

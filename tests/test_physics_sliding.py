@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from seqmotion.physics import sliding
 from seqmotion.physics.integrator import implied_accel
+from seqmotion.tasks.sliding import physics as sliding
 
 G, MU, MU_DYN = sliding.GRAVITY, sliding.MU, sliding.MU_DYN
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seqmotion.data import pancake as gen
 from seqmotion.sim import robot_models as rb
+from seqmotion.tasks.pancake import data as gen
 
 pytest.importorskip("mink", reason="standard robot arms need mink (pip install 'seqmotion[robots]')")
 pytestmark = pytest.mark.skipif(
@@ -171,7 +171,7 @@ def test_the_chain_in_torch_is_the_chain_in_numpy(chain):
     ``chain_joints`` and the inverse dynamics of ``chain_torques`` on the same motion."""
     import torch
 
-    from seqmotion.latent.arm_limits import chain_motion
+    from seqmotion.sim.arm_limits import chain_motion
 
     states = gen.straight((0.15, -0.1, 1.5), 400)
     q, qd, dist = chain_motion(chain, torch.as_tensor(states)[None])
@@ -188,7 +188,7 @@ def test_latent_updates_with_the_arms_limits_bring_the_learned_motion_within_its
     import warnings
 
     import seqmotion as sm
-    from seqmotion.latent.arm_limits import ArmLimits
+    from seqmotion.sim.arm_limits import ArmLimits
 
     sketch = gen.straight((0.05, 0.05, 1.5), 250)
     objective = ArmLimits("ur5e") + sm.objectives.EndPose((0.05, 0.05, 1.5))
@@ -210,7 +210,7 @@ def _batched(result):
 
 
 def test_arm_limits_refuse_an_arm_without_a_chain_by_name():
-    from seqmotion.latent.arm_limits import ArmLimits
+    from seqmotion.sim.arm_limits import ArmLimits
 
     with pytest.raises(ValueError, match="built-in arm"):
         ArmLimits("mh3f")

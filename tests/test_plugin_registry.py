@@ -19,7 +19,7 @@ import pytest
 import seqmotion as sm
 from seqmotion.cli import main
 from seqmotion.core import registry
-from seqmotion.data import pancake as inputs
+from seqmotion.tasks.pancake import data as inputs
 
 SOURCE = str(Path(sm.__file__).parents[1])  # the seqmotion under test, also in the subprocess
 BROKEN = {
@@ -76,7 +76,7 @@ def test_every_broken_plugin_is_skipped_with_a_warning_naming_it(broken_plugins)
     assert "numpy 99 is required" in messages and "sys.exit(3)" in messages
     assert "a task called 'pancake' exists already" in messages
     assert {"pancake", "sliding", "pushing"} <= set(names)  # the good ones, the package's own plug-in too
-    assert registry.get("pancake").__class__.__module__ == "seqmotion.tasks.pancake"  # the built-in is kept
+    assert registry.get("pancake").__class__.__module__ == "seqmotion.tasks.pancake.task"  # the built-in is kept
     with pytest.raises(ValueError, match="unknown task 'broken_import'"):
         registry.get("broken_import")
 

@@ -20,7 +20,7 @@ from conftest import seqmotion_cli as seqmotion
 import seqmotion as sm
 from seqmotion import tasks
 from seqmotion.physics.integrator import integrate_numpy
-from seqmotion.physics.sliding import SlidingPhysics
+from seqmotion.tasks.sliding.physics import SlidingPhysics
 
 
 @pytest.fixture(scope="module")

@@ -25,8 +25,8 @@ from hypothesis.extra import numpy as hnp  # noqa: E402
 
 import seqmotion as sm  # noqa: E402
 from seqmotion.io import parse_csv, read_trajectory  # noqa: E402
-from seqmotion.physics import pancake as pancake_physics  # noqa: E402
-from seqmotion.physics import sliding as sliding_physics  # noqa: E402
+from seqmotion.tasks.pancake import physics as pancake_physics  # noqa: E402
+from seqmotion.tasks.sliding import physics as sliding_physics  # noqa: E402
 
 SCALE = float(os.environ.get("SEQMOTION_PROPERTY_SCALE", "1"))
 """Multiplies every property's example count (the default run tries 60 or 25 inputs per property)."""
@@ -38,7 +38,7 @@ SLOWER = settings(max_examples=round(25 * SCALE), deadline=None, suppress_health
 @pytest.fixture(scope="module")
 def motion(deformer):
     """A decoded pancake motion as torch ``(states (1, K, 6), accel (1, K-1, 3))``."""
-    result = deformer.deform(sm.data.pancake.straight((0.05, 0.0, 1.0), 80))
+    result = deformer.deform(sm.tasks.pancake.data.straight((0.05, 0.0, 1.0), 80))
     return torch.from_numpy(result.states)[None], torch.from_numpy(result.accel)[None]
 
 
@@ -126,7 +126,7 @@ def test_decode(deformer, latent, x0, length):
 
 
 def _step_through(deformer, measured) -> None:
-    gen = deformer.generator(sm.data.pancake.straight((0.1, 0.0, 2.0), 300))
+    gen = deformer.generator(sm.tasks.pancake.data.straight((0.1, 0.0, 2.0), 300))
     first = gen.step()
     assert finite(first)
     for chunk in measured:
@@ -145,7 +145,7 @@ def test_online_generator_steps(deformer, measured):
 
 
 def test_online_generator_refuses_absurd_measured_states(deformer):
-    gen = deformer.generator(sm.data.pancake.straight((0.1, 0.0, 2.0), 300))
+    gen = deformer.generator(sm.tasks.pancake.data.straight((0.1, 0.0, 2.0), 300))
     gen.step()
     for absurd in (1e300, 1e7):
         with pytest.raises(ValueError, match="magnitude"):
@@ -171,7 +171,7 @@ def test_online_generator_refuses_absurd_measured_states(deformer):
 def test_optimize_latent_arguments(deformer, steps, lr, init, optimizer, continuation, seed, exact):
     # 0.2 s: within the arm's limits (30 m/s², 300 rad/s²) and the cone this end pose is reachable; in 0.1 s it is
     # not, and the polish flags it (test_exact.py::test_exact_flags_an_unreachable_target)
-    sketch = sm.data.pancake.straight((0.05, 0.0, 1.0), 200)
+    sketch = sm.tasks.pancake.data.straight((0.05, 0.0, 1.0), 200)
 
     def check():
         res = sm.optimize_latent(deformer, sketch, sm.objectives.EndPose((0.05, 0.0, 1.0)), steps=steps, lr=lr,

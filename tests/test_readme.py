@@ -37,7 +37,7 @@ def test_readme_has_the_blocks_it_promises():
 
 COMMAND_BLOCKS = re.findall(r"```bash\n(.*?)```", README.read_text(), flags=re.S)[2:]  # after the two install lines
 SKETCH = ("python -c \"import seqmotion as sm, numpy as np; np.savetxt('sketch.csv', "
-          "sm.data.pancake.straight((0.2, 0.0, 2.5), 500), delimiter=',', header='y,z,theta,v_y,v_z,v_theta', "
+          "sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500), delimiter=',', header='y,z,theta,v_y,v_z,v_theta', "
           "comments='')\"")
 
 

@@ -35,7 +35,9 @@ def bundles(tmp_path_factory):
 
 
 def motion(name: str, k: int) -> np.ndarray:
-    return sm.data.pancake.straight((0.15, -0.05, 2.0), k) if name == "pancake" else sm.data.sliding.circle(0.05, k)
+    if name == "pancake":
+        return sm.tasks.pancake.data.straight((0.15, -0.05, 2.0), k)
+    return sm.tasks.sliding.data.circle(0.05, k)
 
 
 def plant(model):  # noqa: ANN001, ANN201

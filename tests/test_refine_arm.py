@@ -18,7 +18,7 @@ from seqmotion.sim.motions import pan_circle  # noqa: E402
 
 def test_a_refined_circle_planned_at_the_arms_friction_tracks_on_the_arm():
     planner = sm.load_pretrained("sliding")
-    circle = sm.data.sliding.circle(0.05, 900)
+    circle = sm.tasks.sliding.data.circle(0.05, 900)
     plan = sm.refine_plan(planner, circle, mu=0.5, mu_dyn=0.5)  # the arm's object: μ = μ' = 0.5
     assert plan.errors["tracking_rmse_m"] < 0.004  # 2-D
     result = run_sliding(plan, circle, hold_time=0.0)
@@ -37,7 +37,7 @@ def test_a_command_that_would_reach_the_wall_is_placed_clear_of_it():
     from seqmotion.sim.sliding import ARM_FRICTION, WALL_CLEARANCE, object_origin
 
     assert ARM_FRICTION == {"mu": 0.5, "mu_dyn": 0.5}
-    circle, line = sm.data.sliding.circle(0.05, 900), sm.data.sliding.line(0.05, 500)
+    circle, line = sm.tasks.sliding.data.circle(0.05, 900), sm.tasks.sliding.data.line(0.05, 500)
     np.testing.assert_allclose(object_origin(circle), [0.05, 0.0], atol=1e-4)
     np.testing.assert_array_equal(object_origin(line), [0.0, 0.0])  # clear of the wall already
     placed = circle[:, :2] + object_origin(circle)

@@ -14,8 +14,8 @@ from matplotlib.figure import Figure
 
 import seqmotion as sm
 from seqmotion.cli import main
-from seqmotion.data import pancake as gen
-from seqmotion.data import sliding as commands
+from seqmotion.tasks.pancake import data as gen
+from seqmotion.tasks.sliding import data as commands
 
 
 def assert_same(a, b, where="result"):

@@ -13,9 +13,9 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is first imported: offscreen rendering
 
-from seqmotion.data.pancake import straight  # noqa: E402
 from seqmotion.sim import robot_models as rb  # noqa: E402
 from seqmotion.sim import run_pancake  # noqa: E402
+from seqmotion.tasks.pancake.data import straight  # noqa: E402
 
 ROBOSUITE = rb.robosuite_root()
 try:

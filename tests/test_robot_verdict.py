@@ -12,9 +12,9 @@ import pytest
 import seqmotion as sm
 from seqmotion.cli import main
 from seqmotion.core.results import FEASIBLE_TOLERANCE
-from seqmotion.data import pancake as gen
 from seqmotion.errors import EXIT_INEXACT
 from seqmotion.sim import robot_models as rb
+from seqmotion.tasks.pancake import data as gen
 
 pytest.importorskip("mink", reason="standard robot arms need mink (pip install 'seqmotion[robots]')")
 needs_ur5e = pytest.mark.skipif(

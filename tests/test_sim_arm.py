@@ -13,12 +13,12 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is first imported: offscreen rendering
 
-from seqmotion.physics import pancake as pancake_physics  # noqa: E402
 from seqmotion.sim import arm, backend, run_pancake  # noqa: E402
 from seqmotion.sim.control import resolve_gains  # noqa: E402
 from seqmotion.sim.kinematics import attitude_matrix, matrix_to_quat  # noqa: E402
 from seqmotion.sim.motions import still  # noqa: E402
 from seqmotion.sim.scene import PANCAKE_MASS, PANCAKE_ORIGIN, SUBSTEPS, TOOL_PITCH  # noqa: E402
+from seqmotion.tasks.pancake import physics as pancake_physics  # noqa: E402
 
 SIM = Path(__file__).resolve().parents[1] / "src" / "seqmotion" / "sim"
 

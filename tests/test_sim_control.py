@@ -5,7 +5,6 @@ import math
 import numpy as np
 import pytest
 
-from seqmotion.data.pancake import acceleration_type, straight
 from seqmotion.sim import GAINS, run_pancake
 from seqmotion.sim.backend import import_mujoco
 from seqmotion.sim.control import Gains, TaskSpaceController, resolve_gains, solve_ik
@@ -18,6 +17,7 @@ from seqmotion.sim.kinematics import (
     quat_to_matrix,
 )
 from seqmotion.sim.scene import SUBSTEPS, build_scene
+from seqmotion.tasks.pancake.data import acceleration_type, straight
 
 
 def test_gain_presets_are_the_dissertations():

@@ -14,9 +14,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import seqmotion as sm
-from seqmotion.data.pancake import straight
 from seqmotion.sim.envs import PANCAKE_FIELDS, SLIDING_FIELDS, PancakeArmEnv, ResetNeeded, SlidingArmEnv
 from seqmotion.sim.registration import ENV_IDS, register_envs
+from seqmotion.tasks.pancake.data import straight
 
 ARM_ENV_IDS = sorted(env_id for env_id, entry in ENV_IDS.items() if entry.startswith("seqmotion.sim.envs:"))
 """The arm environments (their keywords: action, frame_skip, ...); seqmotion/Pushing-v0 has tests/test_lfd_gym.py."""

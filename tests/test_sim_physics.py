@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from seqmotion.data.pancake import acceleration_type
-from seqmotion.physics.pancake import violation
 from seqmotion.sim import run_pancake, run_sliding
 from seqmotion.sim.arm import workspace_problem
 from seqmotion.sim.kinematics import planar_reference
 from seqmotion.sim.motions import pan_circle, still
+from seqmotion.tasks.pancake.data import acceleration_type
+from seqmotion.tasks.pancake.physics import violation
 
 MU_G = 0.5 * 9.8  # breakaway acceleration of the pan's object (μ = 0.5)
 

@@ -12,9 +12,9 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is first imported: offscreen rendering
 
-from seqmotion.data.pancake import straight  # noqa: E402
 from seqmotion.sim import run_pancake, run_sliding  # noqa: E402
 from seqmotion.sim.motions import pan_circle, still  # noqa: E402
+from seqmotion.tasks.pancake.data import straight  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -15,11 +15,11 @@ import seqmotion as sm
 from seqmotion.cli import main
 from seqmotion.core.execution import check_execution, execution_check_for
 from seqmotion.errors import EXIT_INEXACT
-from seqmotion.physics.sliding import GRAVITY
 from seqmotion.reproduce.ch3 import eval_commands
 from seqmotion.sim import robot_models as rb
 from seqmotion.sim.sliding import ARM_PHYSICS
 from seqmotion.tasks.sliding import RUN_KINDS, PanJointLimits, SlidingExecutionCheck, pan_acceleration_reach
+from seqmotion.tasks.sliding.physics import GRAVITY
 
 pytest.importorskip("mink", reason="standard robot arms need mink (pip install 'seqmotion[robots]')")
 pytestmark = pytest.mark.skipif("panda" not in {r.name for r in rb.robots()},
@@ -134,7 +134,7 @@ def test_the_limit_term_predicts_the_check_exactly_at_its_plan_and_closely_nearb
 
 
 def test_robot_none_changes_nothing(planner):
-    command = sm.data.sliding.line(0.05, 300)
+    command = sm.tasks.sliding.data.line(0.05, 300)
     a, b = planner.plan(command, **ARM), planner.plan(command, robot=None, **ARM)
     np.testing.assert_array_equal(a.states, b.states)
     assert b.robot_check is None and b.feasible is None
@@ -145,7 +145,7 @@ def test_robot_none_changes_nothing(planner):
 
 
 def test_a_batch_or_an_unknown_limit_is_refused(planner):
-    command = sm.data.sliding.line(0.05, 300)
+    command = sm.tasks.sliding.data.line(0.05, 300)
     with pytest.raises(ValueError, match="one command at a time"):
         planner.plan(np.stack([command, command]), robot="panda", **ARM)
     with pytest.raises(ValueError, match="limits"):
@@ -190,7 +190,7 @@ def test_the_verdict_survives_save_and_load(panda_plan, tmp_path):
 
 
 def test_a_plan_for_the_panda_within_every_limit_is_feasible(planner, one_thread):
-    command = sm.data.sliding.line(0.01, 300)
+    command = sm.tasks.sliding.data.line(0.01, 300)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         plan = planner.plan(command, robot="panda", **ARM)
@@ -200,7 +200,7 @@ def test_a_plan_for_the_panda_within_every_limit_is_feasible(planner, one_thread
 
 
 def test_refine_plan_for_the_panda_carries_the_verdict(planner, one_thread):
-    command = sm.data.sliding.line(0.03, 300)
+    command = sm.tasks.sliding.data.line(0.03, 300)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         plan = sm.refine_plan(planner, command, steps=6, gains=(1.0,), accel_steps=3, robot="panda",
@@ -215,7 +215,7 @@ def test_refine_plan_for_the_panda_carries_the_verdict(planner, one_thread):
 
 
 def test_cli_plan_robot_exits_3_when_the_panda_cannot_execute_it(tmp_path, capsys):
-    np.savez(tmp_path / "line.npz", states=sm.data.sliding.line(0.05, 300))
+    np.savez(tmp_path / "line.npz", states=sm.tasks.sliding.data.line(0.05, 300))
     out = tmp_path / "plan.npz"
     code = main(["plan", "--command", str(tmp_path / "line.npz"), "--mu", "0.5", "--mu-dyn", "0.5", "--robot",
                  "panda", "--robot-limits", "speed,range,torque", "--output", str(out)])

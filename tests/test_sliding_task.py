@@ -6,10 +6,10 @@ import torch
 
 import seqmotion as sm
 from seqmotion import tasks
-from seqmotion.data import sliding as commands
-from seqmotion.physics import sliding as contact
 from seqmotion.tasks import train
 from seqmotion.tasks.sliding import SlidingPlanner, chapter3_curriculum
+from seqmotion.tasks.sliding import data as commands
+from seqmotion.tasks.sliding import physics as contact
 from seqmotion.training.trainer import step_loss
 
 TASK = tasks.get("sliding")

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from seqmotion import tasks
-from seqmotion.physics import sliding
+from seqmotion.tasks.sliding import physics as sliding
 from seqmotion.training.trainer import step_loss
 
 G, MU, MU_DYN = sliding.GRAVITY, sliding.MU, sliding.MU_DYN
@@ -322,7 +322,7 @@ def test_float32_gradients_come_back_in_float32():
 
 def test_shipped_planner_plans_alike_on_both_backends(planner, monkeypatch):
     """The shipped model's plan (physics in the loop at inference) is the same on the torch backend."""
-    from seqmotion.data.sliding import circle
+    from seqmotion.tasks.sliding.data import circle
 
     command = circle(0.05, 600)
     plans = []

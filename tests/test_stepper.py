@@ -49,7 +49,7 @@ def drive(gen, x0, sizes, *, disturb=None, until=None):
 @pytest.mark.parametrize("sizes", [[1], [7, 1, 30, 12], [50]])
 def test_fed_its_own_states_in_any_pieces_it_reproduces_deform(pancake, sizes):
     k = 130 if sizes == [1] else 230
-    sketch = sm.data.pancake.straight((0.1, 0.05, 0.6), k)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.05, 0.6), k)
     r = pancake.deform(sketch)
     accel, states = drive(pancake.generator(sketch), sketch[0], sizes, until=k - 1)
     np.testing.assert_allclose(accel[: k - 1], r.accel, rtol=0, atol=1e-9)
@@ -57,7 +57,7 @@ def test_fed_its_own_states_in_any_pieces_it_reproduces_deform(pancake, sizes):
 
 
 def test_sliding_sample_by_sample_reproduces_plan(sliding):
-    command = sm.data.sliding.circle(0.05, 260)
+    command = sm.tasks.sliding.data.circle(0.05, 260)
     plan = sliding.plan(command)
     accel, states = drive(sliding.generator(command), np.r_[np.zeros(4), command[0]], [1, 13, 40], until=259)
     np.testing.assert_allclose(accel[:259], plan.pan_accel, rtol=0, atol=1e-9)
@@ -65,7 +65,7 @@ def test_sliding_sample_by_sample_reproduces_plan(sliding):
 
 
 def test_replanning_reacts_to_a_disturbance_between_boundaries(pancake):
-    sketch = sm.data.pancake.straight((0.1, 0.05, 0.6), 230)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.05, 0.6), 230)
     outs = {}
     for replan in (True, False):
         gen = pancake.generator(sketch, replan=replan)
@@ -81,7 +81,7 @@ def test_replanning_reacts_to_a_disturbance_between_boundaries(pancake):
 
 
 def test_past_the_end_it_stops_within_the_cone_and_holds(pancake):
-    sketch = sm.data.pancake.straight((0.0, 0.1, -0.3), 150)
+    sketch = sm.tasks.pancake.data.straight((0.0, 0.1, -0.3), 150)
     for sizes, after_end in (([1], 700), ([50], 1000), ([3, 20], 1000)):
         gen = pancake.generator(sketch)
         accel, states = drive(gen, sketch[0], sizes, until=149 + after_end)
@@ -96,7 +96,7 @@ def test_past_the_end_it_stops_within_the_cone_and_holds(pancake):
 def test_done_means_at_rest_and_a_while_not_done_loop_ends_standing_still(pancake):
     """Issue 32 item 5: ``done`` turned True at K while the stop ramp still ran (a ``while not gen.done`` loop left
     the pancake at 2.9 m/s; the stop took 1,600 samples more). Now ``stopping`` covers the ramp, ``done`` rest."""
-    sketch = sm.data.pancake.straight((0.3, 0.0, 3.0), 200)
+    sketch = sm.tasks.pancake.data.straight((0.3, 0.0, 3.0), 200)
     gen = pancake.generator(sketch)
     x, u, phases = sketch[0], gen.step(), []
     while not gen.done:
@@ -113,7 +113,7 @@ def test_done_means_at_rest_and_a_while_not_done_loop_ends_standing_still(pancak
 
 
 def test_the_sliding_pan_stops_and_the_object_comes_to_rest(sliding):
-    command = sm.data.sliding.circle(0.05, 300)
+    command = sm.tasks.sliding.data.circle(0.05, 300)
     gen = sliding.generator(command)
     accel, states = drive(gen, np.r_[np.zeros(4), command[0]], [100], until=299 + 1500)
     assert np.abs(states[-1, 2:4]).max() < 1e-6 and np.abs(states[-1, 6:]).max() == 0.0
@@ -154,8 +154,8 @@ def test_stop_profile_is_clipped_then_geometric():
 
 
 def test_set_latent_replays_from_the_next_boundary(pancake):
-    first = sm.data.pancake.straight((0.1, 0.05, 0.6), 300)
-    other = pancake.deform(sm.data.pancake.straight((-0.1, 0.0, -0.5), 300)).latent
+    first = sm.tasks.pancake.data.straight((0.1, 0.05, 0.6), 300)
+    other = pancake.deform(sm.tasks.pancake.data.straight((-0.1, 0.0, -0.5), 300)).latent
     chunk = pancake.deform(first).states[1:51]
     gen, ref = pancake.generator(first), pancake.generator(latent=other, x0=first[0], length=300)
     gen.step(), ref.step()
@@ -170,8 +170,8 @@ def test_set_latent_replays_from_the_next_boundary(pancake):
 
 
 def test_set_latent_restart_starts_a_new_motion_here(pancake):
-    sketch = sm.data.pancake.straight((0.1, 0.05, 0.6), 120)
-    other = pancake.deform(sm.data.pancake.straight((-0.1, 0.0, -0.5), 200)).latent
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.05, 0.6), 120)
+    other = pancake.deform(sm.tasks.pancake.data.straight((-0.1, 0.0, -0.5), 200)).latent
     gen = pancake.generator(sketch)
     accel, states = drive(gen, sketch[0], [50], until=150)  # past the first motion's end
     assert gen.done or gen.stopping  # past the end
@@ -186,7 +186,7 @@ def test_set_latent_restart_starts_a_new_motion_here(pancake):
 
 
 def test_reset_starts_over_and_takes_a_new_start_state(pancake):
-    sketch = sm.data.pancake.straight((0.1, 0.05, 0.6), 200)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.05, 0.6), 200)
     gen = pancake.generator(sketch)
     first = gen.step()
     gen.step(np.repeat(sketch[:1], 10, axis=0))
@@ -199,7 +199,7 @@ def test_reset_starts_over_and_takes_a_new_start_state(pancake):
 
 
 def test_a_batch_steps_like_its_members(pancake):
-    sketches = np.stack([sm.data.pancake.straight(end, 120) for end in ((0.1, 0.0, 0.5), (0.0, 0.1, -0.4))])
+    sketches = np.stack([sm.tasks.pancake.data.straight(end, 120) for end in ((0.1, 0.0, 0.5), (0.0, 0.1, -0.4))])
     gen = pancake.generator(sketches)
     u = gen.step()
     measured = gen._predict(sketches[:, 0], u[:, :5])
@@ -212,7 +212,7 @@ def test_a_batch_steps_like_its_members(pancake):
 
 
 def test_the_contract_is_data(pancake, sliding):
-    c = pancake.generator(sm.data.pancake.straight((0.1, 0.0, 0.5), 100)).contract()
+    c = pancake.generator(sm.tasks.pancake.data.straight((0.1, 0.0, 0.5), 100)).contract()
     assert c["chunk"] == 50 and c["state_layout"]["names"][3] == "v_y" and c["state_layout"]["units"][2] == "rad"
     assert c["velocity_columns"] == [3, 4, 5] and c["constraint"] and c["length"] == 100
     assert "c_l = z" in c["decoder_init"]
@@ -228,7 +228,7 @@ def test_the_contract_is_data(pancake, sliding):
 
 
 def test_named_errors(pancake):
-    sketch = sm.data.pancake.straight((0.1, 0.0, 0.5), 120)
+    sketch = sm.tasks.pancake.data.straight((0.1, 0.0, 0.5), 120)
     gen = pancake.generator(sketch)
     with pytest.raises(ValueError, match="first step"):
         gen.step(sketch[:5])

@@ -1,4 +1,4 @@
-"""Refining a sliding plan's latent for tracking (seqmotion.latent.sliding)."""
+"""Refining a sliding plan's latent for tracking (seqmotion.tasks.sliding.latent)."""
 
 from __future__ import annotations
 
@@ -7,14 +7,14 @@ import pytest
 import torch
 
 import seqmotion as sm
-from seqmotion.latent.sliding import Tracking, refine_plan
 from seqmotion.reproduce.ch3 import rmse_mm
+from seqmotion.tasks.sliding.latent import Tracking, refine_plan
 
 
 @pytest.fixture(scope="module")
 def command() -> np.ndarray:
     """A 2 cm circle in 0.6 s: the plain plan leaves ~13 mm RMSE on it."""
-    return sm.data.sliding.circle(0.02, 600)
+    return sm.tasks.sliding.data.circle(0.02, 600)
 
 
 def test_refinement_lowers_tracking_error(planner, command, one_thread) -> None:
@@ -23,7 +23,7 @@ def test_refinement_lowers_tracking_error(planner, command, one_thread) -> None:
     assert refined.rel_states.shape == command.shape and refined.pan_accel.shape == (len(command) - 1, 2)
     assert rmse_mm(refined.rel_states, command) < 0.6 * rmse_mm(plain.rel_states, command)
     # the plan is consistent: its accelerations rolled out at the same friction give its states
-    pan, rel = sm.physics.sliding.rollout(refined.pan_accel, mu=0.9, mu_dyn=0.4)
+    pan, rel = sm.tasks.sliding.physics.rollout(refined.pan_accel, mu=0.9, mu_dyn=0.4)
     np.testing.assert_allclose(rel[:, :2], refined.rel_states[:, :2], atol=1e-6)
     np.testing.assert_allclose(pan[:, :2], refined.pan_states[:, :2], atol=1e-6)
 

@@ -12,10 +12,10 @@ import seqmotion as sm
 from seqmotion.cli import main
 from seqmotion.core import trust
 from seqmotion.core.results import first_of
-from seqmotion.data import pancake as pancake_data
-from seqmotion.data import sliding as sliding_data
 from seqmotion.models.seq2seq import rollout
 from seqmotion.physics.integrator import integrate_covariance, propagate_covariance_reference
+from seqmotion.tasks.pancake import data as pancake_data
+from seqmotion.tasks.sliding import data as sliding_data
 
 
 def test_a_sketch_far_longer_than_any_trained_is_flagged_and_fresh_ones_mostly_not(deformer, one_thread):

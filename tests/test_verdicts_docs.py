@@ -122,7 +122,7 @@ def bundle(tmp_path_factory) -> Path:
 
 def test_the_onnx_stepper_runs_from_inside_its_bundle(bundle, monkeypatch):
     monkeypatch.chdir(bundle)
-    stepper = sm.deploy.OnnxStepper(".", sm.data.pancake.straight((0.2, 0.0, 2.5), 200))
+    stepper = sm.deploy.OnnxStepper(".", sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 200))
     assert stepper.step().shape == (50, 3)
 
 
@@ -149,7 +149,7 @@ FLAT = " ".join(README.split())  # the README's text with its line breaks undone
 
 
 def test_keep_end_results_say_how_many_polish_iterations_they_took(deformer, tmp_path):
-    sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 500)  # the README's own
+    sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500)  # the README's own
     r = deformer.deform(sketch, keep_end=True)
     assert r.exact and int(r.polish_iterations) > 0
     assert f"the README's sketch {int(r.polish_iterations)})" in FLAT
@@ -219,7 +219,7 @@ def test_a_long_running_command_ends_with_its_elapsed_time(tmp_path, capsys):
 
     assert TIMED_COMMANDS == {"demo", "deform", "optimize", "plan", "simulate", "train", "reproduce"}
     sketch = tmp_path / "sketch.npz"
-    np.savez(sketch, states=sm.data.pancake.straight((0.2, 0.0, 2.5), 200))
+    np.savez(sketch, states=sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 200))
     assert main(["deform", "--input", str(sketch), "--output", str(tmp_path / "d.npz")]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert re.fullmatch(r"done in \d+\.\d s", last), last

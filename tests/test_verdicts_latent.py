@@ -30,7 +30,7 @@ BANDS = {"y": (0.10, 0.11), "z": (-0.02, 0.02), "theta": (2.4, 2.6), "v_y": (-0.
 
 @pytest.fixture(scope="module")
 def sketch() -> np.ndarray:
-    return sm.data.pancake.straight((0.2, 0.0, 2.5), 500)
+    return sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 500)
 
 
 def _assert_meets(res, end: dict, limits: dict) -> None:
@@ -93,7 +93,7 @@ def test_the_result_says_when_the_objective_left_the_turn_behind(deformer, sketc
 
 
 def test_deform_keep_end_that_cannot_be_exact_exits_3_with_one_warning_line(tmp_path, capsys):
-    sketch = sm.data.pancake.straight((0.0, 0.0, 0.5), 100)
+    sketch = sm.tasks.pancake.data.straight((0.0, 0.0, 0.5), 100)
     sketch[:, 0] += 0.45  # starts beyond the polish's reach: no motion from there can be exact
     np.savez(tmp_path / "in.npz", states=sketch)
     with warnings.catch_warnings():

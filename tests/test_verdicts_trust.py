@@ -195,7 +195,7 @@ def test_models_saved_without_the_record_behave_as_before(deformer, planner):
     assert "physics_trained" not in deformer.config and deformer.physics_trained == {}
     assert "physics_trained" not in planner.config
     assert planner.physics_trained == {"mu": (0.8, 1.2), "mu_dyn": (0.35, 0.65)}  # the task's own ranges
-    line = sm.data.sliding.line(0.05, 500)
+    line = sm.tasks.sliding.data.line(0.05, 500)
     assert physics_reasons(planner.plan(line, mu=0.73)) == []
     assert physics_reasons(planner.plan(line, mu=0.7)) == ["mu 0.7 outside 0.72-1.32 (trained 0.8-1.2)"]
 
@@ -204,7 +204,7 @@ def test_models_saved_without_the_record_behave_as_before(deformer, planner):
 
 
 def test_cli_npz_outputs_load_as_results_and_csv_stays_plain(tmp_path, capsys):
-    sketch = sm.data.pancake.straight((0.2, 0.0, 2.5), 300)
+    sketch = sm.tasks.pancake.data.straight((0.2, 0.0, 2.5), 300)
     np.savetxt(tmp_path / "in.csv", sketch, delimiter=",", header="y,z,theta,v_y,v_z,v_theta", comments="")
     assert main(["deform", "--input", str(tmp_path / "in.csv"), "--output", str(tmp_path / "deformed.npz")]) == 0
     deformed = sm.load_result(tmp_path / "deformed.npz")
@@ -238,7 +238,7 @@ def test_readme_says_the_arms_friction_is_outside_the_planners_training_and_what
     assert found, "the README does not say that μ = 0.5 is outside the planner's training friction"
     low, high, flagged = map(float, found.groups())
     assert planner.physics_trained["mu"] == (low, high) and flagged == pytest.approx(low * (1 - trust.MARGIN))
-    line = sm.data.sliding.line(0.05, 500)
+    line = sm.tasks.sliding.data.line(0.05, 500)
     at_arm, default = planner.plan(line, mu=0.5, mu_dyn=0.5), planner.plan(line)
     assert at_arm.out_of_distribution and physics_reasons(at_arm)[0].startswith("mu 0.5 outside")
     cost = re.search(r"the 5 cm line planned ([\d.]+) mm off at μ = 0\.5 against ([\d.]+) mm at the default μ = 1, the "

@@ -393,7 +393,7 @@ def test_scene_meshes_and_a_replay():
     assert not any(g.name.startswith("pancake_") for g in geoms)  # collision spheres are not drawn
     for g in geoms:
         assert g.faces.max() < len(g.vertices) and np.all(np.isfinite(g.vertices))
-    motion = sm.data.pancake.straight((0.05, 0.02, 0.5), 200)
+    motion = sm.tasks.pancake.data.straight((0.05, 0.02, 0.5), 200)
     replay = scene3d.replay("pancake", motion, stride=20, tail=0.2)
     assert replay.pos.shape[1:] == (model.nbody, 3) and replay.quat.shape[1:] == (model.nbody, 4)
     assert len(replay.time) == replay.pos.shape[0] >= 10 and "tracking" in replay.summary
@@ -489,7 +489,7 @@ def test_a_replay_on_the_panda_moves_its_meshes_and_says_what_its_joints_did():
     assert links <= {g.body for g in geoms}  # every link with a mesh is drawn
     mesh_faces = sum(len(g.faces) for g in geoms if g.body in links)
     assert 10_000 < mesh_faces <= scene3d.MESH_FACE_BUDGET  # the links' meshes, simplified to the budget
-    motion = sm.data.pancake.straight((0.05, 0.02, 0.5), 200)
+    motion = sm.tasks.pancake.data.straight((0.05, 0.02, 0.5), 200)
     replay = scene3d.replay("pancake", motion, stride=20, tail=0.2, robot="panda")
     assert replay.pos.shape[1:] == (model.nbody, 3) and replay.quat.shape[1:] == (model.nbody, 4)
     assert len(replay.time) == replay.pos.shape[0] >= 10 and np.all(np.isfinite(replay.pos))

@@ -74,7 +74,7 @@ sample is reported), rated speeds, ranges, the task plane (≤ 1 mm, ≤ 0.01 ra
 (≤ 1 mm, ≤ 0.01 rad) and the table (site height ≥ the bound − 1 mm). Success = IPOPT converged at 1× rated
 and every one of these holds.
 
-**Sketches** (:func:`turn_sketches`): ``seqmotion.data.pancake.straight`` from rest at the origin
+**Sketches** (:func:`turn_sketches`): ``seqmotion.tasks.pancake.data.straight`` from rest at the origin
 ``(0, 0, 0)`` to ``(y_end, z_end, θ_end)`` on its S-curve, with ``θ_end ~ U[2, 3]`` rad,
 ``y_end, z_end ~ U[−0.2, 0.2]`` m and ``K ~ U{301..801}`` samples (0.3–0.8 s at 1 ms), drawn in that
 order per sketch from ``numpy.random.default_rng(seed)``.
@@ -109,14 +109,14 @@ import casadi as ca  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from seqmotion.data.pancake import straight  # noqa: E402
 from seqmotion.physics.integrator import DT, implied_accel  # noqa: E402
-from seqmotion.physics.pancake import GRAVITY, MU, violation  # noqa: E402
 from seqmotion.sim.control import solve_ik  # noqa: E402
 from seqmotion.sim.kinematics import planar_reference  # noqa: E402
 from seqmotion.sim.robot_models import get_robot  # noqa: E402
 from seqmotion.sim.scene import PANCAKE_ORIGIN, get_scene  # noqa: E402
 from seqmotion.tasks.pancake import POLISH_NORMAL_FLOOR  # noqa: E402
+from seqmotion.tasks.pancake.data import straight  # noqa: E402
+from seqmotion.tasks.pancake.physics import GRAVITY, MU, violation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUT = ROOT / "benchmarks" / "results_arm_ocp_peer.json"
@@ -156,7 +156,7 @@ def turn_sketches(n: int, seed: int) -> list[np.ndarray]:
 
     Per sketch, in this order from ``numpy.random.default_rng(seed)``: ``θ_end ~ U[2, 3]`` rad,
     ``y_end ~ U[−0.2, 0.2]`` m, ``z_end ~ U[−0.2, 0.2]`` m, ``K ~ U{301, …, 801}`` samples (0.3–0.8 s);
-    the motion is ``seqmotion.data.pancake.straight((y_end, z_end, θ_end), K)``: rest to rest from the
+    the motion is ``seqmotion.tasks.pancake.data.straight((y_end, z_end, θ_end), K)``: rest to rest from the
     origin on an S-curve.
     """
     rng = np.random.default_rng(seed)

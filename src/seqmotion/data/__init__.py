@@ -1,6 +1,7 @@
-"""Trajectory generators and datasets, apart from any model."""
+"""Trajectory batches and the generators every task shares, apart from any model. A built-in task's own input
+generators are in its folder (:mod:`seqmotion.tasks.pancake.data`, :mod:`seqmotion.tasks.sliding.data`)."""
 
-from . import pancake, sliding, trajectories
+from . import trajectories
 from .trajectories import TrajectoryBatch
 
-__all__ = ["TrajectoryBatch", "pancake", "sliding", "trajectories"]
+__all__ = ["TrajectoryBatch", "trajectories"]

@@ -8,15 +8,15 @@ An objective maps a batch of decoded motions to one value per trajectory::
 their weights) and penalises the task's own constraint (``Task.violation``) at the model's options;
 :class:`AtRest` brings the layout's rate fields to 0; :class:`Ranges` puts bands on end values and
 limits on any fields of a task's state layout, by name (without names it is the pancake's eq. 4.10,
-:class:`seqmotion.latent.pancake.PancakeRanges`). Any differentiable callable with the signature
+:class:`seqmotion.tasks.pancake.latent.PancakeRanges`). Any differentiable callable with the signature
 above is an objective too (returning ``(B,)`` or a scalar); :class:`Function` with ``residuals=``
 gives least-squares form, which Levenberg–Marquardt (``optimizer="lm"``) needs. Objectives compose
 with ``+`` and ``*``::
 
     objective = 2 * EndPose((0.1, 0.0, math.pi)) + my_callable
 
-:class:`~seqmotion.latent.arm_limits.ArmLimits` (``sm.objectives.ArmLimits("ur5e")``) holds a robot's rated joint
-speeds, accelerations and torques on pancake motions — ch. 4's velocity limits for a real arm.
+:class:`~seqmotion.sim.arm_limits.ArmLimits` (``sm.sim.ArmLimits("ur5e")``, in the robot layer) holds a robot's
+rated joint speeds, accelerations and torques on pancake motions — ch. 4's velocity limits for a real arm.
 
 **An objective is bound to a model before it is evaluated** (:meth:`Objective.bind`;
 :func:`seqmotion.optimize_latent` does it): the fields' columns, the end pose, the constraint and its
@@ -33,7 +33,7 @@ yourself to weigh it (``alpha=0``: only report it).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -52,12 +52,12 @@ from .terms import (
     Term,
     ViolationFn,
     _check_fields,
-    _check_weight,
     _constraint_term,
-    _np,
     _task_violation,
+    as_numpy,
     as_objective,
     check_layout,
+    check_weight,
     unbound,
 )
 
@@ -99,16 +99,16 @@ class EndPose(Objective):
         if target_arr.ndim not in (1, 2) or target_arr.shape[-1] < 1 or target_arr.size == 0:
             raise ValueError(f"target must be one value per end-pose field or (B, n), got shape {target_arr.shape}")
         check_finite_array("target", target_arr)
-        _check_weight("alpha", alpha)
+        check_weight("alpha", alpha)
         if mu is not None:
-            _check_weight("mu", mu, positive=True)
+            check_weight("mu", mu, positive=True)
         _check_fields(fields)
         if weights is not None:
             if fields is None or isinstance(weights, str) or len(weights) != len(fields):
                 raise ValueError("weights need fields, one weight per field")
             for w in weights:
-                _check_weight("weights", w)
-        _check_weight("tolerance", tolerance)
+                check_weight("weights", w)
+        check_weight("tolerance", tolerance)
         self.target, self.alpha, self.mu = target_arr, float(alpha), None if mu is None else float(mu)
         self.tolerance = float(tolerance)
         self.fields = None if fields is None else tuple(fields)
@@ -181,7 +181,7 @@ class EndPose(Objective):
         """``end error``: ``|D (p[K-1] − p_end)|`` (≤ ``tolerance``); ``constraint``: the largest violation
         (≤ 0.01, the feasibility tolerance)."""
         with torch.no_grad():
-            terms = {"end error": Term(_np(self.end_error(states).norm(dim=-1)), self.tolerance, "(D-weighted)")}
+            terms = {"end error": Term(as_numpy(self.end_error(states).norm(dim=-1)), self.tolerance, "(D-weighted)")}
             violation = self._violation(states, accel) if self._violation is not None else None
             if violation is not None:
                 terms["constraint"] = _constraint_term(violation)
@@ -202,6 +202,17 @@ class EndPose(Objective):
         return f"EndPose(target={self.target.tolist()}, alpha={self.alpha:g})"
 
 
+_FIELDLESS_RANGES: Callable[..., Objective] | None = None
+
+
+def register_fieldless_ranges(factory: Callable[..., Objective]) -> None:
+    """Say what :class:`Ranges` without field names builds: the dissertation's eq. 4.10 with its bands is the
+    pancake's, so the pancake task registers its :class:`~seqmotion.tasks.pancake.latent.PancakeRanges` when it is
+    imported (``import seqmotion`` imports it); the optimiser sits below the tasks and names none of them."""
+    global _FIELDLESS_RANGES
+    _FIELDLESS_RANGES = factory
+
+
 class Ranges(Objective):
     """J2 (eq. 4.10) for any task: bands on end values, the task's constraint penalty and limits along the
     motion, by the names of the task's state fields::
@@ -217,7 +228,7 @@ class Ranges(Objective):
 
     **Without field names** (``Ranges()``, ``Ranges(p_lim, theta_end, theta_lim, alpha, beta, v_lim, mu)``)
     it is the pancake's eq. 4.10 with the dissertation's bands: a
-    :class:`~seqmotion.latent.pancake.PancakeRanges`, which refuses a model of another layout by name.
+    :class:`~seqmotion.tasks.pancake.latent.PancakeRanges`, which refuses a model of another layout by name.
 
     Args:
         end: field name → ``(low, high)`` band on its last value [the field's unit].
@@ -228,9 +239,10 @@ class Ranges(Objective):
 
     def __new__(cls, *args: Any, **kwargs: Any) -> Objective:  # type: ignore[misc]
         if cls is Ranges and kwargs.get("end") is None and kwargs.get("limits") is None:
-            from .pancake import PancakeRanges  # no field names: the pancake's own bands, built here
-
-            return PancakeRanges(*args, **{k: v for k, v in kwargs.items() if k not in ("end", "limits")})
+            if _FIELDLESS_RANGES is None:  # only when this module is used without the seqmotion package's tasks
+                raise ValueError("Ranges() without field names is the pancake task's eq. 4.10, which is not "
+                                 "registered here; give the bands by field name (end=, limits=)")
+            return _FIELDLESS_RANGES(*args, **{k: v for k, v in kwargs.items() if k not in ("end", "limits")})
         return super().__new__(cls)
 
     def __init__(
@@ -243,8 +255,8 @@ class Ranges(Objective):
             raise ValueError(f"{', '.join(given) or 'positional bands'}: the pancake's bands; with end=/limits= give "
                              f"every band by field name, e.g. Ranges(end={{'theta': (-2.9, -1.9)}}) (alpha=, beta=, "
                              "mu= by name)")
-        self.alpha, self.beta = _check_weight("alpha", alpha), _check_weight("beta", beta)
-        self.mu = None if mu is None else _check_weight("mu", mu, positive=True)
+        self.alpha, self.beta = check_weight("alpha", alpha), check_weight("beta", beta)
+        self.mu = None if mu is None else check_weight("mu", mu, positive=True)
         self.end, self.limits = _check_bands(end), _check_limits(limits)
         for name, (low, high) in (self.end or {}).items():
             limit = (self.limits or {}).get(name)
@@ -319,10 +331,10 @@ class Ranges(Objective):
         with torch.no_grad():
             parts = self._named(states, accel)
             layout, bands, _ = self._bound()
-            terms = {f"end {name} band": Term(_np(parts["end"][:, i]), 1e-6, layout.units[col])
+            terms = {f"end {name} band": Term(as_numpy(parts["end"][:, i]), 1e-6, layout.units[col])
                      for i, (name, col, _, _) in enumerate(bands)}
             if self.limits:
-                terms["limits"] = Term(_np(parts["limits"].flatten(1).amax(-1)), 1e-6, "(field units)")
+                terms["limits"] = Term(as_numpy(parts["limits"].flatten(1).amax(-1)), 1e-6, "(field units)")
             if "constraint" in parts:
                 terms["constraint"] = _constraint_term(parts["constraint"])
             return terms
@@ -375,7 +387,7 @@ def _check_limits(limits: object) -> dict[str, float] | None:
     for name, value in limits.items():
         if not isinstance(name, str):
             raise ValueError(f"Ranges limits= must map field names to limits, got key {name!r}")
-        out[name] = _check_weight(f"Ranges limits[{name!r}]", value, positive=True)
+        out[name] = check_weight(f"Ranges limits[{name!r}]", value, positive=True)
     return out
 
 
@@ -395,7 +407,7 @@ class AtRest(Objective):
 
     def __init__(self, fields: Sequence[str] | None = None, tolerance: float = 0.01) -> None:
         _check_fields(fields)
-        _check_weight("tolerance", tolerance)
+        check_weight("tolerance", tolerance)
         self.fields, self.tolerance = None if fields is None else tuple(fields), float(tolerance)
         self._columns: list[int] | None = None
         self._weights: torch.Tensor | None = None
@@ -446,20 +458,11 @@ class AtRest(Objective):
     def report(self, states: torch.Tensor, accel: torch.Tensor) -> dict[str, Term]:
         columns, _ = self._bound()
         with torch.no_grad():
-            return {"end rate": Term(_np(states[:, -1, columns].abs().amax(-1)), self.tolerance, "(m/s, rad/s)")}
+            return {"end rate": Term(as_numpy(states[:, -1, columns].abs().amax(-1)), self.tolerance, "(m/s, rad/s)")}
 
     def __repr__(self) -> str:
         return "AtRest()" if self.fields is None else f"AtRest(fields={list(self.fields)})"
 
 
-def __getattr__(name: str) -> Any:
-    # A robot's limits need the robot layer (its models and MuJoCo): imported when first asked for.
-    if name == "ArmLimits":
-        from .arm_limits import ArmLimits
-
-        return ArmLimits
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 __all__ = ["AtRest", "EndPose", "Function", "Objective", "ObjectiveFn", "Ranges", "Scaled", "Sum", "TaskConstraint",
-           "Term", "as_objective", "check_layout", "for_model"]  # and ArmLimits, on first use
+           "Term", "as_objective", "check_layout", "for_model", "register_fieldless_ranges"]

@@ -4,7 +4,7 @@ form), :class:`Function` (a callable), :class:`TaskConstraint` (the task's own c
 
 :mod:`seqmotion.latent.objectives` (``sm.objectives``) is the public namespace: it re-exports these beside the
 objectives that reach for a task's fields (``EndPose``, ``AtRest``, ``Ranges``); objectives beside one task
-(:mod:`seqmotion.latent.pancake`) build on this module.
+(:mod:`seqmotion.tasks.pancake.latent`) build on this module.
 """
 
 from __future__ import annotations
@@ -325,7 +325,7 @@ def _task_violation(model: Any, mu: float | None, who: str) -> ViolationFn:
 
 def _constraint_term(violation: torch.Tensor) -> Term:
     """The reported constraint term: the largest violation per trajectory (≤ 0.01, the feasibility tolerance)."""
-    return Term(_np(_max_per_trajectory(violation)), FEASIBLE_TOLERANCE, "(violation)")
+    return Term(as_numpy(max_per_trajectory(violation)), FEASIBLE_TOLERANCE, "(violation)")
 
 
 class TaskConstraint(Objective):
@@ -344,7 +344,7 @@ class TaskConstraint(Objective):
     """
 
     def __init__(self, alpha: float = 1.0) -> None:
-        self.alpha = _check_weight("alpha", alpha)
+        self.alpha = check_weight("alpha", alpha)
         self._violation: ViolationFn | None = None
 
     def bind(self, model: Any) -> TaskConstraint:
@@ -413,16 +413,17 @@ def _check_fields(fields: object) -> None:
         raise ValueError(f"fields must be a non-empty sequence of state field names, got {fields!r}")
 
 
-def _check_weight(name: str, value: Any, positive: bool = False) -> float:
+def check_weight(name: str, value: Any, positive: bool = False) -> float:
     """``value`` as a float; ``ValueError`` naming ``name`` unless it is a finite number ≥ 0 (> 0 if ``positive``)."""
     return float(check_number(name, value, minimum=0.0, strict_minimum=positive))
 
 
-def _np(value: torch.Tensor) -> np.ndarray:
+def as_numpy(value: torch.Tensor) -> np.ndarray:
+    """``value`` as a float64 NumPy array (detached, on the CPU)."""
     return value.detach().double().cpu().numpy()
 
 
-def _max_per_trajectory(violation: torch.Tensor) -> torch.Tensor:
+def max_per_trajectory(violation: torch.Tensor) -> torch.Tensor:
     """The largest value per trajectory of ``(B, N)`` (0 for N = 0)."""
     if violation.shape[-1] == 0:
         return torch.zeros(violation.shape[0], dtype=violation.dtype, device=violation.device)

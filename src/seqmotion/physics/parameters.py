@@ -14,27 +14,34 @@ The field order is the order of the ``physics`` vector an exported dynamics grap
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
 T = TypeVar("T", bound="Physics")
 _CLASSES: dict[str, type] = {}
-"""Every Physics class defined so far, by ``module.QualName``: what a saved result's physics may be rebuilt as."""
+"""Every Physics class defined so far, by :meth:`Physics.key`: what a saved result's physics may be rebuilt as."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Physics:
     """Base class: no parameters. Subclasses are frozen dataclasses of floats checked in ``__post_init__``."""
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
+    _saved_as: ClassVar[str | None] = None
+
+    def __init_subclass__(cls, saved_as: str | None = None, **kwargs: Any) -> None:
+        """``saved_as``: the name files know the class by when it is not its ``module.QualName`` — where the
+        class stood when results and bundles first recorded it, kept when its module moves (a label, never
+        imported)."""
         super().__init_subclass__(**kwargs)
+        cls._saved_as = saved_as
         _CLASSES[cls.key()] = cls
 
     @classmethod
     def key(cls) -> str:
-        """``module.QualName``: how a saved result names its physics class."""
-        return f"{cls.__module__}.{cls.__qualname__}"
+        """How a saved result, a stepper contract and a bundle name the physics class: its ``saved_as`` if it
+        declares one, else ``module.QualName``."""
+        return cls.__dict__.get("_saved_as") or f"{cls.__module__}.{cls.__qualname__}"
 
     @staticmethod
     def class_named(key: str) -> type[Physics]:

@@ -22,11 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import pancake as inputs
 from ..io import atomic_write_text, pyplot, save_figure
-from ..physics import pancake as physics
 from ..physics.integrator import implied_accel
-from ..tasks.pancake import FEASIBLE_TOLERANCE, THETA_WEIGHT, Deformer
+from ..tasks.pancake import FEASIBLE_TOLERANCE, THETA_WEIGHT, Deformer, physics
+from ..tasks.pancake import data as inputs
 
 FIG25_TARGETS = [(y, z, 2.5) for y in (-0.2, 0.0, 0.2) for z in (-0.2, 0.0, 0.2)]
 FIG26_TARGET = (0.2, 0.0, 2.5)

@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import sliding as commands
 from ..data.trajectories import tracking_rmse
 from ..io import atomic_write_text, pyplot, save_figure
 from ..tasks.sliding import PAN_LIMIT, SlidingPlanner
+from ..tasks.sliding import data as commands
 
 FRICTION_GRID = [(mu, mud) for mu in (0.7, 0.9, 1.1, 1.3) for mud in (0.3, 0.4, 0.6, 0.7) if mud < mu]
 LENGTH = 1200

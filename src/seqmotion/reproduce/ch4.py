@@ -27,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import pancake as inputs
 from ..io import atomic_write_text, pyplot, save_figure, write_arrays
 from ..latent import optimize_latent, optimize_trajectory
 from ..latent.objectives import EndPose, Ranges
-from ..physics.pancake import cone_half_angle
 from ..tasks.pancake import FEASIBLE_TOLERANCE, Deformer
+from ..tasks.pancake import data as inputs
+from ..tasks.pancake.physics import cone_half_angle
 from .ch2 import load_deformer
 
 TARGETS = np.array([(y, z, t) for y in (-0.1, 0.0, 0.1) for z in (-0.1, 0.0, 0.1) for t in (-math.pi, 0.0, math.pi)])
@@ -159,7 +159,7 @@ def figures_cases(runs: dict[str, dict], out: Path, mu: float) -> None:
 
 
 def _psi(states: np.ndarray, accel: np.ndarray) -> np.ndarray:
-    from ..physics import pancake
+    from ..tasks.pancake import physics as pancake
 
     return pancake.psi(states[..., :-1, :], accel)
 
@@ -224,7 +224,7 @@ def _tensors(res: object) -> tuple:
 
 
 def _fc(states: np.ndarray, accel: np.ndarray, mu: float) -> np.ndarray:
-    from ..physics import pancake
+    from ..tasks.pancake import physics as pancake
 
     return pancake.violation(states[..., :-1, :], accel, mu)
 
@@ -252,14 +252,14 @@ def timing(deformer: Deformer) -> dict:
 
 def peer(deformer: Deformer, targets: np.ndarray) -> list[dict]:
     """Per target, side by side in one run: the strong IPOPT peer (hard force-form cone, cold from the
-    S-curve: :mod:`seqmotion.latent.pancake`), ``optimize_latent(..., exact=True)`` (latent
+    S-curve: :mod:`seqmotion.tasks.pancake.latent`), ``optimize_latent(..., exact=True)`` (latent
     Levenberg–Marquardt, then the polish), and the default call's J1 after 5 updates.
 
     Both NLPs are built before the timing (once per K and μ; targets are parameters), and the
     order of the two solvers alternates from target to target. A motion is exact when its true J1
     (the end error, plus Σ F_c) is ≤ 1e-9 and its max F_c ≤ 1e-6 rad.
     """
-    from ..latent.pancake import solve_end_pose, true_j1
+    from ..tasks.pancake.latent import solve_end_pose, true_j1
 
     mu = deformer.options.mu
     solve_end_pose(tuple(targets[0]), mu=mu)  # build both NLPs outside the timing

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import pancake as inputs
 from ..data.trajectories import tracking_rmse
-from ..physics import pancake as physics
+from ..tasks.pancake import data as inputs
+from ..tasks.pancake import physics
 
 
 def _pancake(out: Path) -> None:

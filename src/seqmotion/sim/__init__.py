@@ -53,6 +53,7 @@ _LAZY = {
     "ClosedLoopResult": ("closed_loop", "ClosedLoopResult"),
     "PANCAKE_NOISE": ("closed_loop", "PANCAKE_NOISE"),
     "register_envs": ("registration", "register_envs"),
+    "ArmLimits": ("arm_limits", "ArmLimits"),
     "robots": ("robot_models", "robots"),
     "get_robot": ("robot_models", "get_robot"),
     "JointReport": ("arm", "JointReport"),

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..physics.integrator import DT as CONTROL_DT
-from ..physics.pancake import GRAVITY
+from ..tasks.pancake.physics import GRAVITY
 
 __all__ = ["CONTROL_DT", "GRAVITY", "PUSHING_GRAVITY", "control_period", "import_mujoco"]
 

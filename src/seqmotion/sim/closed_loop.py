@@ -51,11 +51,11 @@ TURN_LENGTH = (400, 600)
 def turning_sketch(rng: np.random.Generator) -> np.ndarray:
     """One rough pancake-turning sketch ``(K, 6)``, the closed-loop benchmark's distribution.
 
-    A straight S-curve from rest at the origin to rest at ``(y, z, θ)`` (``data.pancake.straight``,
+    A straight S-curve from rest at the origin to rest at ``(y, z, θ)`` (``tasks.pancake.data.straight``,
     the inputs of Fig. 2.5 and ch. 4): ``y, z ~ U(-0.1, 0.1)`` m, ``|θ| ~ U(1.5, 3.0)`` rad with a
     random sign, ``K ~ U{400, …, 600}`` samples (0.4–0.6 s). Drawn in this order from ``rng``.
     """
-    from ..data.pancake import straight
+    from ..tasks.pancake.data import straight
 
     y, z = rng.uniform(*TURN_END_Y), rng.uniform(*TURN_END_Z)
     theta = rng.choice([-1.0, 1.0]) * rng.uniform(*TURN_END_THETA)

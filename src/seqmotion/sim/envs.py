@@ -89,10 +89,10 @@ from gymnasium import spaces
 
 from ..physics.integrator import integrate_numpy
 from ..physics.layout import StateLayout
-from ..physics.pancake import ACCEL_LAYOUT as PANCAKE_ACCEL
-from ..physics.pancake import STATE_LAYOUT as PANCAKE_STATE
-from ..physics.sliding import ACCEL_LAYOUT as PAN_ACCEL
-from ..physics.sliding import PLAN_LAYOUT as SLIDING_STATE
+from ..tasks.pancake.physics import ACCEL_LAYOUT as PANCAKE_ACCEL
+from ..tasks.pancake.physics import STATE_LAYOUT as PANCAKE_STATE
+from ..tasks.sliding.physics import ACCEL_LAYOUT as PAN_ACCEL
+from ..tasks.sliding.physics import PLAN_LAYOUT as SLIDING_STATE
 from .arm import Arm, Place, get_scene, place_on_tool, weight, workspace_problem
 from .backend import CONTROL_DT, import_mujoco
 from .control import JointSpaceController, TaskSpaceController, resolve_gains

@@ -7,7 +7,7 @@ Pure NumPy (no MuJoCo), vectorised over time.
 intrinsic x–y′–z″ angles). The commands of the dissertation use ``(a, b, c) = (θ, π/2, 0)``:
 ``Ry(π/2)`` turns the tool's axis (its z) to world +x and its down normal (its x) to world −z;
 ``Rx(θ)`` then rolls it about world x. So θ is a rotation about world +x, which tilts the
-surface's up-normal toward −y: the planar model's θ (``seqmotion.physics.pancake``), whose
+surface's up-normal toward −y: the planar model's θ (``seqmotion.tasks.pancake.physics``), whose
 still spatula at tilt θ feels ``ψ = -θ``.
 
 At ``b = π/2`` these angles are in gimbal lock (``Rx(a)`` and ``Ry(π/2)Rz(c)`` share an axis), so
@@ -93,7 +93,7 @@ def planar_tilt(rot: np.ndarray) -> np.ndarray:
     """The planar attitude θ of tool rotations ``(..., 3, 3)`` [rad], wrapped to (-π, π].
 
     The tool's x axis is its surface's down normal; θ is that normal's angle from straight
-    down, positive toward +y (the ``arg`` of :mod:`seqmotion.physics.pancake`). For
+    down, positive toward +y (the ``arg`` of :mod:`seqmotion.tasks.pancake.physics`). For
     ``R = Rx(θ) Ry(π/2)`` it returns θ exactly.
     """
     rot = np.asarray(rot)

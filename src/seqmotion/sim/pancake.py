@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core.execution import ExecutionCheck
 from ..data.trajectories import tracking_rmse
-from ..physics.pancake import MU, check_mu, cone_half_angle, violation
+from ..tasks.pancake.physics import MU, check_mu, cone_half_angle, violation
 from .arm import (
     ExecutionLog,
     JointReport,

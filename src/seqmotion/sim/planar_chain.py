@@ -5,7 +5,7 @@ Why: keeping a pancake on an inverted spatula needs a loop (centripetal accelera
 no single wrist joint at its rated speed can turn the spatula fast enough for one (the UR5e's wrist 3 at π rad/s
 needs R ≥ 0.99 m). Where the arm stands so that several of its joints turn about axes parallel to the task's θ axis
 (world x: the UR5e's shoulder lift, elbow and wrist 1; the Panda's joints 2, 4 and 6 with 1, 3 and 5 held at 0;
-:data:`~seqmotion.sim.robot_models.PLACEMENTS`), their speeds add up about one axis (3 × π rad/s; 6.96 rad/s), and
+:data:`~seqmotion.sim.placements.PLACEMENTS`), their speeds add up about one axis (3 × π rad/s; 6.96 rad/s), and
 the spatula's (y, z, θ) is a planar three-link chain of them with every other joint held still: the generator's
 planar motion *is* the arm's joint path.
 

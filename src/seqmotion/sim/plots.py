@@ -11,7 +11,7 @@ import numpy as np
 
 from ..io import pyplot, save_figure
 from ..physics.integrator import implied_accel
-from ..physics.pancake import check_mu, cone_half_angle, psi
+from ..tasks.pancake.physics import check_mu, cone_half_angle, psi
 from .pancake import PancakeResult
 from .sliding import SlidingResult
 

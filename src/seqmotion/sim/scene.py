@@ -83,7 +83,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..physics.pancake import MU as MU_PANCAKE
+from ..tasks.pancake.physics import MU as MU_PANCAKE
 from .backend import CONTROL_DT, GRAVITY, import_mujoco
 from .robot_models import Robot, placed_for, resolve_robot, tool_mount
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..data.trajectories import tracking_rmse
-from ..physics.sliding import SlidingPhysics
+from ..tasks.sliding.physics import SlidingPhysics
 from .arm import (
     ExecutionLog,
     JointReport,

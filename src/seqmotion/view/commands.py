@@ -2,7 +2,7 @@
 
 Every command is an object path relative to the pan, ``(K, 4)`` ``[x, y, vx, vy]`` [m, m/s] at 1 ms,
 starting at the origin at rest and ending at rest (an S-curve in time along the path:
-:func:`seqmotion.data.sliding.along_s_curve`). Points are entered in millimetres as text
+:func:`seqmotion.tasks.sliding.data.along_s_curve`). Points are entered in millimetres as text
 (``"30,0; 40,20; 20,40"``); the path starts at (0, 0) and passes through each in turn.
 """
 
@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from ..data import sliding as sliding_data
+from ..tasks.sliding import data as sliding_data
 
 SHAPES = ("line", "arc", "circle", "figure-eight", "spline")
 """The command shapes, in the order the page lists them."""

@@ -37,7 +37,7 @@ import torch
 from ..core.results import columns_of
 from ..physics.integrator import DT
 from ..physics.layout import StateLayout
-from ..physics.pancake import violation_angle
+from ..tasks.pancake.physics import violation_angle
 from . import commands
 
 TARGET_TOLERANCE = 1e-3

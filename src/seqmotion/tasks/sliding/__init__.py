@@ -1,19 +1,26 @@
 """The sliding task (ch. 3): shaking a frying pan so an object slides along a commanded path.
 
-One folder for what is the sliding task's alone:
+One folder for what is the sliding task's alone, each file in the layer of its role (``tests/test_layers.py``):
 
+* :mod:`.physics` — the Coulomb stick/slip contact (numba kernels with a hand-derived backward, the torch path for
+  the GPU and the export) and ``SlidingPhysics`` (rank of ``physics``);
+* :mod:`.data` — the physics-type and B-spline training commands and the named ones (``circle``, ``line``,
+  ``figure_eight``, ``sm.tasks.sliding.data.circle``) that ``seqmotion plan`` and the reproductions plan for
+  (rank of ``data``);
 * :mod:`.task` — the task (:class:`SlidingTask`: options, curriculum, loss, errors), its plan
-  (:class:`SlidingPlan`) and planner (:class:`SlidingPlanner`, ``sm.load_pretrained("sliding")``);
+  (:class:`SlidingPlan`) and planner (:class:`SlidingPlanner`, ``sm.load_pretrained("sliding")``), exported here;
 * :mod:`.robot` — the plan on a robot: the execution check's result (:class:`SlidingExecutionCheck`) and the
-  robot's joint limits as a latent objective term (:class:`PanJointLimits`).
+  robot's joint limits as a latent objective term (:class:`PanJointLimits`), which the planner keeps (the task's
+  rank);
+* :mod:`.latent` — ``refine_plan`` and the ``Tracking`` objective, built on the latent optimiser, which sits below
+  the tasks (the task's rank; not imported here: ``sm.refine_plan``).
 
-Its other parts sit in the layers their imports allow (``tests/test_layers.py``): the contact physics
-:mod:`seqmotion.physics.sliding` and the command generators :mod:`seqmotion.data.sliding` below the task
-contract (the task and its planner import them), the tracking refinement :mod:`seqmotion.latent.sliding` (built on
-the latent optimiser) and the simulated run :mod:`seqmotion.sim.sliding` (MuJoCo) above it.
+Its MuJoCo run and its check on a simulated arm stay in :mod:`seqmotion.sim.sliding` and
+:mod:`seqmotion.sim.executable_sliding`, beside the simulator's other scenes.
 """
 
 from ...core.execution import BindingLimit, ExecutionCheck
+from . import data, physics
 from .robot import (
     ACCEL_MARGIN,
     ACCEPT_CLEARANCE,
@@ -52,5 +59,6 @@ __all__ = [
     "ROBOT_MARGIN", "RUN_KINDS", "TASK", "TRACKING_TOLERANCE", "TRADE_OFF", "VARIANTS", "BindingLimit",
     "ExecutionCheck", "PanJointLimits", "SlidingExecutionCheck", "SlidingOptions", "SlidingParams", "SlidingPlan",
     "SlidingPlanner", "SlidingTask", "chapter3_curriculum", "check_limit_kinds", "command_tracking",
-    "friction_trained", "model_config", "pan_acceleration_reach", "training_friction", "warn_if_not_executable",
+    "data", "friction_trained", "model_config", "pan_acceleration_reach", "physics", "training_friction",
+    "warn_if_not_executable",
 ]

@@ -1,8 +1,8 @@
 """Chapter 3: shaking a frying pan so an object slides along a commanded path — the task, its options and planner.
 
 Wiring: physics = pan double integrator + Coulomb stick/slip contact
-(:mod:`seqmotion.physics.sliding`); commands = physics-type and B-spline-type
-(:mod:`seqmotion.data.sliding`); the encoder reads the command ``x_d`` (object relative to
+(:mod:`seqmotion.tasks.sliding.physics`); commands = physics-type and B-spline-type
+(:mod:`seqmotion.tasks.sliding.data`); the encoder reads the command ``x_d`` (object relative to
 pan), the decoder reads the generated ``[x̂_p, x̂_d]`` and emits pan accelerations ``û_p``
 with their 2 × 2 covariances, and the contact model runs inside the free-running loop.
 
@@ -35,15 +35,15 @@ from ...core.options import TaskOptions, check_choice, check_length_range, check
 from ...core.results import Motion, View
 from ...core.task import Preset, Task
 from ...core.trained import TrainedModel
-from ...data import sliding as commands
 from ...data.trajectories import TensorBatch, TrajectoryBatch, tracking_rmse
 from ...errors import as_trajectories
 from ...models.seq2seq import ChunkedSeq2Seq, Seq2SeqConfig
-from ...physics import sliding as contact
 from ...physics.integrator import DT, integrate_covariance
 from ...training.config import TrainConfig
 from ...training.curriculum import Curriculum, CurriculumParams, Stage
 from ...training.losses import encode_and_rollout, gaussian_nll_2d, masked_mean, per_trajectory, sample_mask
+from . import data as commands
+from . import physics as contact
 from .robot import (
     ACCEPT_CLEARANCE,
     ACCEPT_SHARE,
@@ -99,7 +99,7 @@ class SlidingOptions(TaskOptions):
             trajectory's friction from ``[[μ_lo, μ_hi], [μ'_lo, μ'_hi]]`` (with μ' < μ).
         friction_pairs: beyond the dissertation (off by default): draw each training trajectory's
             friction from this list of ``[μ, μ']`` pairs.
-        pan_shaking: how the physics-type commands' pans shake (:mod:`seqmotion.data.sliding`):
+        pan_shaking: how the physics-type commands' pans shake (:mod:`seqmotion.tasks.sliding.data`):
             ``"position"`` keeps the pan near home; ``"velocity"`` lets it random-walk.
         variant: which of the dissertation's models A, B, C the schedule is (informational).
     """
@@ -148,7 +148,7 @@ class SlidingOptions(TaskOptions):
 
 def _check_option_friction(option: str, value: object, mu: float, mu_dyn: float | None) -> None:
     """``ValueError`` naming ``option`` (whose ``value`` holds ``mu``, ``mu_dyn``) unless they are friction the
-    contact model runs at (:func:`~seqmotion.physics.sliding.check_pan_friction`)."""
+    contact model runs at (:func:`~seqmotion.tasks.sliding.physics.check_pan_friction`)."""
     try:
         contact.check_pan_friction(mu, mu if mu_dyn is None else mu_dyn)
     except ValueError as exc:
@@ -327,7 +327,7 @@ class SlidingTask(Task):
         """The object's relative-position covariance ``(B, K-1, 2, 2)``: ``S_ud = J S_up Jᵀ`` with the contact
         model's ``J = ∂u_d/∂u_p`` per sample (−I sliding, 0 stuck or stopping, ``−I + μg (I − m mᵀ)/|u_p|``
         at breakaway; rebuilt from each sample's ``branch``), integrated in closed form — what
-        :class:`~seqmotion.physics.sliding.SlidingDynamics` propagates chunk by chunk as ``pos_cov``."""
+        :class:`~seqmotion.tasks.sliding.physics.SlidingDynamics` propagates chunk by chunk as ``pos_cov``."""
         branch = outputs["branch"]
         mu = torch.as_tensor(dynamics.mu, dtype=accel.dtype, device=accel.device).reshape(-1, 1, 1, 1)
         norm = accel.norm(dim=-1, keepdim=True).clamp_min(1e-12)
@@ -359,8 +359,8 @@ RESULT_PARTS = (BindingLimit, ExecutionCheck, SlidingExecutionCheck)
 def command_tracking(command: np.ndarray, alpha_end: float = 0.3, alpha_jerk: float = 10.0,
                      pan_limit: float = PAN_LIMIT, alpha_range: float = 10.0):  # noqa: ANN201 - a closure
     """``f(states, accel) -> (B,)``: the object's squared distance from ``command`` ``(K, 4)`` [mm²], averaged over
-    the plan, plus ``refine_plan``'s default terms (end error, jerk, pan range; ``seqmotion.latent.sliding.Tracking``
-    with its default recipe)."""
+    the plan, plus ``refine_plan``'s default terms (end error, jerk, pan range;
+    ``seqmotion.tasks.sliding.latent.Tracking`` with its default recipe)."""
     target = torch.from_numpy(np.asarray(command, dtype=np.float64))[None]
 
     def f(states: torch.Tensor, accel: torch.Tensor) -> torch.Tensor:

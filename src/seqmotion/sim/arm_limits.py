@@ -5,7 +5,7 @@ On an arm placed so that three parallel joints turn the spatula (:mod:`.planar_c
 elbow and wrist 1; the Panda's joints 2, 4 and 6), the spatula's planar state *is* the arm's joint state, exactly: the
 joint speeds follow from the chain's Jacobian, the joint angles from its closed-form inverse kinematics, the torques
 from its Newton–Euler equations. Written here in PyTorch, they make the limits a differentiable penalty on the
-generator's output, so ``optimize_latent(model, sketch, sm.objectives.ArmLimits("ur5e") + ...)`` moves the learned
+generator's output, so ``optimize_latent(model, sketch, sm.sim.ArmLimits("ur5e") + ...)`` moves the learned
 motion itself toward one the arm can run before any exact polish; :meth:`ArmLimits.report` says how far each limit is
 from held.
 """
@@ -18,12 +18,12 @@ import numpy as np
 import torch
 
 from ..errors import check_number
-from ..physics import pancake as pancake_physics
+from ..latent.terms import Objective, Term
 from ..physics.integrator import DT
-from ..sim.executable import ACCEL_WINDOW
-from ..sim.planar_chain import SPEED_MARGIN, TORQUE_MARGIN, PlanarChain, chain_torques, link_angles, planar_chain
-from ..sim.robot_models import resolve_robot
-from .terms import Objective, Term
+from ..tasks.pancake import physics as pancake_physics
+from .executable import ACCEL_WINDOW
+from .planar_chain import SPEED_MARGIN, TORQUE_MARGIN, PlanarChain, chain_torques, link_angles, planar_chain
+from .robot_models import resolve_robot
 
 ARM_KINDS = ("speed", "acceleration", "torque", "reach")
 """The limits :class:`ArmLimits` can hold: rated joint speeds and accelerations, torque limits, and the chain's reach

@@ -42,10 +42,10 @@ import numba
 import numpy as np
 import torch
 
-from ..errors import as_trajectories, check_finite_array, check_friction, check_number
-from .integrator import DT, CovarianceCarry, integrate, propagate_covariance
-from .layout import StateLayout
-from .parameters import Physics
+from ...errors import as_trajectories, check_finite_array, check_friction, check_number
+from ...physics.integrator import DT, CovarianceCarry, integrate, propagate_covariance
+from ...physics.layout import StateLayout
+from ...physics.parameters import Physics
 
 GRAVITY = 9.8
 MU = 1.0
@@ -63,7 +63,7 @@ ACCEL_LAYOUT = StateLayout(("pan_a_x", "pan_a_y"), ("m/s²", "m/s²"), "pan acce
 
 
 @dataclasses.dataclass(frozen=True)
-class SlidingPhysics(Physics):
+class SlidingPhysics(Physics, saved_as="seqmotion.physics.sliding.SlidingPhysics"):  # its name in saved files
     """The pan–object friction the contact model runs at: static μ and dynamic μ' (``0 < μ ≤ 1e3``, ``0 ≤ μ' ≤ μ``).
 
     A sliding model's default is the nominal friction of its training (``options.mu``, ``options.mu_dyn``);

@@ -1,8 +1,8 @@
 """Chapter 2: deforming pancake-turning motions so the pancake stays on the spatula.
 
 Wiring: physics = the planar double integrator + the friction cone
-(:mod:`seqmotion.physics.pancake`); inputs = acceleration- and position-type trajectories
-(:mod:`seqmotion.data.pancake`); loss = eqs. 2.17–2.25; curriculum = SPEC §3.
+(:mod:`seqmotion.tasks.pancake.physics`); inputs = acceleration- and position-type trajectories
+(:mod:`seqmotion.tasks.pancake.data`); loss = eqs. 2.17–2.25; curriculum = SPEC §3.
 
 The loss of one trajectory of length K, generated states x̂ and inputs û::
 
@@ -19,23 +19,34 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch
 
-from ..core.execution import BindingLimit, ExecutionCheck
-from ..core.options import TaskOptions, check_count, check_length_range, check_positive
-from ..core.polish import ExactForm
-from ..core.results import FEASIBLE_TOLERANCE, Motion
-from ..core.task import Preset, Task
-from ..core.trained import TrainedModel
-from ..data import pancake as inputs
-from ..data.trajectories import TensorBatch, TrajectoryBatch
-from ..errors import as_trajectories
-from ..models.seq2seq import DEFAULT_CHUNK, ChunkedSeq2Seq
-from ..physics.integrator import DT, DoubleIntegratorDynamics
-from ..physics.pancake import (
+from ...core.execution import BindingLimit, ExecutionCheck
+from ...core.options import TaskOptions, check_count, check_length_range, check_positive
+from ...core.polish import ExactForm
+from ...core.results import FEASIBLE_TOLERANCE, Motion
+from ...core.task import Preset, Task
+from ...core.trained import TrainedModel
+from ...data.trajectories import TensorBatch, TrajectoryBatch
+from ...errors import as_trajectories
+from ...models.seq2seq import DEFAULT_CHUNK, ChunkedSeq2Seq
+from ...physics.integrator import DT, DoubleIntegratorDynamics
+from ...physics.transcription import within_reach
+from ...training.curriculum import Curriculum, CurriculumParams, Stage
+from ...training.losses import (
+    DEFAULT_VARIANCE_FLOOR,
+    encode_and_rollout,
+    gaussian_nll_1d,
+    gaussian_nll_2d_entries,
+    masked_mean,
+    per_trajectory,
+    sample_mask,
+)
+from . import data as inputs
+from .physics import (
     ACCEL_LAYOUT,
     MU,
     STATE_DIM,
@@ -45,17 +56,6 @@ from ..physics.pancake import (
     cone_half_angle,
     violation_angle,
     violation_torch,
-)
-from ..physics.transcription import within_reach
-from ..training.curriculum import Curriculum, CurriculumParams, Stage
-from ..training.losses import (
-    DEFAULT_VARIANCE_FLOOR,
-    encode_and_rollout,
-    gaussian_nll_1d,
-    gaussian_nll_2d_entries,
-    masked_mean,
-    per_trajectory,
-    sample_mask,
 )
 
 THETA_WEIGHT = 0.1
@@ -372,7 +372,11 @@ class DeformResult(Motion):
 
     psi: np.ndarray | None = None
     robot_check: ExecutionCheck | None = None  # feasible is False where it finds a limit broken (Motion.feasible)
-    per_transition: ClassVar[tuple[str, ...]] = ("violation", "psi")  # load_result checks each is (K-1,)
+    per_transition = ("violation", "psi")  # load_result checks each is (K-1,)
+
+    __module__ = "seqmotion.tasks.pancake"
+    """Its public home, the name saved results know it by (``seqmotion.tasks.pancake.DeformResult``). (dataclass
+    looks a ``ClassVar`` annotation up in that module, still being imported here: ``per_transition`` has none.)"""
 
 
 class Deformer(TrainedModel):
@@ -430,7 +434,8 @@ class Deformer(TrainedModel):
 
 
 RESULT_PARTS = (BindingLimit, ExecutionCheck)
-"""The dataclasses a saved :class:`DeformResult` nests: ``load_result`` finds them by name in this module."""
+"""The dataclasses a saved :class:`DeformResult` nests: ``load_result`` finds them by name in its home,
+:mod:`seqmotion.tasks.pancake` (which exports them)."""
 
 
 PancakeTask.model_class = Deformer

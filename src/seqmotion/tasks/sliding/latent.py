@@ -7,10 +7,10 @@ differentiable contact physics, at the friction the user gives (ch. 4's procedur
 tracking objective)::
 
     import seqmotion as sm
-    from seqmotion.latent.sliding import Tracking, refine_plan
+    from seqmotion.tasks.sliding.latent import Tracking, refine_plan
 
     planner = sm.load_pretrained("sliding")
-    command = sm.data.sliding.circle(0.05, 1200)
+    command = sm.tasks.sliding.data.circle(0.05, 1200)
     plan = refine_plan(planner, command, mu=1.0, mu_dyn=0.5)      # a SlidingPlan, tracked
     # or, by hand (one round, no restarts):
     objective = Tracking(command, alpha_end=0.3, alpha_jerk=10, pan_limit=0.2)
@@ -29,13 +29,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.execution import check_execution
-from ..core.results import Motion, first_of
-from ..errors import as_trajectories, check_number
-from ..physics.integrator import DT
-from ..physics.parameters import Physics
-from ..physics.sliding import GRAVITY, PLAN_LAYOUT
-from ..tasks.sliding import (
+from ...core.execution import check_execution
+from ...core.results import Motion, first_of
+from ...errors import as_trajectories, check_number
+from ...latent.optimize import optimize_latent
+from ...latent.terms import Objective, check_weight
+from ...physics.integrator import DT
+from ...physics.parameters import Physics
+from .physics import GRAVITY, PLAN_LAYOUT
+from .task import (
     ACCEPT_CLEARANCE,
     ACCEPT_SHARE,
     PAN_LIMIT,
@@ -46,8 +48,6 @@ from ..tasks.sliding import (
     check_limit_kinds,
     warn_if_not_executable,
 )
-from .optimize import optimize_latent
-from .terms import Objective, _check_weight
 
 MM2 = 1e6
 """m² → mm²: the objective is in mm² so its values read as a squared RMSE in millimetres."""
@@ -84,11 +84,11 @@ class Tracking(Objective):
     ) -> None:
         batch, _ = as_trajectories(command, 4, "command")
         self.command = torch.from_numpy(batch)  # (B or 1, K, 4) float64
-        self.alpha_range = _check_weight("alpha_range", alpha_range)
-        self.alpha_velocity = _check_weight("alpha_velocity", alpha_velocity)
-        self.alpha_end = _check_weight("alpha_end", alpha_end)
-        self.alpha_jerk = _check_weight("alpha_jerk", alpha_jerk)
-        self.pan_limit = None if pan_limit is None else _check_weight("pan_limit", pan_limit, positive=True)
+        self.alpha_range = check_weight("alpha_range", alpha_range)
+        self.alpha_velocity = check_weight("alpha_velocity", alpha_velocity)
+        self.alpha_end = check_weight("alpha_end", alpha_end)
+        self.alpha_jerk = check_weight("alpha_jerk", alpha_jerk)
+        self.pan_limit = None if pan_limit is None else check_weight("pan_limit", pan_limit, positive=True)
 
     def bind(self, model: Any) -> Tracking:
         """This objective for a sliding model: refuses any other model; p_lim from its options."""
@@ -217,11 +217,11 @@ def refine_plan(
         check_limit_kinds(limits)
     for name, value in (("steps", steps), ("accel_steps", accel_steps)):
         check_number(name, value, minimum=0, integer=True)
-    _check_weight("dither", dither)
+    check_weight("dither", dither)
     if dither > 0 and accel_steps == 0:
         raise ValueError("dither is applied before the acceleration polish: give accel_steps > 0 as well")
     for name, value in (("lr", lr), ("accel_lr", accel_lr), ("dither_hz", dither_hz)):
-        _check_weight(name, value, positive=True)
+        check_weight(name, value, positive=True)
     if isinstance(gains, str) or not gains:
         raise ValueError(f"gains must be a non-empty sequence of positive numbers, got {gains!r}")
     for gain in gains:

@@ -6,7 +6,7 @@
 * :func:`solve_end_pose` — the formulation a robotics user would write for chapter 4's J1 (K = 500
   samples, start at rest at the origin): all states X (K × 6) and inputs U ((K−1) × 3) are decision
   variables, the dynamics ``x[k+1] = A x[k] + B u[k]`` equality constraints, the friction cone *hard*
-  constraints in force form in the spatula frame (:func:`seqmotion.physics.pancake.cone_constraint`:
+  constraints in force form in the spatula frame (:func:`seqmotion.tasks.pancake.physics.cone_constraint`:
   ``μ n − t ≥ 0``, ``μ n + t ≥ 0``), and the cost the weighted end error ``|D (p[K-1] − p_end)|²``,
   D = diag(1, 1, 0.1). Exact Hessian, sparse (CasADi's default with IPOPT/MUMPS). IPOPT starts cold from
   the same S-curve the seq2seq model is given (its implied inputs, integrated so the start is dynamically
@@ -25,13 +25,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.results import FEASIBLE_TOLERANCE
-from ..data import pancake as sketches
-from ..errors import check_finite_array, check_number
-from ..physics import pancake as physics
-from ..physics.integrator import DT, implied_accel, integrate_numpy
-from ..physics.transcription import Constraint, scale_rows, transcription
-from .terms import Objective, Term, _check_weight, _max_per_trajectory, _np, check_layout, unbound
+from ...core.results import FEASIBLE_TOLERANCE
+from ...errors import check_finite_array, check_number
+from ...latent.objectives import register_fieldless_ranges
+from ...latent.terms import Objective, Term, as_numpy, check_layout, check_weight, max_per_trajectory, unbound
+from ...physics.integrator import DT, implied_accel, integrate_numpy
+from ...physics.transcription import Constraint, scale_rows, transcription
+from . import data as sketches
+from . import physics
 
 D_WEIGHTS = (1.0, 1.0, 0.1)
 """D = diag(1, 1, 0.1) on (y, z, θ): metres against radians (eqs. 2.25, 4.3; the pancake task's ``end_pose``)."""
@@ -70,19 +71,19 @@ class PancakeRanges(Objective):
         v_lim: Sequence[float] | None = None,
         mu: float | None = None,
     ) -> None:
-        self.alpha, self.beta = _check_weight("alpha", alpha), _check_weight("beta", beta)
-        self.mu = None if mu is None else _check_weight("mu", mu, positive=True)
+        self.alpha, self.beta = check_weight("alpha", alpha), check_weight("beta", beta)
+        self.mu = None if mu is None else check_weight("mu", mu, positive=True)
         p_lim = 0.2 if p_lim is None else p_lim
         theta_end = -3 * math.pi / 4 if theta_end is None else theta_end
         theta_lim = 0.5 if theta_lim is None else theta_lim
         v_lim = (1.5, 1.5, 4.5) if v_lim is None else v_lim
         for name, value in (("p_lim", p_lim), ("theta_lim", theta_lim)):
-            _check_weight(name, value)
+            check_weight(name, value)
         check_number("theta_end", theta_end)
         if isinstance(v_lim, str) or not hasattr(v_lim, "__len__") or len(v_lim) != 3:
             raise ValueError(f"Ranges needs three velocity limits (v_y, v_z, v_theta), got {v_lim!r}")
         for value in v_lim:
-            _check_weight("v_lim", value)
+            check_weight("v_lim", value)
         self.layout = physics.STATE_LAYOUT
         self.p_lim, self.theta_end, self.theta_lim = float(p_lim), float(theta_end), float(theta_lim)
         self.v_lim = tuple(map(float, v_lim))
@@ -137,9 +138,9 @@ class PancakeRanges(Objective):
         mu = self._mu()
         with torch.no_grad():
             units = {"end position band": "m", "end attitude band": "rad", "velocity limits": "(m/s, rad/s)"}
-            terms = {name: Term(_np(v), 1e-6, units[name]) for name, v in self._excess(states).items()}
+            terms = {name: Term(as_numpy(v), 1e-6, units[name]) for name, v in self._excess(states).items()}
             cone = physics.violation_torch(states[:, : accel.shape[1], 2], accel, mu)
-            terms["friction cone"] = Term(_np(_max_per_trajectory(cone)), FEASIBLE_TOLERANCE, "rad")
+            terms["friction cone"] = Term(as_numpy(max_per_trajectory(cone)), FEASIBLE_TOLERANCE, "rad")
         return terms
 
     def exact_constraints(self) -> list[tuple[Constraint, np.ndarray]]:
@@ -215,5 +216,7 @@ def solve_end_pose(
     return PeerResult(solution.states, solution.accel, j1, max_fc, solution.status, solution.iterations,
                       solution.seconds, build_seconds)
 
+
+register_fieldless_ranges(PancakeRanges)  # sm.objectives.Ranges() without field names: eq. 4.10's bands
 
 __all__ = ["D_WEIGHTS", "PancakeRanges", "PeerResult", "dynamic_penalty", "solve_end_pose", "true_j1"]

@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import as_trajectories, check_friction
-from .integrator import DT, implied_accel
-from .layout import StateLayout
-from .parameters import Physics
-from .transcription import Constraint, casadi
+from ...errors import as_trajectories, check_friction
+from ...physics.integrator import DT, implied_accel
+from ...physics.layout import StateLayout
+from ...physics.parameters import Physics
+from ...physics.transcription import Constraint, casadi
 
 GRAVITY = 9.8
 """Magnitude of gravity [m/s²]; the vector is ``(0, -GRAVITY)`` in (y, z)."""
@@ -32,7 +32,7 @@ MU = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
-class PancakePhysics(Physics):
+class PancakePhysics(Physics, saved_as="seqmotion.physics.pancake.PancakePhysics"):  # its name in saved files
     """The spatula–pancake friction the cone is judged at: static μ > 0 (half-angle ``atan μ``; 45° at μ = 1)."""
 
     mu: float = MU

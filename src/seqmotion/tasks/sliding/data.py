@@ -31,10 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..errors import check_number
-from ..physics import sliding as contact
-from ..physics.integrator import DT, integrate
-from .trajectories import (
+from ...data.trajectories import (
     TrajectoryBatch,
     combine,
     draw_lengths,
@@ -43,6 +40,9 @@ from .trajectories import (
     s_curve,
     uniform_bspline,
 )
+from ...errors import check_number
+from ...physics.integrator import DT, integrate
+from . import physics as contact
 
 DEFAULT_LENGTH = (500, 1500)
 SHAKE_SPACING_MS = (40, 120)

@@ -16,10 +16,10 @@ import math
 import numpy as np
 import torch
 
-from ..errors import check_number
-from ..physics.integrator import DT, integrate
-from ..physics.pancake import GRAVITY
-from .trajectories import TrajectoryBatch, combine, draw_lengths, normalized_time, path_states, quadratic_through
+from ...data.trajectories import TrajectoryBatch, combine, draw_lengths, normalized_time, path_states, quadratic_through
+from ...errors import check_number
+from ...physics.integrator import DT, integrate
+from .physics import GRAVITY
 
 DEFAULT_LENGTH = (100, 500)
 """K is drawn uniformly in this range (samples at 1 ms)."""
