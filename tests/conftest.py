@@ -27,6 +27,23 @@ def planner():
     return sm.load_pretrained("sliding")
 
 
+@pytest.fixture(scope="session")
+def shipped_bundles(tmp_path_factory):
+    """A folder holding ``pancake/`` and ``sliding/``: the shipped models exported with ``export-onnx`` (source =
+    their names), once per run; tests read them or copy them (``shutil.copytree``) before changing anything."""
+    from seqmotion.deploy import export_onnx
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the export's parity check, as the deploy tests run it
+    try:
+        root = tmp_path_factory.mktemp("shipped-bundles")
+        for name in ("pancake", "sliding"):
+            export_onnx(sm.load_pretrained(name), root / name, source=name)
+    finally:
+        torch.set_num_threads(threads)
+    return root
+
+
 @pytest.fixture(scope="module")
 def one_thread():
     """torch on one thread for the module, restored afterwards: a control loop steps a batch of one,

@@ -42,12 +42,10 @@ def _one_thread(one_thread):
 
 
 @pytest.fixture(scope="module")
-def pristine(tmp_path_factory):
-    """Two exported bundles that differ in every graph: pancake (with a constraint graph) and sliding (without)."""
-    root = tmp_path_factory.mktemp("bundles")
-    for name in ("pancake", "sliding"):
-        export_onnx(sm.load_pretrained(name), root / name, source=name)
-    return root
+def pristine(shipped_bundles):
+    """Two exported bundles that differ in every graph: pancake (with a constraint graph) and sliding (without);
+    the session's (conftest), read or copied, never changed."""
+    return shipped_bundles
 
 
 @pytest.fixture

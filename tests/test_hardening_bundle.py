@@ -32,7 +32,7 @@ pytest.importorskip("onnxruntime")
 
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
-from seqmotion.deploy import OnnxModel, OnnxStepper, bundle, export_onnx  # noqa: E402
+from seqmotion.deploy import OnnxModel, OnnxStepper, bundle  # noqa: E402
 from seqmotion.deploy import export as export_module  # noqa: E402
 
 
@@ -42,13 +42,10 @@ def _one_thread(one_thread):
 
 
 @pytest.fixture(scope="module")
-def pristine(tmp_path_factory):
+def pristine(shipped_bundles):
     """The pancake (a constraint graph, physics the graph does not read) and sliding (friction the graph reads)
-    bundles, exported once."""
-    root = tmp_path_factory.mktemp("bundles")
-    for name in ("pancake", "sliding"):
-        export_onnx(sm.load_pretrained(name), root / name, source=name)
-    return root
+    bundles: the session's (conftest), read or copied, never changed."""
+    return shipped_bundles
 
 
 def copy(pristine: Path, name: str, to: Path) -> Path:

@@ -18,7 +18,7 @@ import seqmotion as sm
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
-from seqmotion.deploy import OnnxModel, OnnxStepper, export_onnx  # noqa: E402
+from seqmotion.deploy import OnnxModel, OnnxStepper  # noqa: E402
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -27,11 +27,9 @@ def _one_thread(one_thread):
 
 
 @pytest.fixture(scope="module")
-def bundles(tmp_path_factory):
-    root = tmp_path_factory.mktemp("realtime")
-    for name in ("pancake", "sliding"):
-        export_onnx(sm.load_pretrained(name), root / name, source=name)
-    return root
+def bundles(shipped_bundles):
+    """The shipped pancake and sliding models exported (the session's, conftest)."""
+    return shipped_bundles
 
 
 def motion(name: str, k: int) -> np.ndarray:
