@@ -197,16 +197,35 @@ def _act_campaign_rows(path: Path) -> list[dict]:
     return rows
 
 
+def _series(rows: list[dict]) -> dict[str, list[dict]]:
+    """The plotted series: each method's rows, LeRobot ACT's split into the runs trained to convergence (the campaign's
+    stop rule) and the budget-limited ones, never pooled together."""
+    out: dict[str, list[dict]] = {}
+    for r in rows:
+        if not r["demonstrations"]:
+            continue
+        key = r["method"]
+        if key == "act":
+            key = "act, to convergence" if r.get("stop_reason") == "patience" else "act, budget-limited"
+        out.setdefault(key, []).append(r)
+    return out
+
+
 def _plot(rows: list[dict], path: Path) -> None:
+    """Left: success against demonstrations (seeds pooled, Wilson 95 %). Right, where ACT runs were trained to
+    convergence: ACT's success against training steps at each evaluated checkpoint, beside the other methods'
+    pooled success at the same number of demonstrations."""
     import matplotlib.pyplot as plt
     import numpy as np
 
     from seqmotion.io import save_figure
     from seqmotion.lfd.evaluation import wilson_interval
 
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for i, method in enumerate(sorted({r["method"] for r in rows if r["demonstrations"]})):
-        mine = [r for r in rows if r["method"] == method]
+    series = _series(rows)
+    converged = series.get("act, to convergence", [])
+    fig, axes = plt.subplots(1, 2 if converged else 1, figsize=(12 if converged else 6, 4), squeeze=False)
+    ax = axes[0, 0]
+    for i, (name, mine) in enumerate(sorted(series.items())):
         counts = sorted({r["demonstrations"] for r in mine})
         # pool the seeds' trials at each count; the interval is the pooled Wilson interval
         ok = [sum(r["successes"] for r in mine if r["demonstrations"] == n) for n in counts]
@@ -215,10 +234,10 @@ def _plot(rows: list[dict], path: Path) -> None:
         ci = np.array([wilson_interval(k, t) for k, t in zip(ok, total, strict=True)])
         shifted = np.array(counts) * (1 + 0.04 * i)  # side by side, not on top of each other
         steps = sorted({r["train_steps"] for r in mine})
-        label = method
-        if method == "act" and all(r.get("stop_reason") == "patience" for r in mine):
-            label = f"LeRobot ACT (to convergence: {min(steps)}-{max(steps)} steps)"
-        elif method == "act":
+        label = name
+        if name == "act, to convergence":
+            label = f"LeRobot ACT, to convergence ({', '.join(map(str, steps))} steps)"
+        elif name == "act, budget-limited":
             label = f"LeRobot ACT ({', '.join(map(str, steps))} steps: budget-limited)"
         older = sorted({r["episode_seconds"] for r in mine} - {_episode_seconds()})
         if older:  # trained and scored on an earlier version of the benchmark: say so on the plot
@@ -231,8 +250,32 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.set_xlabel("demonstrations")
     ax.set_ylabel("success on held-out trials")
     ax.set_ylim(-0.02, 1.02)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     ax.set_title(f"hard pushing benchmark, {_episode_seconds():g} s episodes (95 % Wilson, seeds pooled)", fontsize=10)
+    if converged:
+        ax = axes[0, 1]
+        colours = {name: f"C{i}" for i, name in enumerate(sorted(series))}  # as in the left panel
+        for r in converged:
+            curve = [c for c in r.get("curve") or [] if c.get("trials")]
+            steps = np.array([c["step"] for c in curve])
+            rate = np.array([c["successes"] / c["trials"] for c in curve])
+            ci = np.array([wilson_interval(c["successes"], c["trials"]) for c in curve])
+            ax.errorbar(steps, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="o", capsize=3,
+                        color=colours["act, to convergence"] if len(converged) == 1 else None,
+                        label=f"LeRobot ACT, {r['demonstrations']} demonstrations, seed {r['seed']}")
+        for n in sorted({r["demonstrations"] for r in converged}):
+            for name, mine in sorted((k, v) for k, v in series.items() if not k.startswith("act")):
+                at_n = [r for r in mine if r["demonstrations"] == n]
+                if at_n:
+                    pooled = sum(r["successes"] for r in at_n) / sum(r["trials"] for r in at_n)
+                    ax.axhline(pooled, ls="--", lw=1, color=colours[name],
+                               label=f"{name}, {n} demonstrations ({len(at_n)} seeds pooled)")
+        ax.set_xlabel("ACT training steps (batch 8)")
+        ax.set_ylabel("success on held-out trials")
+        ax.set_ylim(-0.02, 1.02)
+        ax.legend(fontsize=7)
+        ax.set_title("ACT's checkpoints on the same 30 held-out scenes (95 % Wilson)", fontsize=10)
+    fig.tight_layout()
     save_figure(fig, path, close=True)
 
 
