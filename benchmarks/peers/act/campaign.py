@@ -41,7 +41,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -84,11 +83,11 @@ def _read(path: Path) -> Any:
 
 
 def _write_json(path: Path, payload: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(json.dumps(payload, indent=1, default=str))
-    os.replace(tmp, path)
+    """Atomically, as the trainer writes its own files (``train_act.write_json``)."""
+    sys.path.insert(0, str(HERE))
+    from train_act import write_json
+
+    write_json(path, payload)
 
 
 def _env() -> dict[str, str]:

@@ -312,7 +312,7 @@ def validation_loss(policy, batches: list[dict], with_vae: bool, device: str) ->
 # --------------------------------------------------------------------------------------------- checkpoints
 
 
-def _write_json(path: Path, payload: Any) -> None:
+def write_json(path: Path, payload: Any) -> None:
     """Atomically: a temporary file in the same folder, then ``os.replace``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
@@ -352,10 +352,10 @@ def save_run_checkpoint(out: Path, step: int, cfg, policy, optimizer, lr_schedul
     tmp = root / f".tmp-{_step_name(step)}"
     shutil.rmtree(tmp, ignore_errors=True)
     save_checkpoint(tmp, step, cfg, policy, optimizer, lr_scheduler, preprocessor, postprocessor)
-    _write_json(tmp / "training_state" / STATE_FILE, state)
-    _write_json(tmp / "training_state" / HISTORY_FILE, history)
+    write_json(tmp / "training_state" / STATE_FILE, state)
+    write_json(tmp / "training_state" / HISTORY_FILE, history)
     # eval_act.py reads train_log.json beside the weights (image mode, steps, episodes)
-    _write_json(tmp / "pretrained_model" / "train_log.json", summary)
+    write_json(tmp / "pretrained_model" / "train_log.json", summary)
     if final.exists():  # the same step saved again (a resumed run that had nothing left to do)
         shutil.rmtree(final)
     os.replace(tmp, final)
@@ -586,7 +586,7 @@ def main(argv: list[str] | None = None) -> int:
         save_run_checkpoint(args.out, step, cfg, unwrapped, optimizer, lr_scheduler, preprocessor, postprocessor,
                             state, history, light, args.keep_every)
         state["seconds"]["checkpoint"] += time.perf_counter() - c0
-        _write_json(args.out / "train_log.json", summary())
+        write_json(args.out / "train_log.json", summary())
 
     # SIGTERM/SIGINT (campaign.py stopping, `kill -TERM`): finish the step, checkpoint, exit; resumable
     interrupted: list[int] = []
@@ -643,7 +643,7 @@ def main(argv: list[str] | None = None) -> int:
         preprocessor.save_pretrained(args.out)
         postprocessor.save_pretrained(args.out)
     log = summary()
-    _write_json(args.out / "train_log.json", log)
+    write_json(args.out / "train_log.json", log)
     if reason == "signal":
         print(f"stopped by signal {interrupted[0]} at step {step} (checkpointed; --resume continues)", file=sys.stderr)
     print(json.dumps({k: log.get(k) for k in ("steps", "finished", "stop_reason", "batch_size", "frames_used",
