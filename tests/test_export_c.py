@@ -22,7 +22,7 @@ pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
 from seqmotion.cli import main as cli_main  # noqa: E402
-from seqmotion.deploy import c_emit, c_export  # noqa: E402
+from seqmotion.deploy import c_emit, c_export, c_values  # noqa: E402
 from seqmotion.deploy.c_export import compile_library, export_c, rollout_c  # noqa: E402
 
 COMPILER = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
@@ -244,7 +244,7 @@ def test_what_has_no_c_form_is_refused_by_name(tmp_path):
     k = helper.make_tensor_value_info("k", TensorProto.INT64, None)
     top = model([helper.make_node("Constant", [], ["n"], value=helper.make_tensor("n", TensorProto.INT64, [1], [2])),
                  helper.make_node("TopK", ["x", "n"], ["y", "k"])], [x], [y, k])
-    statics = c_emit.Statics("t")
+    statics = c_values.Statics("t")
     with pytest.raises(ValueError, match="the op TopK .* has no C form"):
         c_emit.Emitter(statics, "t_f", top, [("x", "x", (4,), np.dtype(np.float32))], [("y", "y")],
                          {"x": np.zeros(4, np.float32)}).emit()

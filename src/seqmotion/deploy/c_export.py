@@ -34,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from .c_emit import F32, F64, I32, Emitter, Statics, literal
+from .c_emit import Emitter
+from .c_values import F32, F64, I32, Statics, literal
 
 # --- a model's C source ---------------------------------------------------------------------------------------
 
