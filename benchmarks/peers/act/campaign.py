@@ -1,12 +1,15 @@
 """The ACT convergence campaign: choose the configuration, then train ACT to convergence and evaluate along the way.
 
-Run with the LeRobot venv's python (seqmotion installed there, see README.md), one job at a time, in the
-background; every step is idempotent, so the same command resumes it after any stop::
+Run with the LeRobot venv's python (seqmotion installed there, see README.md), in the background; every
+step is idempotent, so the same command resumes it after any stop::
 
     cd /work/main
     setsid nohup nice -n 19 /work/venvs/lerobot/bin/python benchmarks/peers/act/campaign.py run \
         >> runs/act_campaign/log.txt 2>&1 &
     /work/venvs/lerobot/bin/python benchmarks/peers/act/campaign.py status     # where it stands
+
+Each job is locked while a worker runs it (``lock`` files beside its output), so a second ``run`` started the
+same way works beside the first on the next free job: one worker per spare core (each trains on one thread).
 
 Jobs, in order (each skipped when done, resumed from its last checkpoint when interrupted):
 
@@ -28,7 +31,8 @@ time, ``val_l1``, success). ``benchmarks/bench_lfd_hard.py merge --act-campaign 
 turns the finished trainings into rows of ``benchmarks/results_lfd_act.json``.
 
 Stop: ``kill -TERM -- -PGID`` (the trainer checkpoints and exits; the same ``run`` resumes). Pause:
-``kill -STOP -- -PGID`` / ``kill -CONT -- -PGID`` (PGID = the campaign's pid when started with ``setsid``).
+``kill -STOP -- -PGID`` / ``kill -CONT -- -PGID`` (PGID = a worker's pid when started with ``setsid``;
+``campaign.py workers`` lists them).
 """
 
 from __future__ import annotations
@@ -80,6 +84,49 @@ def _read(path: Path) -> Any:
         return json.loads(path.read_text())
     except (FileNotFoundError, json.JSONDecodeError):
         return None
+
+
+class JobLock:
+    """An exclusive ``flock`` on ``path`` for the life of a job, the holder's pid inside; ``held`` is False when
+    another worker has it (that worker's job is skipped, not waited for)."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.file = open(path, "a+")
+        try:
+            fcntl.flock(self.file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.file.close()
+            self.held = False
+            return
+        self.held = True
+        self.file.seek(0)
+        self.file.truncate()
+        self.file.write(str(os.getpid()))
+        self.file.flush()
+
+    def release(self) -> None:
+        if self.held:
+            self.file.close()  # closing drops the flock; the file stays (its pid is stale, harmlessly)
+            self.held = False
+
+
+def holder(path: Path) -> str | None:
+    """The pid in a job's lock file when a live worker holds it, else None."""
+    if not path.is_file():
+        return None
+    with open(path, "a+") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(f, fcntl.LOCK_UN)
+            return None
+        except BlockingIOError:
+            f.seek(0)
+            return f.read().strip() or "?"
+
+
+def job_locks(root: Path) -> list[Path]:
+    return [root / "compare.lock", *sorted((root / "train").glob("*/lock"))]
 
 
 def _write_json(path: Path, payload: Any) -> None:
@@ -163,6 +210,9 @@ def compare(args: argparse.Namespace) -> dict:
     choice_path = args.root / "choice.json"
     if (choice := _read(choice_path)) is not None:
         return choice
+    lock = JobLock(args.root / "compare.lock")
+    if not lock.held:  # the comparison runs once, in one worker; the others have nothing to do before it
+        raise SystemExit(f"another worker is running the comparison (pid {holder(args.root / 'compare.lock')})")
     for name, config in CANDIDATES.items():
         out = args.root / "compare" / name
         if (_read(out / "train_log.json") or {}).get("finished"):
@@ -185,6 +235,7 @@ def compare(args: argparse.Namespace) -> dict:
     choice = {"chosen": chosen["name"], "config": CANDIDATES[chosen["name"]], "rule": rule, "table": table,
               "decided": dt.datetime.now().isoformat(timespec="seconds")}
     _write_json(choice_path, choice)
+    lock.release()
     log(f"chosen configuration: {chosen['name']} " + "; ".join(f"{r['name']} {r['val_l1_last3']:.4f}" for r in table))
     return choice
 
@@ -248,6 +299,18 @@ def _tree() -> dict:
 def main_training(args: argparse.Namespace, config: list[str], demos: int, seed: int) -> None:
     name = f"hard_{demos}_{seed}"
     out = args.root / "train" / name
+    lock = JobLock(out / "lock")
+    if not lock.held:
+        log(f"{name}: another worker has it (pid {holder(out / 'lock')}); next job")
+        return
+    try:
+        _train_and_evaluate(args, config, name, out, demos, seed)
+    finally:
+        lock.release()
+
+
+def _train_and_evaluate(args: argparse.Namespace, config: list[str], name: str, out: Path, demos: int,
+                        seed: int) -> None:
     failures = 0
     while True:
         tl = _read(out / "train_log.json") or {}
@@ -336,17 +399,6 @@ def results(args: argparse.Namespace) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     args.root.mkdir(parents=True, exist_ok=True)
-    lock = open(args.root / "lock", "a+")  # held (and flock'ed) for the process's life
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        lock.seek(0)
-        print(f"another campaign holds {args.root / 'lock'} (pid {lock.read().strip() or '?'})", file=sys.stderr)
-        return 1
-    lock.seek(0)
-    lock.truncate()
-    lock.write(str(os.getpid()))
-    lock.flush()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, _on_signal)
     log(f"campaign start, pid {os.getpid()}, pgid {os.getpgrp()}; validation {args.val_spec}")
@@ -371,24 +423,18 @@ def _r(x: float | None) -> float | None:
 
 
 def status(args: argparse.Namespace) -> int:
-    lock_path = args.root / "lock"
-    alive = None
-    if lock_path.is_file():
-        with open(lock_path, "a+") as f:
-            try:
-                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                fcntl.flock(f, fcntl.LOCK_UN)
-            except BlockingIOError:
-                f.seek(0)
-                alive = f.read().strip()
-    state = ""
-    if alive:
+    running = []
+    for path in job_locks(args.root):
+        if (pid := holder(path)) is None:
+            continue
+        state = ""
         try:  # the third field of /proc/PID/stat: R/S running or sleeping, T stopped (kill -STOP)
-            stat = Path(f"/proc/{alive}/stat").read_text()
-            state = " (paused: kill -STOP)" if stat.rsplit(")", 1)[1].split()[0] == "T" else ""
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            state = ", paused" if stat.rsplit(")", 1)[1].split()[0] == "T" else ""
         except OSError:
             pass
-    print(f"campaign: {'running, pid ' + alive + state if alive else 'not running'}")
+        running.append(f"{path.parent.name if path.name == 'lock' else 'compare'} (pid {pid}{state})")
+    print(f"campaign: {'running ' + ', '.join(running) if running else 'not running'}")
     choice = _read(args.root / "choice.json")
     for row in comparison_table(args.root):
         mark = " <- chosen" if choice and choice["chosen"] == row["name"] else ""
@@ -415,7 +461,7 @@ def status(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("command", choices=["run", "status", "results"])
+    p.add_argument("command", choices=["run", "status", "results", "workers"])
     p.add_argument("--root", type=Path, default=REPO / "runs" / "act_campaign")
     p.add_argument("--data", type=Path, default=REPO / "runs" / "act_data_lr" / "hard",
                    help="the LeRobot export of the hard set (seqmotion lfd export-lerobot)")
@@ -435,6 +481,9 @@ def main(argv: list[str] | None = None) -> int:
     args.plan = [tuple(int(x) for x in item.split(":")) for item in args.plan.split(",") if item]
     if args.command == "status":
         return status(args)
+    if args.command == "workers":  # the process groups to pause, continue or stop (kill -STOP -- -PGID)
+        print(" ".join(sorted({pid for p in job_locks(args.root) if (pid := holder(p))})))
+        return 0
     args.val_spec, _, _ = validation_spec(args.data)
     if args.command == "results":
         results(args)
