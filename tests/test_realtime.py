@@ -119,13 +119,16 @@ def test_prepare_between_calls_leaves_one_decoder_run_per_call_and_the_same_outp
     fast, core = OnnxStepper(bundles / name, motion(name, k)), OnnxStepper(bundles / name, motion(name, k))
     core._fast = None
     runs = {"m": 0, "p": 0, "2": 0}
-    for side in runs:
-        bound = getattr(fast._fast, f"decode_{side}" if side != "2" else "decode2")
 
-        def counting(bound=bound, side=side):  # noqa: ANN001, ANN202
+    def counting(bound, side: str):  # noqa: ANN001, ANN202
+        def run() -> None:
             runs[side] += 1
             bound()
-        setattr(fast._fast, f"decode_{side}" if side != "2" else "decode2", counting)
+        return run
+
+    fast._fast.decode_p = counting(fast._fast.decode_p, "p")
+    fast._fast.decode2 = counting(fast._fast.decode2, "2")
+    fast._fast.decode_m = [counting(bound, "m") for bound in fast._fast.decode_m]  # one per position
     calls = counted(fast)
     mine, theirs = drive([fast, core], model, k, extra=2 * model.model.chunk + 7, prepare=True)
     assert len(mine) == len(theirs) and all(np.array_equal(a, b) for a, b in zip(mine, theirs, strict=True))
@@ -139,13 +142,15 @@ def test_prepare_between_calls_leaves_one_decoder_run_per_call_and_the_same_outp
     gen.step_into(None, out)
     gen.step_into(gen._x0.copy(), out)  # the core's first chunk, taken over
     seen = []
-    for side in ("decode_p", "decode_m", "decode2"):
-        bound = getattr(gen._fast, side)
-
-        def counting(bound=bound, side=side) -> None:  # noqa: ANN001
+    def counting(bound, side: str):  # noqa: ANN001, ANN202
+        def run() -> None:
             seen.append(side)
             bound()
-        setattr(gen._fast, side, counting)
+        return run
+
+    for side in ("decode_p", "decode2"):
+        setattr(gen._fast, side, counting(getattr(gen._fast, side), side))
+    gen._fast.decode_m = [counting(bound, "decode_m") for bound in gen._fast.decode_m]  # one per position
     gen.prepare()
     gen.prepare()
     assert seen == ["decode_p"] and gen._fast.prepared == 2

@@ -121,16 +121,52 @@ class EncoderStep(nn.Module):
 
 
 class DecoderStep(nn.Module):
-    """One decoder step with the state flattened: ``(h, c, window)`` → ``(h_out, c_out, accel)``."""
+    """One decoder step with the state flattened: ``(h, c, window)`` → ``(h_out, c_out, accel)``: the model's
+    ``decode_step`` (the means only), traced into few graph nodes, since onnxruntime runs a graph node by node and
+    at one trajectory a node's dispatch costs more than its arithmetic (a 1 kHz call is mostly that):
+
+    * the input scaling folded into ``decoder_in``'s columns, and the head's mean rows, scale and offset into its
+      last layer (one ``Gemm`` where a ``Div``, a ``Slice``, a ``Mul`` and an ``Add`` were);
+    * each layer's state kept ``(1, B, H)`` (one ``Split`` of ``h``, one of ``c``, one ``Concat`` out, where each
+      layer was a ``Gather`` in and an ``Unsqueeze`` out);
+    * the input, forget and output gates through one ``Sigmoid``: the inference cell's arithmetic
+      (``LayerNormLSTMCell.step_projected``), element by element in the same order.
+
+    The same function to float rounding (`seqmotion export-onnx` checks it against PyTorch: :func:`check_parity`)."""
 
     def __init__(self, trained: TrainedModel, dynamics: Any) -> None:
         super().__init__()
-        self.model, self.dynamics = trained.model, dynamics
+        model, self.dynamics = trained.model, dynamics
+        self.cells, self.hidden = model.decoder.cells, model.decoder.hidden_size
+        head, chunk = model.head, model.cfg.chunk
+        self.head_hidden = head.net[:-1]  # the head's hidden layer, if it has one
+        self.chunk, self.dim = chunk, head.dim
+        last = head.net[-1]
+        rows = (torch.arange(chunk)[:, None] * head.per_sample + torch.arange(head.dim)[None, :]).reshape(-1)
+        scale, offset = head.scale.repeat(chunk), head.offset.repeat(chunk)  # (C·d,): per sample, its dims
+        column_scale = model.decoder_scale.repeat(chunk)  # (C·S,): the flattened window's columns
+        with torch.no_grad():
+            self.register_buffer("in_weight", model.decoder_in.weight / column_scale[None, :])
+            self.register_buffer("in_bias", model.decoder_in.bias.clone())
+            self.register_buffer("mean_weight", last.weight[rows] * scale[:, None])
+            self.register_buffer("mean_bias", last.bias[rows] * scale + offset)
 
     def forward(self, h: torch.Tensor, c: torch.Tensor, window: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        state = tuple((h[i], c[i]) for i in range(h.shape[0]))
-        state, mean, _ = self.model.decode_step(state, self.dynamics.decoder_input(window), need_cov=False)
-        return torch.stack([s[0] for s in state]), torch.stack([s[1] for s in state]), mean
+        flat = self.dynamics.decoder_input(window).to(self.in_weight.dtype).flatten(1)
+        x = nn.functional.linear(flat, self.in_weight, self.in_bias)  # (B, H)
+        hs, cs, H = [], [], self.hidden
+        for cell, h_l, c_l in zip(self.cells, h.split(1), c.split(1), strict=True):  # (1, B, H) each
+            gates = cell.ln_input(cell.input_proj(x)) + cell.ln_hidden(cell.hidden_proj(h_l))
+            ifo, g = gates.split([3 * H, H], dim=-1)
+            i, f, o = torch.sigmoid(ifo).split(H, dim=-1)
+            c_l = f * c_l + i * torch.tanh(g)
+            h_l = o * torch.tanh(cell.ln_cell(c_l))
+            hs.append(h_l)
+            cs.append(c_l)
+            x = h_l
+        top = self.head_hidden(x.squeeze(0))
+        mean = nn.functional.linear(top, self.mean_weight, self.mean_bias).reshape(-1, self.chunk, self.dim)
+        return torch.cat(hs), torch.cat(cs), mean
 
 
 class DynamicsStep(nn.Module):

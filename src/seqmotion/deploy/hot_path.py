@@ -286,10 +286,13 @@ class FastPath:
                                "accel": self.accel2})
         self.h1, self.c1 = np.zeros(state, F32), np.zeros(state, F32)
         scratch = {"h_out": np.zeros(state, F32), "c_out": np.zeros(state, F32)}
-        self.window_in_m, self.window_in_p = np.zeros((1, c, s), F32), np.zeros((1, c, s), F32)
+        self.window_in_p = np.zeros((1, c, s), F32)
         self.accel_m, self.accel_p = np.zeros((1, c, d), F32), np.zeros((1, c, d), F32)
-        self.decode_m = Bound(m, key, m.decoder, {"h": self.h1, "c": self.c1, "window": self.window_in_m},
-                              {**scratch, "accel": self.accel_m})
+        # the measured window's run at position p reads history_m[p:p+C] where it lies (rows of a C-contiguous
+        # array: contiguous), one binding per position, so the call copies no window
+        self.decode_m = [Bound(m, key, m.decoder, {"h": self.h1, "c": self.c1,
+                                                   "window": self.history_m[p:p + c].reshape(1, c, s)},
+                               {**scratch, "accel": self.accel_m}) for p in range(c)]
         self.decode_p = Bound(m, key, m.decoder, {"h": self.h1, "c": self.c1, "window": self.window_in_p},
                               {**scratch, "accel": self.accel_p})
         self.prepared = -1  # the position whose predicted window's response is in accel_p64 (-1: none)
@@ -338,8 +341,9 @@ class FastPath:
         self.accel1_finite = Finite(self.accel1)
         self.max_abs = np.array(MAX_ABS_STATE)
         self.window2_m, self.window2_p = self.window2[0], self.window2[1]
-        self.window_in_m0, self.window_in_p0 = self.window_in_m[0], self.window_in_p[0]
+        self.window_in_p0 = self.window_in_p[0]
         self.accel_m0, self.accel_p0 = self.accel_m[0], self.accel_p[0]
+        self.accel_m32_head = [self.accel_m0[:k] for k in range(c + 1)]
         self.heads: tuple[np.ndarray, list[np.ndarray]] = (self.out, [self.out[:k] for k in range(c + 1)])
         self.finite = np.zeros((c, d), dtype=bool)
         self.finite_head = [self.finite[:k] for k in range(c + 1)]
@@ -516,17 +520,17 @@ class FastPath:
         measured window; otherwise both windows in one run at B = 2."""
         if self.gen.replan:
             if self.prepared == j:
-                np.copyto(self.window_in_m0, self.window_m[j])
-                self.decode_m()
-                np.copyto(self.accel_m64, self.accel_m0)  # in float64, as the core subtracts
+                self.decode_m[j]()
+                # float32 - float64: NumPy casts the first exactly, as the core's float64 copy does
+                np.subtract(self.accel_m32_head[k], self.accel_p_head[k], out=head)
             else:
                 self.predict(j)
                 np.copyto(self.window2_m, self.window_m[j])
                 np.copyto(self.window2_p, self.window_p[j])
                 self.decode2()
                 np.copyto(self.accel2_64, self.accel2)
+                np.subtract(self.accel_m_head[k], self.accel_p_head[k], out=head)
             self.prepared = -1
-            np.subtract(self.accel_m_head[k], self.accel_p_head[k], out=head)
             np.add(self.plan_tail_k(j, k), head, out=head)
         else:
             np.copyto(head, self.plan_tail_k(j, k))
