@@ -39,6 +39,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 METHODS = ("proposed", "end_to_end", "feedback")
@@ -86,6 +87,7 @@ def _steps(policy_dir: Path, part: str) -> int | None:
 
 def run(args: argparse.Namespace) -> int:
     from seqmotion.lfd.evaluation import evaluate
+    from seqmotion.lfd.fitting import default_settings
     from seqmotion.lfd.policy.policy import PushingPolicy
     from seqmotion.lfd.train import SeqAETraining, train
     from seqmotion.training.provenance import command_line
@@ -102,6 +104,11 @@ def run(args: argparse.Namespace) -> int:
                 start = time.perf_counter()
                 feedback = {"seqae_settings": SeqAETraining(epochs=args.feedback_epochs), "pose_frames":
                             args.pose_frames, "workers": args.workers} if method == "feedback" else {}
+                if args.epochs_scale != 1.0 and method != "feedback":  # the convergence check: a longer budget
+                    seqae, e2e, cnn = default_settings(args.preset, "hard")
+                    feedback = {"seqae_settings": replace(seqae, epochs=round(seqae.epochs * args.epochs_scale)),
+                                "e2e_settings": replace(e2e, epochs=round(e2e.epochs * args.epochs_scale)),
+                                "cnn_settings": replace(cnn, epochs=round(cnn.epochs * args.epochs_scale))}
                 report = train(args.data, model_dir, args.feedback_preset if feedback else args.preset, (method,),
                                ("default",), seed, progress=False,
                                command=command_line("python benchmarks/bench_lfd_hard.py"), benchmark="hard",
@@ -295,6 +302,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=1, help="feedback: processes rendering the frames")
     p.add_argument("--trials", type=int, default=30)
     p.add_argument("--eval-seed", type=int, default=0)
+    p.add_argument("--epochs-scale", type=float, default=1.0,
+                   help="proposed, end_to_end: this multiple of the default epochs (SeqAE, CNN, end-to-end), into its "
+                        "own --out: whether the default budget has converged")
     p.set_defaults(func=run)
     p = sub.add_parser("chapter")
     p.add_argument("--out", required=True)
