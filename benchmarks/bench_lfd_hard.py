@@ -119,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
                 result = evaluate(PushingPolicy.from_pretrained(policy_dir), trials=args.trials, seed=args.eval_seed,
                                   benchmark="hard")
                 row = _row(method, demos, seed, result, round(seconds, 1), steps,
-                           {"train_load": [round(load, 2), round(os.getloadavg()[0], 2)], "model": str(policy_dir)})
+                           {"train_load": [round(load, 2), round(os.getloadavg()[0], 2)], "model": str(policy_dir),
+                            **({"epochs_scale": args.epochs_scale} if args.epochs_scale != 1.0 else {})})
                 _write(job, {"row": row, "evaluation": result.as_dict()})
                 print(f"{method} N={demos} seed={seed}: {result.successes}/{result.n_trials} "
                       f"({seconds:.0f} s training)", flush=True)
