@@ -220,9 +220,9 @@ def _series(rows: list[dict]) -> dict[str, list[dict]]:
 
 
 def _plot(rows: list[dict], path: Path) -> None:
-    """Left: success against demonstrations (seeds pooled, Wilson 95 %). Right, where ACT runs were trained to
-    convergence: ACT's success against training steps at each evaluated checkpoint, beside the other methods'
-    pooled success at the same number of demonstrations."""
+    """Left: success against demonstrations (seeds pooled, Wilson 95 %). Then, one panel per number of
+    demonstrations at which ACT was trained to convergence: ACT's success against training steps at each evaluated
+    checkpoint (one curve per seed), beside the other methods' pooled success at that number."""
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -231,7 +231,9 @@ def _plot(rows: list[dict], path: Path) -> None:
 
     series = _series(rows)
     converged = series.get("act, to convergence", [])
-    fig, axes = plt.subplots(1, 2 if converged else 1, figsize=(12 if converged else 6, 4), squeeze=False)
+    counts_converged = sorted({r["demonstrations"] for r in converged})
+    panels = 1 + len(counts_converged)
+    fig, axes = plt.subplots(1, panels, figsize=(6 * panels, 4), squeeze=False)
     ax = axes[0, 0]
     for i, (name, mine) in enumerate(sorted(series.items())):
         counts = sorted({r["demonstrations"] for r in mine})
@@ -260,29 +262,27 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.set_ylim(-0.02, 1.02)
     ax.legend(fontsize=7)
     ax.set_title(f"hard pushing benchmark, {_episode_seconds():g} s episodes (95 % Wilson, seeds pooled)", fontsize=10)
-    if converged:
-        ax = axes[0, 1]
-        colours = {name: f"C{i}" for i, name in enumerate(sorted(series))}  # as in the left panel
-        for r in converged:
+    colours = {name: f"C{i}" for i, name in enumerate(sorted(series))}  # as in the left panel
+    for panel, n in enumerate(counts_converged, start=1):
+        ax = axes[0, panel]
+        for k, r in enumerate(sorted((r for r in converged if r["demonstrations"] == n), key=lambda r: r["seed"])):
             curve = [c for c in r.get("curve") or [] if c.get("trials")]
             steps = np.array([c["step"] for c in curve])
             rate = np.array([c["successes"] / c["trials"] for c in curve])
             ci = np.array([wilson_interval(c["successes"], c["trials"]) for c in curve])
-            ax.errorbar(steps, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="o", capsize=3,
-                        color=colours["act, to convergence"] if len(converged) == 1 else None,
-                        label=f"LeRobot ACT, {r['demonstrations']} demonstrations, seed {r['seed']}")
-        for n in sorted({r["demonstrations"] for r in converged}):
-            for name, mine in sorted((k, v) for k, v in series.items() if not k.startswith("act")):
-                at_n = [r for r in mine if r["demonstrations"] == n]
-                if at_n:
-                    pooled = sum(r["successes"] for r in at_n) / sum(r["trials"] for r in at_n)
-                    ax.axhline(pooled, ls="--", lw=1, color=colours[name],
-                               label=f"{name}, {n} demonstrations ({len(at_n)} seeds pooled)")
+            ax.errorbar(steps, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="os^v"[k % 4], capsize=3,
+                        color=colours["act, to convergence"], alpha=1.0 if k == 0 else 0.6,
+                        label=f"LeRobot ACT, seed {r['seed']} ({r['train_steps']} steps)")
+        for name, mine in sorted((k, v) for k, v in series.items() if not k.startswith("act")):
+            at_n = [r for r in mine if r["demonstrations"] == n]
+            if at_n:
+                pooled = sum(r["successes"] for r in at_n) / sum(r["trials"] for r in at_n)
+                ax.axhline(pooled, ls="--", lw=1, color=colours[name], label=f"{name} ({len(at_n)} seeds pooled)")
         ax.set_xlabel("ACT training steps (batch 8)")
         ax.set_ylabel("success on held-out trials")
         ax.set_ylim(-0.02, 1.02)
         ax.legend(fontsize=7)
-        ax.set_title("ACT's checkpoints on the same 30 held-out scenes (95 % Wilson)", fontsize=10)
+        ax.set_title(f"{n} demonstrations: ACT's checkpoints (the same 30 scenes, 95 % Wilson)", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path, close=True)
 
