@@ -16,7 +16,15 @@ import math
 import numpy as np
 import torch
 
-from ...data.trajectories import TrajectoryBatch, combine, draw_lengths, normalized_time, path_states, quadratic_through
+from ...data.trajectories import (
+    TrajectoryBatch,
+    combine,
+    draw_lengths,
+    normalized_time,
+    path_states,
+    quadratic_through,
+    repeat_last,
+)
 from ...errors import check_number
 from ...physics.integrator import DT, integrate
 from .physics import GRAVITY
@@ -71,9 +79,7 @@ def acceleration_type(
     accel = np.where(valid_input[..., None], accel, 0.0)
     states = integrate(torch.zeros(n, 6, dtype=torch.float64), torch.from_numpy(accel), dt).numpy()
     # The padding repeats the last real sample (the zero input above would keep it moving).
-    idx = np.minimum(np.arange(states.shape[1])[None, :], lengths[:, None] - 1)
-    states = np.take_along_axis(states, idx[..., None], axis=1)
-    return TrajectoryBatch(states=states, lengths=lengths, accel=accel)
+    return TrajectoryBatch(states=repeat_last(states, lengths), lengths=lengths, accel=accel)
 
 
 def position_type(
