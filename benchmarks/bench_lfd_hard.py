@@ -182,7 +182,8 @@ def _act_row(path: Path) -> dict:
 
 def _act_campaign_rows(path: Path) -> list[dict]:
     """Rows of ``benchmarks/peers/act/campaign.py``'s ``results.json``: each finished training's final
-    checkpoint, with every evaluated checkpoint as its ``curve`` (steps, wall time, val_l1, success)."""
+    checkpoint, with every evaluated checkpoint as its ``curve`` (steps, wall time, held-out val_l1, training L1,
+    success)."""
     rows = []
     for run in json.loads(path.read_text())["runs"]:
         final = next((c for c in run["checkpoints"] if c["step"] == run["steps"]), None)
@@ -199,8 +200,9 @@ def _act_campaign_rows(path: Path) -> list[dict]:
             "stop_reason": run["stop_reason"], "val_l1": final["val_l1"], "best_val_l1": run["best_val_l1"],
             "policy_config": run["policy_config"], "lerobot": run["lerobot"], "model": final["model"],
             "episode_seconds": _episode_seconds(),
-            "curve": [{k: c.get(k) for k in ("step", "train_loop_s", "wall_s", "val_l1", "success_rate", "successes",
-                                             "trials", "wilson_95")} for c in run["checkpoints"]],
+            "curve": [{k: c.get(k) for k in ("step", "train_loop_s", "wall_s", "val_l1", "train_l1", "val_kld",
+                                             "success_rate", "successes", "trials", "wilson_95")}
+                      for c in run["checkpoints"]],
         })
     return rows
 

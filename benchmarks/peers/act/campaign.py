@@ -9,9 +9,11 @@ step is idempotent, so the same command resumes it after any stop::
     /work/venvs/lerobot/bin/python benchmarks/peers/act/campaign.py status     # where it stands
 
 Each job is locked while a worker runs it (``lock`` files beside its output), so a second ``run`` started the
-same way works beside the first on the next free job: one worker per spare core (each trains on one thread).
+same way works beside the first on the next free job: one worker per spare core (each trains or evaluates on one
+thread). Trainings never wait for evaluations: a checkpoint's evaluation is a job of its own, which any free
+worker takes, so one worker trains on while another evaluates what it has written.
 
-Jobs, in order (each skipped when done, resumed from its last checkpoint when interrupted):
+Jobs (each skipped when done, resumed from its last checkpoint when interrupted):
 
 1. **Configuration comparison** (``compare/<name>``): each candidate of :data:`CANDIDATES` trained on the
    first 100 successful demonstrations, seed 0, for ``--compare-steps`` steps, validation every 250. The
@@ -21,9 +23,15 @@ Jobs, in order (each skipped when done, resumed from its last checkpoint when in
 2. **Main trainings** (``train/hard_<N>_<seed>``) of :data:`PLAN`, with the chosen configuration: at least
    ``--min-steps``, until ``val_l1`` has not improved for ``--patience`` steps, at most ``--cap``. Each runs
    in slices of ``--eval-every`` steps (``train_act.py --resume --stop-at``; resuming is exact, so slicing
-   changes nothing); after each slice the new checkpoints (multiples of ``--eval-every`` and the final one)
-   are evaluated on the hard benchmark's held-out scenes (``eval_act.py --benchmark hard --trials 30
-   --seed 0``) into ``evals/hard_<N>_<seed>/<step>.json``.
+   changes nothing).
+3. **Evaluations** of the main trainings' checkpoints (multiples of ``--eval-every`` and the final one) on the
+   hard benchmark's held-out scenes (``eval_act.py --benchmark hard --trials 30 --seed 0``) into
+   ``evals/hard_<N>_<seed>/<step>.json``, each locked by ``<step>.lock`` beside it.
+
+A worker takes the first free job in plan order: for each training, one more slice of it if it is unfinished
+and free, else one of its checkpoints' evaluations; so earlier trainings finish first and their
+evaluations run beside the next training. When every remaining job is held by another worker it waits
+for one to free or to appear (a training's next checkpoint), and it exits once nothing is left.
 
 After every job ``results.json`` is rebuilt from what is on disk: the comparison, the choice, and for
 each training its steps, wall time, validation log and one row per evaluated checkpoint (steps, wall
@@ -126,7 +134,8 @@ def holder(path: Path) -> str | None:
 
 
 def job_locks(root: Path) -> list[Path]:
-    return [root / "compare.lock", *sorted((root / "train").glob("*/lock"))]
+    return [root / "compare.lock", *sorted((root / "train").glob("*/lock")),
+            *sorted((root / "evals").glob("*/*.lock"))]
 
 
 def _write_json(path: Path, payload: Any) -> None:
@@ -270,7 +279,8 @@ def pending_evals(args: argparse.Namespace, out: Path, name: str) -> list[int]:
     return [s for s in want if not (args.root / "evals" / name / f"{s:06d}.json").is_file()]
 
 
-def evaluate(args: argparse.Namespace, out: Path, name: str, step: int) -> None:
+def evaluate(args: argparse.Namespace, out: Path, name: str, step: int) -> bool:
+    """Evaluate one checkpoint into ``evals/<name>/<step>.json``; False when the evaluation failed."""
     target = args.root / "evals" / name / f"{step:06d}.json"
     tmp = target.with_name(f".{target.name}.tmp")
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -279,13 +289,14 @@ def evaluate(args: argparse.Namespace, out: Path, name: str, step: int) -> None:
                 "--benchmark", "hard", "--trials", str(args.trials), "--seed", str(args.eval_seed), "--threads", "1",
                 "--json", str(tmp), "--quiet"])
     if rc != 0 or not tmp.is_file():
-        log(f"evaluation of {name} step {step} failed (exit {rc}); it will be retried on the next pass")
-        return
+        log(f"evaluation of {name} step {step} failed (exit {rc})")
+        return False
     # seqmotion runs from the working tree (pip install -e): record which, in case it changes mid-campaign
     ev = json.loads(tmp.read_text())
     ev["seqmotion_tree"] = _tree()
     _write_json(target, ev)
     tmp.unlink()
+    return True
 
 
 def _tree() -> dict:
@@ -296,50 +307,78 @@ def _tree() -> dict:
     return {"commit": git("rev-parse", "HEAD"), "lfd_modified": git("status", "--porcelain", "src/seqmotion/lfd")}
 
 
-def main_training(args: argparse.Namespace, config: list[str], demos: int, seed: int) -> None:
-    name = f"hard_{demos}_{seed}"
-    out = args.root / "train" / name
-    lock = JobLock(out / "lock")
-    if not lock.held:
-        log(f"{name}: another worker has it (pid {holder(out / 'lock')}); next job")
-        return
-    try:
-        _train_and_evaluate(args, config, name, out, demos, seed)
-    finally:
-        lock.release()
+def training_finished(args: argparse.Namespace, out: Path) -> bool:
+    """Finished by the stop rule, or by the cap when the cap has not been raised since."""
+    tl = _read(out / "train_log.json") or {}
+    return bool(tl.get("finished")) and not (tl.get("stop_reason") == "steps" and args.cap > tl.get("steps", 0))
 
 
-def _train_and_evaluate(args: argparse.Namespace, config: list[str], name: str, out: Path, demos: int,
-                        seed: int) -> None:
-    failures = 0
-    while True:
-        tl = _read(out / "train_log.json") or {}
-        finished = tl.get("finished") and not (tl.get("stop_reason") == "steps" and args.cap > tl.get("steps", 0))
-        for s in pending_evals(args, out, name):
-            evaluate(args, out, name, s)
-            results(args)
-        if finished:
-            return
-        current = tl.get("steps", 0)
-        stop_at = (current // args.eval_every + 1) * args.eval_every
-        rc = _call(train_cmd(args, out, demos, seed, config, args.cap,
-                             ["--min-steps", str(args.min_steps), "--patience", str(args.patience),
-                              "--val-every", str(args.val_every), "--keep-every", str(args.eval_every),
-                              "--stop-at", str(stop_at)]))
-        now = _read(out / "train_log.json") or {}
-        if now.get("steps", 0) <= current and not now.get("finished"):
-            failures += 1
-            log(f"{name}: exit {rc} without progress ({failures})")
-            if failures >= 3:
-                log(f"{name}: giving up for this pass (a later `run` retries)")
-                return
-            time.sleep(60)
-        else:
-            failures = 0
-        results(args)
+def train_slice(args: argparse.Namespace, config: list[str], name: str, out: Path, demos: int, seed: int) -> bool:
+    """Train ``name`` up to its next multiple of ``--eval-every`` (or its stop); True when it made progress."""
+    current = (_read(out / "train_log.json") or {}).get("steps", 0)
+    stop_at = (current // args.eval_every + 1) * args.eval_every
+    rc = _call(train_cmd(args, out, demos, seed, config, args.cap,
+                         ["--min-steps", str(args.min_steps), "--patience", str(args.patience),
+                          "--val-every", str(args.val_every), "--keep-every", str(args.eval_every),
+                          "--stop-at", str(stop_at)]))
+    now = _read(out / "train_log.json") or {}
+    if now.get("steps", 0) <= current and not now.get("finished"):
+        log(f"{name}: exit {rc} without progress")
+        return False
+    return True
+
+
+def next_job(args: argparse.Namespace, config: list[str], failures: dict[str, int]) -> str:
+    """Run the first free job in plan order. Returns 'ran', 'busy' (jobs remain, all held by other workers or
+    waiting for a checkpoint) or 'done'. A job that fails three times is left to a later ``run``."""
+    remaining = False
+    for demos, seed in args.plan:
+        name = f"hard_{demos}_{seed}"
+        out = args.root / "train" / name
+        if not training_finished(args, out) and failures.get(name, 0) < 3:
+            remaining = True
+            lock = JobLock(out / "lock")
+            if lock.held:
+                try:
+                    if train_slice(args, config, name, out, demos, seed):
+                        failures.pop(name, None)
+                    else:
+                        failures[name] = failures.get(name, 0) + 1
+                        time.sleep(60)
+                finally:
+                    lock.release()
+                return "ran"
+        for step in pending_evals(args, out, name):
+            key = f"{name}@{step}"
+            if failures.get(key, 0) >= 3:
+                continue
+            remaining = True
+            lock = JobLock(args.root / "evals" / name / f"{step:06d}.lock")
+            if not lock.held:
+                continue
+            try:
+                # another worker may have finished it between the listing and the lock
+                if step in pending_evals(args, out, name) and not evaluate(args, out, name, step):
+                    failures[key] = failures.get(key, 0) + 1
+            finally:
+                lock.release()
+            return "ran"
+    return "busy" if remaining else "done"
 
 
 # --------------------------------------------------------------------------------------------- results
+
+
+TRAIN_L1_WINDOW = 500
+"""Steps before a checkpoint over which its training L1 is averaged (``train_l1``: the training objective's L1,
+train mode, so dropout on and z from the posterior; beside the held-out ``val_l1`` it shows the gap between
+fitting the demonstrations and predicting new ones)."""
+
+
+def _window_mean(values: list[float | None], step: int, window: int) -> float | None:
+    """Mean of ``values`` over steps ``step - window + 1 .. step`` (value of step k at index k - 1)."""
+    chunk = [v for v in values[max(0, step - window):step] if v is not None]
+    return sum(chunk) / len(chunk) if len(chunk) == min(window, step) else None
 
 
 def results(args: argparse.Namespace) -> dict:
@@ -352,6 +391,7 @@ def results(args: argparse.Namespace) -> dict:
         if not tl:
             continue
         val = {v["step"]: v for v in tl.get("val") or []}
+        train_l1 = [h.get("l1_loss") for h in tl.get("history") or []]  # step k at index k - 1
         checkpoints = []
         for path in sorted((args.root / "evals" / name).glob("[0-9]*.json")):
             ev = _read(path)
@@ -361,6 +401,7 @@ def results(args: argparse.Namespace) -> dict:
             v = val.get(step) or ev.get("val_at_step") or {}
             checkpoints.append({
                 "step": step, "val_l1": v.get("val_l1"), "val_loss_vae": v.get("val_loss_vae"),
+                "val_kld": v.get("val_kld"), "train_l1": _window_mean(train_l1, step, TRAIN_L1_WINDOW),
                 "train_loop_s": v.get("train_loop_s"), "wall_s": v.get("wall_s"),
                 "success_rate": ev["success_rate"], "successes": ev["successes"], "trials": ev["n_trials"],
                 "wilson_95": ev["wilson_95"], "eval_seed": ev["seed"], "eval_seconds": round(ev["seconds"], 1),
@@ -405,13 +446,22 @@ def run(args: argparse.Namespace) -> int:
     try:
         choice = compare(args)
         results(args)
-        for demos, seed in args.plan:
-            main_training(args, choice["config"], demos, seed)
-            results(args)
-        for demos, seed in args.plan:  # evaluations that failed on the first pass, once more
-            main_training(args, choice["config"], demos, seed)
+        failures: dict[str, int] = {}
+        waiting = False
+        while (state := next_job(args, choice["config"], failures)) != "done":
+            if state == "ran":
+                results(args)
+                waiting = False
+                continue
+            if not waiting:
+                log("every remaining job is held by another worker or waits for a checkpoint; waiting")
+                waiting = True
+            if _stopping:
+                raise Stopped
+            time.sleep(30)
         results(args)
-        log("campaign: every job done")
+        left = sorted(k for k, n in failures.items() if n >= 3)
+        log("campaign: every job done" if not left else f"campaign: done here; failed three times: {left}")
     except Stopped:
         log("campaign stopped by a signal (resume: the same `run` command)")
         results(args)
@@ -433,7 +483,9 @@ def status(args: argparse.Namespace) -> int:
             state = ", paused" if stat.rsplit(")", 1)[1].split()[0] == "T" else ""
         except OSError:
             pass
-        running.append(f"{path.parent.name if path.name == 'lock' else 'compare'} (pid {pid}{state})")
+        job = ("compare" if path.name == "compare.lock" else path.parent.name if path.name == "lock"
+               else f"{path.parent.name} evaluation at {int(path.stem)}")
+        running.append(f"{job} (pid {pid}{state})")
     print(f"campaign: {'running ' + ', '.join(running) if running else 'not running'}")
     choice = _read(args.root / "choice.json")
     for row in comparison_table(args.root):

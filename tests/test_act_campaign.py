@@ -1,0 +1,119 @@
+"""The ACT convergence campaign's scheduler (``benchmarks/peers/act/campaign.py``), with its processes faked.
+
+The campaign's real jobs need LeRobot's venv and hours; what is checked here is the part that decides which
+worker runs what: two workers side by side evaluate every checkpoint exactly once, never run one training's
+slices at the same time, and a training never waits for its own checkpoints' evaluations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import threading
+import time
+import types
+from pathlib import Path
+
+import pytest
+
+CAMPAIGN = Path(__file__).resolve().parents[1] / "benchmarks" / "peers" / "act" / "campaign.py"
+
+
+@pytest.fixture()
+def campaign(monkeypatch: pytest.MonkeyPatch):
+    spec = importlib.util.spec_from_file_location("act_campaign_under_test", CAMPAIGN)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(module, "results", lambda args: None)
+    monkeypatch.setattr(module, "_tree", lambda: {})
+    monkeypatch.setattr(module, "_write_json", lambda path, payload: path.write_text(json.dumps(payload)))
+    monkeypatch.setattr(module, "log", lambda msg: None)
+    monkeypatch.setattr(module.signal, "signal", lambda *a: None)  # signal handlers belong to the main thread
+    monkeypatch.setattr(module, "time", types.SimpleNamespace(sleep=lambda s: time.sleep(0.02)))
+    return module
+
+
+def fake_jobs(events: list[tuple], final_step: int, train_s: float, eval_s: float):
+    """``_call`` stand-in: a training slice writes its checkpoint and log, an evaluation its JSON."""
+    guard = threading.Lock()
+
+    def call(cmd: list[str]) -> int:
+        worker = threading.current_thread().name
+        if cmd[1].endswith("train_act.py"):
+            out = Path(cmd[cmd.index("--out") + 1])
+            step = min(int(cmd[cmd.index("--stop-at") + 1]), final_step)
+            with guard:
+                events.append((worker, "train start", out.name, step, time.monotonic()))
+            time.sleep(train_s)
+            weights = out / "checkpoints" / f"{step:06d}" / "pretrained_model"
+            weights.mkdir(parents=True, exist_ok=True)
+            (weights / "model.safetensors").write_text("weights")
+            done = step >= final_step
+            (out / "train_log.json").write_text(json.dumps(
+                {"steps": step, "finished": done, "stop_reason": "patience" if done else None}))
+            with guard:
+                events.append((worker, "train end", out.name, step, time.monotonic()))
+        else:
+            model = Path(cmd[2])
+            time.sleep(eval_s)
+            Path(cmd[cmd.index("--json") + 1]).write_text(json.dumps({"successes": 1}))
+            with guard:
+                events.append((worker, "eval", model.parents[2].name, int(model.parent.name), time.monotonic()))
+        return 0
+
+    return call
+
+
+def test_two_workers_evaluate_every_checkpoint_once_while_training_goes_on(campaign, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "choice.json").write_text(json.dumps({"chosen": "small", "config": []}))
+    args = argparse.Namespace(root=tmp_path, data=tmp_path, compare_steps=1, compare_val_every=1,
+                              plan=[(100, 0), (25, 0)], min_steps=6, patience=2, cap=40, val_every=1,
+                              eval_every=2, trials=1, eval_seed=0, val_spec="successful:9-9")
+    events: list[tuple] = []
+    # evaluations take longer than slices, as on the machine (6-20 min against 15 min per 2,000 steps)
+    monkeypatch.setattr(campaign, "_call", fake_jobs(events, final_step=7, train_s=0.05, eval_s=0.15))
+    workers = [threading.Thread(target=campaign.run, args=(args,), name=f"w{i}") for i in range(2)]
+    for w in workers:
+        w.start()
+        time.sleep(0.01)
+    for w in workers:
+        w.join(timeout=60)
+    assert not any(w.is_alive() for w in workers)
+
+    evals = sorted((e[2], e[3]) for e in events if e[1] == "eval")
+    # every multiple of --eval-every and the final step, each exactly once
+    assert evals == sorted((f"hard_{n}_0", s) for n in (100, 25) for s in (2, 4, 6, 7))
+    for name in ("hard_100_0", "hard_25_0"):
+        slices = [e for e in events if e[1].startswith("train") and e[2] == name]
+        # a training's slices never overlap (one holder of its lock at a time) and reach the end in order
+        assert [e[1] for e in slices] == ["train start", "train end"] * 4
+        assert [e[3] for e in slices if e[1] == "train end"] == [2, 4, 6, 7]
+    # the first training ran its four slices back to back (0.2 s) while its evaluations (0.6 s in all) ran beside
+    first = [e for e in events if e[2] == "hard_100_0"]
+    trained = max(e[4] for e in first if e[1] == "train end")
+    assert any(e[1] == "eval" and e[4] > trained for e in first)
+    assert trained - min(e[4] for e in first) < 0.15 * 4
+
+
+def test_a_worker_waits_for_checkpoints_of_a_training_another_holds(campaign, tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "choice.json").write_text(json.dumps({"chosen": "small", "config": []}))
+    args = argparse.Namespace(root=tmp_path, data=tmp_path, compare_steps=1, compare_val_every=1, plan=[(10, 1)],
+                              min_steps=4, patience=2, cap=40, val_every=1, eval_every=2, trials=1, eval_seed=0,
+                              val_spec="successful:9-9")
+    events: list[tuple] = []
+    monkeypatch.setattr(campaign, "_call", fake_jobs(events, final_step=4, train_s=0.1, eval_s=0.02))
+    workers = [threading.Thread(target=campaign.run, args=(args,), name=f"w{i}") for i in range(2)]
+    for w in workers:
+        w.start()
+        time.sleep(0.01)
+    for w in workers:
+        w.join(timeout=60)
+    assert sorted(e[3] for e in events if e[1] == "eval") == [2, 4]
+    assert [e[3] for e in events if e[1] == "train end"] == [2, 4]
+    # the worker without the training did not leave: it waited and evaluated step 2 while step 4 was training
+    eval_2 = next(e for e in events if e[1] == "eval" and e[3] == 2)
+    slice_4 = next(e for e in events if e[1] == "train end" and e[3] == 4)
+    assert eval_2[0] != slice_4[0] and eval_2[4] < slice_4[4]
