@@ -200,6 +200,7 @@ def _act_campaign_rows(path: Path) -> list[dict]:
             "stop_reason": run["stop_reason"], "val_l1": final["val_l1"], "best_val_l1": run["best_val_l1"],
             "policy_config": run["policy_config"], "lerobot": run["lerobot"], "model": final["model"],
             "episode_seconds": _episode_seconds(),
+            "val_log": [{k: v.get(k) for k in ("step", "val_l1", "train_l1")} for v in run.get("val") or []],
             "curve": [{k: c.get(k) for k in ("step", "train_loop_s", "wall_s", "val_l1", "train_l1", "val_kld",
                                              "success_rate", "successes", "trials", "wilson_95")}
                       for c in run["checkpoints"]],
@@ -224,7 +225,8 @@ def _series(rows: list[dict]) -> dict[str, list[dict]]:
 def _plot(rows: list[dict], path: Path) -> None:
     """Left: success against demonstrations (seeds pooled, Wilson 95 %). Then, one panel per number of
     demonstrations at which ACT was trained to convergence: ACT's success against training steps at each evaluated
-    checkpoint (one curve per seed), beside the other methods' pooled success at that number."""
+    checkpoint (one curve per seed), beside the other methods' pooled success at that number; below each, ACT's
+    held-out ``val_l1`` and training L1 against the same steps."""
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -235,7 +237,10 @@ def _plot(rows: list[dict], path: Path) -> None:
     converged = series.get("act, to convergence", [])
     counts_converged = sorted({r["demonstrations"] for r in converged})
     panels = 1 + len(counts_converged)
-    fig, axes = plt.subplots(1, panels, figsize=(6 * panels, 4), squeeze=False)
+    rows_of_panels = 2 if counts_converged else 1  # below each ACT panel: its losses against the same steps
+    fig, axes = plt.subplots(rows_of_panels, panels, figsize=(6 * panels, 4 * rows_of_panels), squeeze=False)
+    if counts_converged:
+        axes[1, 0].axis("off")
     ax = axes[0, 0]
     for i, (name, mine) in enumerate(sorted(series.items())):
         counts = sorted({r["demonstrations"] for r in mine})
@@ -265,6 +270,8 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.legend(fontsize=7)
     ax.set_title(f"hard pushing benchmark, {_episode_seconds():g} s episodes (95 % Wilson, seeds pooled)", fontsize=10)
     colours = {name: f"C{i}" for i, name in enumerate(sorted(series))}  # as in the left panel
+    # ACT's seeds: the first in ACT's colour of the left panel, the others in colours no method uses there
+    seed_colours = [colours.get("act, to convergence", "C1"), "C5", "C7", "C8"]
     for panel, n in enumerate(counts_converged, start=1):
         ax = axes[0, panel]
         for k, r in enumerate(sorted((r for r in converged if r["demonstrations"] == n), key=lambda r: r["seed"])):
@@ -273,7 +280,7 @@ def _plot(rows: list[dict], path: Path) -> None:
             rate = np.array([c["successes"] / c["trials"] for c in curve])
             ci = np.array([wilson_interval(c["successes"], c["trials"]) for c in curve])
             ax.errorbar(steps, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="os^v"[k % 4], capsize=3,
-                        color=colours["act, to convergence"], alpha=1.0 if k == 0 else 0.6,
+                        color=seed_colours[k % 4],
                         label=f"LeRobot ACT, seed {r['seed']} ({r['train_steps']} steps)")
         for name, mine in sorted((k, v) for k, v in series.items() if not k.startswith("act")):
             at_n = [r for r in mine if r["demonstrations"] == n]
@@ -285,6 +292,19 @@ def _plot(rows: list[dict], path: Path) -> None:
         ax.set_ylim(-0.02, 1.02)
         ax.legend(fontsize=7)
         ax.set_title(f"{n} demonstrations: ACT's checkpoints (the same 30 scenes, 95 % Wilson)", fontsize=10)
+        ax = axes[1, panel]
+        for k, r in enumerate(sorted((r for r in converged if r["demonstrations"] == n), key=lambda r: r["seed"])):
+            log = [v for v in r.get("val_log") or [] if v.get("step")]
+            colour = seed_colours[k % 4]
+            ax.plot([v["step"] for v in log], [v["val_l1"] for v in log], color=colour,
+                    label=f"seed {r['seed']}: held-out L1 (val_l1, the stop rule's)")
+            fitted = [v for v in log if v.get("train_l1") is not None]
+            ax.plot([v["step"] for v in fitted], [v["train_l1"] for v in fitted], ls="--", color=colour,
+                    label=f"seed {r['seed']}: training L1 (the 500 steps before)")
+        ax.set_xlabel("ACT training steps (batch 8)")
+        ax.set_ylabel("L1 of the action chunk (normalised)")
+        ax.legend(fontsize=7)
+        ax.set_title(f"{n} demonstrations: ACT's training and held-out L1", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path, close=True)
 

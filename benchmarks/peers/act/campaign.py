@@ -377,6 +377,8 @@ fitting the demonstrations and predicting new ones)."""
 
 def _window_mean(values: list[float | None], step: int, window: int) -> float | None:
     """Mean of ``values`` over steps ``step - window + 1 .. step`` (value of step k at index k - 1)."""
+    if step <= 0:
+        return None
     chunk = [v for v in values[max(0, step - window):step] if v is not None]
     return sum(chunk) / len(chunk) if len(chunk) == min(window, step) else None
 
@@ -422,8 +424,9 @@ def results(args: argparse.Namespace) -> dict:
                 "dim_model", "dim_feedforward", "n_heads", "chunk_size", "n_encoder_layers", "n_decoder_layers",
                 "n_vae_encoder_layers", "optimizer_lr", "optimizer_lr_backbone", "optimizer_weight_decay",
                 "temporal_ensemble_coeff", "kl_weight", "dropout")},
-            "val": [{k: v.get(k) for k in ("step", "val_l1", "val_loss_vae", "train_loop_s", "wall_s", "time")}
-                    for v in tl.get("val") or []],
+            "val": [{**{k: v.get(k) for k in ("step", "val_l1", "val_loss_vae", "val_kld", "train_loop_s", "wall_s",
+                                              "time")},
+                     "train_l1": _window_mean(train_l1, v["step"], TRAIN_L1_WINDOW)} for v in tl.get("val") or []],
             "checkpoints": checkpoints,
         })
     payload = {"benchmark": "hard", "updated": dt.datetime.now().isoformat(timespec="seconds"),
