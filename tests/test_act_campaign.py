@@ -1,8 +1,10 @@
-"""The ACT convergence campaign's scheduler (``benchmarks/peers/act/campaign.py``), with its processes faked.
+"""The ACT convergence campaign (``benchmarks/peers/act/campaign.py``): its scheduler, and the verdict it reports.
 
-The campaign's real jobs need LeRobot's venv and hours; what is checked here is the part that decides which
-worker runs what: two workers side by side evaluate every checkpoint exactly once, never run one training's
-slices at the same time, and a training never waits for its own checkpoints' evaluations.
+The campaign's real jobs need LeRobot's venv and hours; what is checked here, with its processes faked, is the
+part that decides which worker runs what: two workers side by side evaluate every checkpoint exactly once, never
+run one training's slices at the same time, and a training never waits for its own checkpoints' evaluations. Then
+that what RESULTS_lfd.md says of who leads is what ``results_lfd_act.json`` holds, and that every ACT row called
+converged met the stop rule.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import re
 import threading
 import time
 import types
@@ -117,3 +120,60 @@ def test_a_worker_waits_for_checkpoints_of_a_training_another_holds(campaign, tm
     eval_2 = next(e for e in events if e[1] == "eval" and e[3] == 2)
     slice_4 = next(e for e in events if e[1] == "train end" and e[3] == 4)
     assert eval_2[0] != slice_4[0] and eval_2[4] < slice_4[4]
+
+
+# --- the verdict RESULTS_lfd.md states is the one results_lfd_act.json holds ---------------------------------------
+
+RESULTS_LFD = Path(__file__).resolve().parents[1] / "benchmarks" / "RESULTS_lfd.md"
+CURVE = Path(__file__).resolve().parents[1] / "benchmarks" / "results_lfd_act.json"
+WHO_LEADS_COLUMNS = ("feedback", "proposed", "end_to_end", "act")
+
+
+def _pooled(rows: list[dict], method: str, demonstrations: int) -> tuple[int, int, list[int]]:
+    """Successes and trials of ``method`` at ``demonstrations``, its training seeds pooled; ACT's runs trained to
+    convergence only (they carry the stop rule's reason)."""
+    mine = [r for r in rows if r["method"] == method and r["demonstrations"] == demonstrations
+            and (method != "act" or r.get("stop_reason"))]
+    return sum(r["successes"] for r in mine), sum(r["trials"] for r in mine), sorted(r["seed"] for r in mine)
+
+
+def test_the_who_leads_table_is_the_curve_files_numbers() -> None:
+    from seqmotion.lfd.evaluation import wilson_interval
+
+    rows = json.loads(CURVE.read_text())["rows"]
+    text = RESULTS_LFD.read_text()
+    table = text[text.index("**Who leads**"):]
+    table = table[:table.index("\n\n", table.index("| demonstrations |"))]
+    lines = [ln for ln in table.splitlines() if re.match(r"\| \d+ \|", ln)]
+    assert lines, "RESULTS_lfd.md has no who-leads table"
+    for line in lines:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        demonstrations = int(cells[0])
+        stated = {}
+        for method, cell in zip(WHO_LEADS_COLUMNS, cells[1:], strict=True):
+            m = re.search(r"(\d+) %\D*\((\d+)–(\d+) %\)", cell)
+            assert m, f"{demonstrations} demonstrations, {method}: no 'P % (L–H %)' in {cell!r}"
+            stated[method] = tuple(int(x) for x in m.groups())
+        for method, (rate, low, high) in stated.items():
+            successes, trials, seeds = _pooled(rows, method, demonstrations)
+            assert trials, f"{method} at {demonstrations}: no rows in results_lfd_act.json"
+            wl, wh = wilson_interval(successes, trials)
+            assert (rate, low, high) == (round(100 * successes / trials), round(100 * wl), round(100 * wh)), (
+                f"{method} at {demonstrations}: RESULTS_lfd.md says {rate} % ({low}–{high} %), the curve's "
+                f"{successes} / {trials} (seeds {seeds}) gives another")
+        # the leader is the one the table marks in bold
+        leader = max(stated, key=lambda k: stated[k][0])
+        assert "**" in cells[1 + WHO_LEADS_COLUMNS.index(leader)]
+
+
+def test_every_converged_act_row_meets_the_stop_rule() -> None:
+    """At least 10,000 steps, and stopped by the validation loss, not by the step cap."""
+    rows = [r for r in json.loads(CURVE.read_text())["rows"] if r["method"] == "act" and r.get("stop_reason")]
+    assert rows
+    for r in rows:
+        assert r["train_steps"] >= 10_000 and r["stop_reason"] == "patience", r["model"]
+        best = min(v["val_l1"] for v in r["val_log"] if v["step"] > 0)
+        late = [v["val_l1"] for v in r["val_log"] if v["step"] > r["train_steps"] - 2000]
+        # levelled: no validation in the last 2,000 steps improved on the best before them
+        assert min(late) >= best, r["model"]
+        assert [c["step"] for c in r["curve"]][-1] == r["train_steps"]
