@@ -68,15 +68,15 @@ def fake_jobs(events: list[tuple], final_step: int, train_s: float, eval_s: floa
     return call
 
 
-def test_two_workers_evaluate_every_checkpoint_once_while_training_goes_on(campaign, tmp_path: Path,
-                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
-    (tmp_path / "choice.json").write_text(json.dumps({"chosen": "small", "config": []}))
-    args = argparse.Namespace(root=tmp_path, data=tmp_path, compare_steps=1, compare_val_every=1,
-                              plan=[(100, 0), (25, 0)], min_steps=6, patience=2, cap=40, val_every=1,
-                              eval_every=2, trials=1, eval_seed=0, val_spec="successful:9-9")
+def run_two_workers(campaign, root: Path, monkeypatch: pytest.MonkeyPatch, plan: list[tuple[int, int]],
+                    final_step: int, train_s: float, eval_s: float) -> list[tuple]:
+    """Two campaign workers (threads) on ``plan`` with faked jobs; the events they ran, in order."""
+    (root / "choice.json").write_text(json.dumps({"chosen": "small", "config": []}))
+    args = argparse.Namespace(root=root, data=root, compare_steps=1, compare_val_every=1, plan=plan,
+                              min_steps=final_step - 1, patience=2, cap=40, val_every=1, eval_every=2, trials=1,
+                              eval_seed=0, val_spec="successful:9-9")
     events: list[tuple] = []
-    # evaluations take longer than slices, as on the machine (6-20 min against 15 min per 2,000 steps)
-    monkeypatch.setattr(campaign, "_call", fake_jobs(events, final_step=7, train_s=0.05, eval_s=0.15))
+    monkeypatch.setattr(campaign, "_call", fake_jobs(events, final_step, train_s, eval_s))
     workers = [threading.Thread(target=campaign.run, args=(args,), name=f"w{i}") for i in range(2)]
     for w in workers:
         w.start()
@@ -84,7 +84,14 @@ def test_two_workers_evaluate_every_checkpoint_once_while_training_goes_on(campa
     for w in workers:
         w.join(timeout=60)
     assert not any(w.is_alive() for w in workers)
+    return events
 
+
+def test_two_workers_evaluate_every_checkpoint_once_while_training_goes_on(campaign, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    # evaluations take longer than slices, as on the machine (6-20 min against 15 min per 2,000 steps)
+    events = run_two_workers(campaign, tmp_path, monkeypatch, [(100, 0), (25, 0)], final_step=7, train_s=0.05,
+                             eval_s=0.15)
     evals = sorted((e[2], e[3]) for e in events if e[1] == "eval")
     # every multiple of --eval-every and the final step, each exactly once
     assert evals == sorted((f"hard_{n}_0", s) for n in (100, 25) for s in (2, 4, 6, 7))
@@ -102,18 +109,7 @@ def test_two_workers_evaluate_every_checkpoint_once_while_training_goes_on(campa
 
 def test_a_worker_waits_for_checkpoints_of_a_training_another_holds(campaign, tmp_path: Path,
                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    (tmp_path / "choice.json").write_text(json.dumps({"chosen": "small", "config": []}))
-    args = argparse.Namespace(root=tmp_path, data=tmp_path, compare_steps=1, compare_val_every=1, plan=[(10, 1)],
-                              min_steps=4, patience=2, cap=40, val_every=1, eval_every=2, trials=1, eval_seed=0,
-                              val_spec="successful:9-9")
-    events: list[tuple] = []
-    monkeypatch.setattr(campaign, "_call", fake_jobs(events, final_step=4, train_s=0.1, eval_s=0.02))
-    workers = [threading.Thread(target=campaign.run, args=(args,), name=f"w{i}") for i in range(2)]
-    for w in workers:
-        w.start()
-        time.sleep(0.01)
-    for w in workers:
-        w.join(timeout=60)
+    events = run_two_workers(campaign, tmp_path, monkeypatch, [(10, 1)], final_step=4, train_s=0.1, eval_s=0.02)
     assert sorted(e[3] for e in events if e[1] == "eval") == [2, 4]
     assert [e[3] for e in events if e[1] == "train end"] == [2, 4]
     # the worker without the training did not leave: it waited and evaluated step 2 while step 4 was training
