@@ -7,9 +7,11 @@
     # rows of every finished job (and of ACT's, benchmarks/peers/act/) into one JSON and a plot
     python benchmarks/bench_lfd_hard.py merge --out runs/curve --act runs/act/*/eval.json \
         --json benchmarks/results_lfd_act.json --plot benchmarks/figures/lfd_hard_curve.png
-    # ACT trained to convergence (benchmarks/peers/act/campaign.py), replacing kept rows of the same N and seed
+    # ACT trained to convergence (benchmarks/peers/act/campaign.py), replacing kept rows of the same N and seed;
+    # --act-past-stop: evaluations of a copy trained on past the stop rule, shown beside (never replacing) its row
     python benchmarks/bench_lfd_hard.py merge --out runs/curve_fb --keep benchmarks/results_lfd_act.json \
-        --act-campaign runs/act_campaign/results.json --json benchmarks/results_lfd_act.json
+        --act-campaign runs/act_campaign/results.json --act-past-stop runs/act_past_stop/eval_*.json \
+        --json benchmarks/results_lfd_act.json
 
     # the object-feedback policy (the shipped pushing-hard's kind) on the same trials: 3 x 64 decoder, 700 epochs,
     # a pose network on 15,000 rendered frames of the N demonstrations' states
@@ -145,6 +147,7 @@ def merge(args: argparse.Namespace) -> int:
         rows.append(_act_row(Path(path)))
     for path in args.act_campaign or []:
         rows.extend(_act_campaign_rows(Path(path)))
+    _attach_past_stop(rows, [Path(p) for p in args.act_past_stop or []])
     if args.keep:  # rows measured earlier, into another --out, unless measured again here
         ran = {(r["method"], r["demonstrations"], r["seed"]) for r in rows}
         kept = json.loads(Path(args.keep).read_text())["rows"]
@@ -160,6 +163,26 @@ def merge(args: argparse.Namespace) -> int:
         print(f"{r['method']:18s} N={r['demonstrations']!s:>4} seed={r['seed']!s:>2}  {r['successes']:>3}/{r['trials']}"
               f"  ({low:.0%}-{high:.0%})  train {r['train_seconds']} s")
     return 0
+
+
+def _attach_past_stop(rows: list[dict], paths: list[Path]) -> None:
+    """Evaluations of a converged ACT run trained on past its stop rule (``train_act.py --resume --past-stop`` on a
+    copy), as ``past_stop`` points of the converged row with the same demonstrations and seed. They show whether
+    success was still rising when the rule stopped; they never replace the rule's final checkpoint."""
+    for path in paths:
+        ev = json.loads(path.read_text())
+        demos, seed = len(ev["train"]["episodes_used"]), ev["train"]["seed"]
+        row = next((r for r in rows if r["method"] == "act" and r.get("stop_reason") == "patience"
+                    and r["demonstrations"] == demos and r["seed"] == seed), None)
+        if row is None:
+            raise SystemExit(f"{path}: no converged ACT row with {demos} demonstrations and seed {seed}")
+        if ev["train"]["steps"] <= row["train_steps"]:
+            raise SystemExit(f"{path}: step {ev['train']['steps']} is not past the rule's stop at {row['train_steps']}")
+        row.setdefault("past_stop", [])
+        row["past_stop"] = sorted([p for p in row["past_stop"] if p["step"] != ev["train"]["steps"]] + [{
+            "step": ev["train"]["steps"], "val_l1": (ev.get("val_at_step") or {}).get("val_l1"),
+            "successes": ev["successes"], "trials": ev["n_trials"], "success_rate": ev["success_rate"],
+            "wilson_95": ev["wilson_95"], "model": ev["model_dir"]}], key=lambda p: p["step"])
 
 
 def _act_row(path: Path) -> dict:
@@ -282,6 +305,15 @@ def _plot(rows: list[dict], path: Path) -> None:
             ax.errorbar(steps, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="os^v"[k % 4], capsize=3,
                         color=seed_colours[k % 4],
                         label=f"LeRobot ACT, seed {r['seed']} ({r['train_steps']} steps)")
+            if r.get("past_stop") and len(steps):  # trained on past the rule, on a copy: hollow, dotted
+                past = r["past_stop"]
+                p_steps = np.array([steps[-1]] + [p["step"] for p in past])
+                p_rate = np.array([rate[-1]] + [p["successes"] / p["trials"] for p in past])
+                p_ci = np.array([ci[-1]] + [wilson_interval(p["successes"], p["trials"]) for p in past])
+                ax.errorbar(p_steps[1:], p_rate[1:], yerr=[p_rate[1:] - p_ci[1:, 0], p_ci[1:, 1] - p_rate[1:]],
+                            marker="os^v"[k % 4], mfc="none", capsize=3, ls="none", color=seed_colours[k % 4])
+                ax.plot(p_steps, p_rate, ls=":", color=seed_colours[k % 4],
+                        label=f"seed {r['seed']} trained on past the stop rule (a copy)")
         for name, mine in sorted((k, v) for k, v in series.items() if not k.startswith("act")):
             at_n = [r for r in mine if r["demonstrations"] == n]
             if at_n:
@@ -340,6 +372,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", required=True)
     p.add_argument("--act-campaign", nargs="*",
                    help="results.json of benchmarks/peers/act/campaign.py (finished trainings, with their curves)")
+    p.add_argument("--act-past-stop", nargs="*",
+                   help="eval_act.py --json files of converged ACT runs trained on past their stop (--past-stop)")
     p.add_argument("--keep", help="a results JSON whose rows stay, except those the jobs in --out measured again")
     p.add_argument("--plot")
     p.set_defaults(func=merge)

@@ -435,6 +435,9 @@ def _parse(argv: list[str] | None) -> tuple[argparse.ArgumentParser, argparse.Na
                    help="continue from --out/checkpoints/last if it exists (else start); a finished run exits")
     g.add_argument("--stop-at", type=int, default=None,
                    help="pause this process after this step (checkpointed, not finished; --resume continues)")
+    g.add_argument("--past-stop", action="store_true",
+                   help="with --resume: continue a run the stop rule finished, to --steps (a diagnostic of what "
+                        "more steps give; run it on a copy, since the run is then no longer the rule's)")
     g = p.add_argument_group("machine")
     g.add_argument("--device", default="cpu", help="cpu or cuda")
     g.add_argument("--num-workers", type=int, default=0)
@@ -504,7 +507,9 @@ def main(argv: list[str] | None = None) -> int:
         diff = _differences(state["identity"], identity)
         if diff:
             raise SystemExit(f"--resume: {args.out}'s checkpoint was trained otherwise (checkpoint, now): {diff}")
-        if state.get("finished") and not (state["finished"] == "steps" and args.steps > state["step"]):
+        past_stop = args.past_stop and state.get("finished") == "patience" and args.steps > state["step"]
+        if state.get("finished") and not (state["finished"] == "steps" and args.steps > state["step"]) \
+                and not past_stop:
             print(json.dumps({"already_finished": state["finished"], "step": state["step"], "out": str(args.out)}))
             return 0
 
@@ -542,7 +547,8 @@ def main(argv: list[str] | None = None) -> int:
                  "best_step": None, "seconds": {"train_loop": 0.0, "validation": 0.0, "checkpoint": 0.0},
                  "sessions": [], "finished": None}
     state["sessions"].append({"start_step": step, "started": dt.datetime.now().isoformat(timespec="seconds"),
-                              "device": args.device, "threads": args.threads, "setup_s": setup_s})
+                              "device": args.device, "threads": args.threads, "setup_s": setup_s,
+                              "past_stop": bool(resuming and args.past_stop)})
 
     sampler = EpochBatches(dataset.num_frames, cfg.batch_size, cfg.seed, state["epoch"], state["batch_in_epoch"])
     # batch_sampler: our order; generator: the DataLoader draws its base seed from it, not from the global RNG
