@@ -245,6 +245,18 @@ def _series(rows: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
+def _success_by_step(points: list[dict]) -> tuple:
+    """Steps, success rates and their 95 % Wilson intervals ``(n, 2)`` of evaluated checkpoints, as arrays."""
+    import numpy as np
+
+    from seqmotion.lfd.evaluation import wilson_interval
+
+    steps = np.array([p["step"] for p in points])
+    rate = np.array([p["successes"] / p["trials"] for p in points])
+    ci = np.array([wilson_interval(p["successes"], p["trials"]) for p in points])
+    return steps, rate, ci
+
+
 def _plot(rows: list[dict], path: Path) -> None:
     """Left: success against demonstrations (seeds pooled, Wilson 95 %). Then, one panel per number of
     demonstrations at which ACT was trained to convergence: ACT's success against training steps at each evaluated
@@ -298,18 +310,12 @@ def _plot(rows: list[dict], path: Path) -> None:
     for panel, n in enumerate(counts_converged, start=1):
         ax = axes[0, panel]
         for k, r in enumerate(sorted((r for r in converged if r["demonstrations"] == n), key=lambda r: r["seed"])):
-            curve = [c for c in r.get("curve") or [] if c.get("trials")]
-            steps = np.array([c["step"] for c in curve])
-            rate = np.array([c["successes"] / c["trials"] for c in curve])
-            ci = np.array([wilson_interval(c["successes"], c["trials"]) for c in curve])
+            steps, rate, ci = _success_by_step([c for c in r.get("curve") or [] if c.get("trials")])
             ax.errorbar(steps, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], marker="os^v"[k % 4], capsize=3,
                         color=seed_colours[k % 4],
                         label=f"LeRobot ACT, seed {r['seed']} ({r['train_steps']} steps)")
             if r.get("past_stop") and len(steps):  # trained on past the rule, on a copy: hollow, dotted
-                past = r["past_stop"]
-                p_steps = np.array([steps[-1]] + [p["step"] for p in past])
-                p_rate = np.array([rate[-1]] + [p["successes"] / p["trials"] for p in past])
-                p_ci = np.array([ci[-1]] + [wilson_interval(p["successes"], p["trials"]) for p in past])
+                p_steps, p_rate, p_ci = _success_by_step([{**r["curve"][-1], "step": steps[-1]}, *r["past_stop"]])
                 ax.errorbar(p_steps[1:], p_rate[1:], yerr=[p_rate[1:] - p_ci[1:, 0], p_ci[1:, 1] - p_rate[1:]],
                             marker="os^v"[k % 4], mfc="none", capsize=3, ls="none", color=seed_colours[k % 4])
                 ax.plot(p_steps, p_rate, ls=":", color=seed_colours[k % 4],
